@@ -1,0 +1,455 @@
+"""The one parameter set of the endoscope and rig.
+
+Loaded from ``models/endoscope.toml`` where every value is ``{ value = ..., source = "..." }``;
+the predictor (:mod:`twin.rod`) and the twin (:mod:`twin.sim`) both read it, so a change of
+parameters changes both models. Units are in the field names.
+
+Example:
+    >>> p = load_params(overrides=["backbone.shear_modulus_pa=3e6"])
+    >>> p.backbone.shear_modulus_pa, p.source("backbone.shear_modulus_pa")
+    (3000000.0, 'override')
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import tomllib
+import typing
+from pathlib import Path
+from typing import Any, Iterable, Mapping
+
+__all__ = [
+    "DEFAULT_PARAMS_PATH",
+    "ParameterError",
+    "Params",
+    "Backbone",
+    "Tendons",
+    "Discs",
+    "Environment",
+    "Rig",
+    "Sensors",
+    "Effects",
+    "SimSettings",
+    "SolverSettings",
+    "load_params",
+    "parse_override",
+]
+
+DEFAULT_PARAMS_PATH = Path(__file__).resolve().parent.parent / "models" / "endoscope.toml"
+
+
+class ParameterError(ValueError):
+    """A parameter is missing, unknown, of the wrong type or out of range; names key and value."""
+
+
+# Checks carried as field metadata: each returns an error string or None.
+def _positive(x):
+    return None if x > 0 else "must be > 0"
+
+
+def _nonnegative(x):
+    return None if x >= 0 else "must be >= 0"
+
+
+def _choice(*options):
+    def check(x):
+        return None if x in options else f"must be one of {', '.join(repr(o) for o in options)}"
+
+    return check
+
+
+def _length(n):
+    def check(x):
+        return None if len(x) == n else f"must have {n} entries"
+
+    return check
+
+
+def _at_least_one(x):
+    return None if len(x) >= 1 else "must have at least one entry"
+
+
+def _f(*checks, **kw):
+    return dataclasses.field(metadata={"checks": checks}, **kw)
+
+
+@dataclasses.dataclass(frozen=True)
+class Backbone:
+    """The flexible backbone: a uniform elastic rod (thesis §6-7)."""
+
+    length_m: float = _f(_positive)
+    radius_m: float = _f(_positive)
+    youngs_modulus_pa: float = _f(_positive)
+    shear_modulus_pa: float = _f(_positive)
+    mass_kg: float = _f(_nonnegative)
+    torsion: str = _f(_choice("EJ", "GJ"))
+
+    @property
+    def area_m2(self) -> float:
+        """Cross-section area A (m²)."""
+        return math.pi * self.radius_m**2
+
+    @property
+    def second_moment_m4(self) -> float:
+        """Area moment Ixx = Iyy of the circular section (m⁴)."""
+        return math.pi * self.radius_m**4 / 4.0
+
+    @property
+    def bending_stiffness_nm2(self) -> float:
+        """EI (N·m²)."""
+        return self.youngs_modulus_pa * self.second_moment_m4
+
+    @property
+    def torsional_stiffness_nm2(self) -> float:
+        """E(Ixx+Iyy) as the thesis's K_bt, or G·J (N·m²)."""
+        modulus = self.youngs_modulus_pa if self.torsion == "EJ" else self.shear_modulus_pa
+        return modulus * 2.0 * self.second_moment_m4
+
+    @property
+    def shear_stiffness_n(self) -> float:
+        """GA (N)."""
+        return self.shear_modulus_pa * self.area_m2
+
+    @property
+    def axial_stiffness_n(self) -> float:
+        """EA (N)."""
+        return self.youngs_modulus_pa * self.area_m2
+
+
+@dataclasses.dataclass(frozen=True)
+class Tendons:
+    """Tendon routing through the spacer discs."""
+
+    radius_m: float = _f(_positive)
+    angles_deg: tuple[float, ...] = _f(_at_least_one)
+    diameter_m: float = _f(_positive)
+    routing: str = _f(_choice("straight", "helical", "converging"))
+    helix_turns: float = _f()
+    tip_radius_m: float = _f(_nonnegative)
+    pretension_n: float = _f(_nonnegative)
+
+    @property
+    def count(self) -> int:
+        return len(self.angles_deg)
+
+
+@dataclasses.dataclass(frozen=True)
+class Discs:
+    """Spacer discs, evenly spaced, base not counted."""
+
+    count: int = _f(_positive)
+    outer_radius_m: float = _f(_positive)
+    thickness_m: float = _f(_positive)
+    lumped_mass_kg: float = _f(_nonnegative)
+
+
+@dataclasses.dataclass(frozen=True)
+class Environment:
+    gravity_m_s2: float = _f(_nonnegative)
+
+
+@dataclasses.dataclass(frozen=True)
+class Rig:
+    """Actuation and sensing rig (thesis §4)."""
+
+    spool_radius_m: float = _f(_positive)
+    gear_ratio: float = _f(_positive)
+    encoder_counts_per_rev: int = _f(_positive)
+    motor_voltage_v: float = _f(_positive)
+    motor_torque_nm: float = _f(_positive)
+    motor_speed_rpm: float = _f(_positive)
+    motor_stall_torque_nm: float = _f(_positive)
+    motor_no_load_speed_rpm: float = _f(_positive)
+    control_rate_hz: float = _f(_positive)
+    telemetry_rate_hz: float = _f(_positive)
+    loadcell_rate_hz: float = _f(_positive)
+    tracker_rate_hz: float = _f(_positive)
+    tension_limit_n: float = _f(_positive)
+
+    @property
+    def tendon_m_per_count(self) -> float:
+        """Tendon length per encoder count (m); 9.4e-7 m on the thesis rig."""
+        return 2.0 * math.pi * self.spool_radius_m / (self.encoder_counts_per_rev * self.gear_ratio)
+
+
+@dataclasses.dataclass(frozen=True)
+class Sensors:
+    loadcell_gain_counts_per_n: float = _f(_positive)
+    loadcell_offset_counts: tuple[float, ...] = _f()
+    loadcell_noise_n: float = _f(_nonnegative)
+    tracker_noise_m: float = _f(_nonnegative)
+    tracker_noise_rad: float = _f(_nonnegative)
+
+
+@dataclasses.dataclass(frozen=True)
+class Effects:
+    """Effects real rigs have; all zero = off. Shared vocabulary of twin.sim and twin.discrepancy."""
+
+    tendon_friction_coeff: float = _f(_nonnegative)
+    tendon_compliance_m_per_n: float = _f(_nonnegative)
+    tension_gain_error: tuple[float, ...] = _f()
+    tension_offset_error_n: tuple[float, ...] = _f()
+    disc_mass_fraction: float = _f(_nonnegative)
+    base_tilt_deg: tuple[float, ...] = _f(_length(2))
+    tip_load_error_fraction: float = _f()
+    tracker_offset_m: tuple[float, ...] = _f(_length(3))
+
+
+@dataclasses.dataclass(frozen=True)
+class SimSettings:
+    elements: int = _f(_positive)
+    timestep_s: float = _f(_positive)
+    damping_time_s: float = _f(_nonnegative)
+
+
+@dataclasses.dataclass(frozen=True)
+class SolverSettings:
+    steps: int = _f(_positive)
+    tolerance: float = _f(_positive)
+    max_iterations: int = _f(_positive)
+
+
+_SECTIONS: dict[str, type] = {
+    "backbone": Backbone,
+    "tendons": Tendons,
+    "discs": Discs,
+    "environment": Environment,
+    "rig": Rig,
+    "sensors": Sensors,
+    "effects": Effects,
+    "sim": SimSettings,
+    "solver": SolverSettings,
+}
+
+
+@dataclasses.dataclass(frozen=True)
+class Params:
+    """The frozen parameter set. ``sources`` maps ``"section.key"`` to where the value came from."""
+
+    backbone: Backbone
+    tendons: Tendons
+    discs: Discs
+    environment: Environment
+    rig: Rig
+    sensors: Sensors
+    effects: Effects
+    sim: SimSettings
+    solver: SolverSettings
+    sources: Mapping[str, str] = dataclasses.field(default_factory=dict, compare=False)
+
+    def source(self, key: str) -> str:
+        """Where the value of ``"section.key"`` came from (thesis / assumption / fitted / override)."""
+        return self.sources[key]
+
+    def get(self, key: str) -> Any:
+        section, name = _split_key(key)
+        return getattr(getattr(self, section), name)
+
+    def replace(self, values: Mapping[str, Any], source: str = "override") -> "Params":
+        """A new parameter set with ``{"section.key": value}`` replaced and validated."""
+        raw = self.to_dict()
+        for key, value in values.items():
+            section, name = _split_key(key)
+            raw[section][name] = {"value": value, "source": source}
+        return _from_dict(raw, origin="replace()")
+
+    def to_dict(self) -> dict[str, dict[str, dict[str, Any]]]:
+        """``{section: {key: {"value": v, "source": s}}}``, as in the TOML file."""
+        out: dict[str, dict[str, dict[str, Any]]] = {}
+        for section in _SECTIONS:
+            obj = getattr(self, section)
+            out[section] = {
+                f.name: {
+                    "value": list(getattr(obj, f.name))
+                    if isinstance(getattr(obj, f.name), tuple)
+                    else getattr(obj, f.name),
+                    "source": self.sources.get(f"{section}.{f.name}", ""),
+                }
+                for f in dataclasses.fields(obj)
+            }
+        return out
+
+    def to_toml(self) -> str:
+        """The parameter set as TOML, in the format of ``models/endoscope.toml``."""
+        lines = ["# twin parameter set, written by twin.params.Params.to_toml"]
+        for section, entries in self.to_dict().items():
+            lines.append(f"\n[{section}]")
+            for key, entry in entries.items():
+                lines.append(
+                    f"{key} = {{ value = {_toml_value(entry['value'])}, "
+                    f"source = {_toml_value(entry['source'])} }}"
+                )
+        return "\n".join(lines) + "\n"
+
+    def save(self, path: str | Path) -> Path:
+        path = Path(path)
+        path.write_text(self.to_toml())
+        return path
+
+
+def _toml_value(value: Any) -> str:
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, (int, float)):
+        return repr(value) if not isinstance(value, float) else _toml_float(value)
+    if isinstance(value, str):
+        return '"' + value.replace("\\", "\\\\").replace('"', '\\"') + '"'
+    if isinstance(value, (list, tuple)):
+        return "[" + ", ".join(_toml_value(v) for v in value) + "]"
+    raise TypeError(f"cannot write {value!r} as TOML")
+
+
+def _toml_float(x: float) -> str:
+    text = repr(float(x))
+    return text if ("." in text or "e" in text or "n" in text) else text + ".0"
+
+
+def _split_key(key: str) -> tuple[str, str]:
+    parts = key.split(".")
+    if len(parts) != 2 or parts[0] not in _SECTIONS:
+        raise ParameterError(
+            f"unknown parameter key {key!r}: expected 'section.key' with section one of "
+            f"{', '.join(_SECTIONS)}"
+        )
+    names = [f.name for f in dataclasses.fields(_SECTIONS[parts[0]])]
+    if parts[1] not in names:
+        raise ParameterError(f"unknown parameter key {key!r}: {parts[0]} has {', '.join(names)}")
+    return parts[0], parts[1]
+
+
+def _coerce(key: str, value: Any, annotation: Any) -> Any:
+    """Convert a TOML value to the field's type, refusing what does not fit."""
+    origin = typing.get_origin(annotation)
+    if origin is tuple:
+        if not isinstance(value, (list, tuple)):
+            raise ParameterError(f"{key} = {value!r}: must be a list of numbers")
+        return tuple(_coerce(key, v, float) for v in value)
+    if annotation is str:
+        if not isinstance(value, str):
+            raise ParameterError(f"{key} = {value!r}: must be a string")
+        return value
+    if annotation is int:
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or value != int(value):
+            raise ParameterError(f"{key} = {value!r}: must be a whole number")
+        return int(value)
+    if annotation is float:
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise ParameterError(f"{key} = {value!r}: must be a number")
+        if not math.isfinite(value):
+            raise ParameterError(f"{key} = {value!r}: must be finite")
+        return float(value)
+    raise TypeError(annotation)
+
+
+def _from_dict(raw: Mapping[str, Any], origin: str) -> Params:
+    sections: dict[str, Any] = {}
+    sources: dict[str, str] = {}
+    unknown = set(raw) - set(_SECTIONS)
+    if unknown:
+        raise ParameterError(f"{origin}: unknown section(s) {sorted(unknown)}")
+    for section, cls in _SECTIONS.items():
+        table = raw.get(section)
+        if table is None:
+            raise ParameterError(f"{origin}: missing section [{section}]")
+        hints = typing.get_type_hints(cls)
+        names = [f.name for f in dataclasses.fields(cls)]
+        extra = set(table) - set(names)
+        if extra:
+            raise ParameterError(f"{origin}: unknown key(s) {sorted(f'{section}.{k}' for k in extra)}")
+        kwargs = {}
+        for f in dataclasses.fields(cls):
+            key = f"{section}.{f.name}"
+            if f.name not in table:
+                raise ParameterError(f"{origin}: missing key {key}")
+            entry = table[f.name]
+            if isinstance(entry, Mapping):
+                if "value" not in entry:
+                    raise ParameterError(f"{origin}: {key} has no 'value'")
+                value, source = entry["value"], str(entry.get("source", ""))
+            else:
+                value, source = entry, ""
+            value = _coerce(key, value, hints[f.name])
+            for check in f.metadata.get("checks", ()):
+                problem = check(value)
+                if problem:
+                    raise ParameterError(f"{key} = {value!r}: {problem}")
+            kwargs[f.name] = value
+            sources[key] = source
+        sections[section] = cls(**kwargs)
+    params = Params(**sections, sources=sources)
+    _check_consistency(params)
+    return params
+
+
+def _check_consistency(p: Params) -> None:
+    """Checks that span keys: geometry must fit together."""
+    t, b, d = p.tendons, p.backbone, p.discs
+    for key, radius in (("tendons.radius_m", t.radius_m), ("tendons.tip_radius_m", t.tip_radius_m)):
+        if radius + t.diameter_m / 2 > d.outer_radius_m:
+            raise ParameterError(
+                f"{key} = {radius!r}: tendon lies outside the discs "
+                f"(discs.outer_radius_m = {d.outer_radius_m!r})"
+            )
+    if d.outer_radius_m <= b.radius_m:
+        raise ParameterError(
+            f"discs.outer_radius_m = {d.outer_radius_m!r}: must exceed backbone.radius_m = {b.radius_m!r}"
+        )
+    if d.thickness_m * d.count >= b.length_m:
+        raise ParameterError(
+            f"discs.thickness_m = {d.thickness_m!r}: {d.count} discs do not fit in "
+            f"backbone.length_m = {b.length_m!r}"
+        )
+    n = t.count
+    for key in ("effects.tension_gain_error", "effects.tension_offset_error_n", "sensors.loadcell_offset_counts"):
+        if len(p.get(key)) != n:
+            raise ParameterError(f"{key} = {list(p.get(key))!r}: must have one entry per tendon ({n})")
+    if p.sim.elements < d.count:
+        raise ParameterError(f"sim.elements = {p.sim.elements!r}: must be >= discs.count = {d.count}")
+
+
+def parse_override(text: str) -> tuple[str, Any]:
+    """Parse ``section.key=value``; the value is read as TOML, a bare word as a string."""
+    if "=" not in text:
+        raise ParameterError(f"--set {text!r}: expected section.key=value")
+    key, _, value_text = text.partition("=")
+    key, value_text = key.strip(), value_text.strip()
+    _split_key(key)
+    try:
+        value = tomllib.loads(f"v = {value_text}")["v"]
+    except tomllib.TOMLDecodeError:
+        if value_text and all(c.isalnum() or c in "_-" for c in value_text) and value_text.lower() != "nan":
+            value = value_text
+        else:
+            raise ParameterError(f"--set {text!r}: {value_text!r} is not a TOML value") from None
+    if isinstance(value, float) and not math.isfinite(value):
+        raise ParameterError(f"{key} = {value!r}: must be finite")
+    return key, value
+
+
+def load_params(
+    path: str | Path | None = None,
+    overrides: Iterable[str] | Mapping[str, Any] = (),
+) -> Params:
+    """Load and validate a parameter file, then apply overrides.
+
+    Args:
+        path: a TOML file in the format of ``models/endoscope.toml``; default that file.
+        overrides: ``["section.key=value", ...]`` strings (as from ``--set``) or a mapping.
+
+    Raises:
+        ParameterError: a value is missing, unknown or invalid (the message names key and value).
+        FileNotFoundError: ``path`` does not exist.
+    """
+    path = Path(path) if path is not None else DEFAULT_PARAMS_PATH
+    try:
+        with open(path, "rb") as fh:
+            raw = tomllib.load(fh)
+    except tomllib.TOMLDecodeError as exc:
+        raise ParameterError(f"{path}: not valid TOML: {exc}") from None
+    params = _from_dict(raw, origin=str(path))
+    if isinstance(overrides, Mapping):
+        values = dict(overrides)
+    else:
+        values = dict(parse_override(o) for o in overrides)
+    return params.replace(values) if values else params

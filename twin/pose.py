@@ -1,0 +1,76 @@
+"""Base orientations and rotation helpers shared by the predictor and the twin.
+
+Conventions (issue 2): ``up`` is the identity (backbone along world +z); ``horizontal`` is the
+thesis's set-up, the base rotated +90° about world y: local x → world −z, local y → world +y,
+local z → world +x, with gravity along world −z.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = ["HORIZONTAL", "UP", "base_rotation_from", "quat_to_matrix", "matrix_to_quat", "rot_x", "rot_y", "rot_z"]
+
+
+def rot_x(angle_rad: float) -> np.ndarray:
+    c, s = np.cos(angle_rad), np.sin(angle_rad)
+    return np.array([[1.0, 0, 0], [0, c, -s], [0, s, c]])
+
+
+def rot_y(angle_rad: float) -> np.ndarray:
+    c, s = np.cos(angle_rad), np.sin(angle_rad)
+    return np.array([[c, 0, s], [0, 1.0, 0], [-s, 0, c]])
+
+
+def rot_z(angle_rad: float) -> np.ndarray:
+    c, s = np.cos(angle_rad), np.sin(angle_rad)
+    return np.array([[c, -s, 0], [s, c, 0], [0, 0, 1.0]])
+
+
+UP = np.eye(3)
+HORIZONTAL = rot_y(np.pi / 2)
+
+
+def quat_to_matrix(quat) -> np.ndarray:
+    """Rotation matrix of a quaternion ``(w, x, y, z)``; normalised, refuses a zero quaternion."""
+    q = np.asarray(quat, dtype=float)
+    norm = np.linalg.norm(q)
+    if q.shape != (4,) or not np.isfinite(norm) or norm < 1e-12:
+        raise ValueError(f"quaternion {quat!r}: expected 4 finite numbers, not all zero")
+    w, x, y, z = q / norm
+    return np.array([
+        [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+        [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+        [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
+    ])
+
+
+def matrix_to_quat(rot) -> np.ndarray:
+    """Quaternion ``(w, x, y, z)`` with w >= 0 of a rotation matrix (Shepperd's method)."""
+    m = np.asarray(rot, dtype=float)
+    t = np.trace(m)
+    if t > 0:
+        s = 2.0 * np.sqrt(1.0 + t)
+        q = [0.25 * s, (m[2, 1] - m[1, 2]) / s, (m[0, 2] - m[2, 0]) / s, (m[1, 0] - m[0, 1]) / s]
+    else:
+        i = int(np.argmax(np.diag(m)))
+        j, k = (i + 1) % 3, (i + 2) % 3
+        s = 2.0 * np.sqrt(1.0 + m[i, i] - m[j, j] - m[k, k])
+        q = [0.0, 0.0, 0.0, 0.0]
+        q[0] = (m[k, j] - m[j, k]) / s
+        q[1 + i] = 0.25 * s
+        q[1 + j] = (m[j, i] + m[i, j]) / s
+        q[1 + k] = (m[k, i] + m[i, k]) / s
+    q = np.array(q)
+    return q if q[0] >= 0 else -q
+
+
+def base_rotation_from(*, pose: str | None = None, quat=None) -> np.ndarray:
+    """Base rotation (3×3, body → world) from a named pose or a quaternion ``(w, x, y, z)``."""
+    if quat is not None:
+        return quat_to_matrix(quat)
+    if pose == "up":
+        return UP.copy()
+    if pose == "horizontal":
+        return HORIZONTAL.copy()
+    raise ValueError(f"pose {pose!r}: expected 'up' or 'horizontal'")
