@@ -83,6 +83,7 @@ class Backbone:
     youngs_modulus_pa: float = _f(_positive)
     shear_modulus_pa: float = _f(_positive)
     mass_kg: float = _f(_nonnegative)
+    axial_stiffness_n: float = _f(_positive)
     torsion: str = _f(_choice("EJ", "GJ"))
 
     @property
@@ -111,10 +112,6 @@ class Backbone:
         """GA (N)."""
         return self.shear_modulus_pa * self.area_m2
 
-    @property
-    def axial_stiffness_n(self) -> float:
-        """EA (N)."""
-        return self.youngs_modulus_pa * self.area_m2
 
 
 @dataclasses.dataclass(frozen=True)

@@ -1,0 +1,317 @@
+"""Shooting solver with warm starts and continuation; result types.
+
+A solve never hands back an unconverged shape as an answer: :func:`solve` raises
+:class:`ConvergenceError` (with the residual) unless ``raise_on_failure=False``, in which
+case the returned :class:`RodSolution` has ``converged=False`` and NaN geometry.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+
+import numpy as np
+
+from twin.rod import kernel
+from twin.rod.model import RodModel
+
+__all__ = ["ConvergenceError", "RodSolution", "LoadCase", "solve", "Predictor"]
+
+
+class ConvergenceError(RuntimeError):
+    """The boundary-value problem was not solved to tolerance.
+
+    Attributes:
+        residual_nm: tip moment residual |m(L) − M_e| (N·m) at the best iterate.
+        iterations: Newton iterations spent.
+        status: what stopped the solver.
+    """
+
+    def __init__(self, message: str, *, residual_nm: float, iterations: int, status: str):
+        super().__init__(message)
+        self.residual_nm = residual_nm
+        self.iterations = iterations
+        self.status = status
+
+
+_STATUS = {0: "converged", 1: "iteration limit", 2: "integration failed", 3: "line search stalled"}
+
+
+@dataclasses.dataclass(frozen=True)
+class LoadCase:
+    """What acts on the rod: tendon tensions at the base, tip loads, base pose (all SI, world frame).
+
+    ``friction_direction`` per tendon: +1 pulled (tension lost towards the tip), −1 released,
+    0 no friction; used only when the model has a friction coefficient.
+    """
+
+    tensions_n: np.ndarray
+    tip_force_n: np.ndarray
+    tip_moment_nm: np.ndarray
+    base_rotation: np.ndarray
+    base_position_m: np.ndarray
+    friction_direction: np.ndarray
+
+    @classmethod
+    def make(cls, model: RodModel, tensions_n, *, tip_force_n=None, tip_moment_nm=None,
+             base_rotation=None, base_position_m=None, friction_direction=None) -> "LoadCase":
+        nt = model.tendon_count
+        tensions = _vector(tensions_n, nt, "tensions_n")
+        if np.any(tensions < 0):
+            raise ValueError(f"tensions_n = {tensions.tolist()}: tendons only pull; tensions must be >= 0")
+        rot = np.eye(3) if base_rotation is None else np.asarray(base_rotation, dtype=float)
+        if rot.shape != (3, 3) or not np.allclose(rot @ rot.T, np.eye(3), atol=1e-9) or np.linalg.det(rot) < 0:
+            raise ValueError(f"base_rotation = {rot.tolist()}: must be a proper 3x3 rotation")
+        direction = np.ones(nt) if friction_direction is None else _vector(friction_direction, nt, "friction_direction")
+        return cls(
+            tensions_n=tensions,
+            tip_force_n=np.zeros(3) if tip_force_n is None else _vector(tip_force_n, 3, "tip_force_n"),
+            tip_moment_nm=np.zeros(3) if tip_moment_nm is None else _vector(tip_moment_nm, 3, "tip_moment_nm"),
+            base_rotation=np.ascontiguousarray(rot),
+            base_position_m=np.zeros(3) if base_position_m is None else _vector(base_position_m, 3, "base_position_m"),
+            friction_direction=np.sign(direction),
+        )
+
+    def scaled(self, factor: float) -> "LoadCase":
+        """Tensions and tip loads scaled by ``factor`` (the continuation parameter)."""
+        return dataclasses.replace(self, tensions_n=self.tensions_n * factor,
+                                   tip_force_n=self.tip_force_n * factor,
+                                   tip_moment_nm=self.tip_moment_nm * factor)
+
+
+def _vector(value, n, name) -> np.ndarray:
+    arr = np.asarray(value, dtype=float).reshape(-1)
+    if arr.size != n or not np.all(np.isfinite(arr)):
+        raise ValueError(f"{name} = {np.asarray(value).tolist()!r}: expected {n} finite numbers")
+    return arr
+
+
+@dataclasses.dataclass(frozen=True)
+class RodSolution:
+    """A converged static shape (or, with ``converged=False``, a report of the failure).
+
+    Attributes:
+        s_m: station arc lengths (m), (K,).
+        positions_m: backbone positions p(s), world frame (K, 3).
+        rotations: backbone rotations R(s), body → world (K, 3, 3).
+        internal_force_n, internal_moment_nm: total section force n(s) and moment m(s)
+            (rod + tendons, world frame) (K, 3).
+        strains: (v, u) at the stations (K, 6): shear/extension and curvature/twist (1, 1/m).
+        tip_position_m, tip_rotation: p(L) (3,), R(L) (3, 3).
+        tendon_lengths_m: path length of each tendon from the base to its termination (nt,).
+        tendon_tensions_n: tension of each tendon along s (K, nt) (varies only with friction).
+        base_moment_nm: the solved m(0), reusable as a warm start.
+        converged, status, residual_nm, iterations, integrations, continuation_steps, solve_time_s.
+    """
+
+    s_m: np.ndarray
+    positions_m: np.ndarray
+    rotations: np.ndarray
+    internal_force_n: np.ndarray
+    internal_moment_nm: np.ndarray
+    strains: np.ndarray
+    tendon_lengths_m: np.ndarray
+    tendon_tensions_n: np.ndarray
+    base_moment_nm: np.ndarray
+    converged: bool
+    status: str
+    residual_nm: float
+    iterations: int
+    integrations: int
+    continuation_steps: int
+    solve_time_s: float
+
+    @property
+    def tip_position_m(self) -> np.ndarray:
+        return self.positions_m[-1]
+
+    @property
+    def tip_rotation(self) -> np.ndarray:
+        return self.rotations[-1]
+
+    def to_dict(self) -> dict:
+        """JSON-ready summary (the ``twin predict --json`` keys)."""
+        return {
+            "tip_position_m": self.tip_position_m.tolist(),
+            "tip_rotation": self.tip_rotation.tolist(),
+            "converged": self.converged,
+            "status": self.status,
+            "residual": self.residual_nm,
+            "iterations": self.iterations,
+            "continuation_steps": self.continuation_steps,
+            "solve_time_s": self.solve_time_s,
+            "tendon_lengths_m": self.tendon_lengths_m.tolist(),
+            "backbone_positions_m": self.positions_m.tolist(),
+            "s_m": self.s_m.tolist(),
+        }
+
+
+def _run(model: RodModel, load: LoadCase, m0: np.ndarray, states, strains):
+    a = model.arrays
+    tendons = a["tendons"].copy()
+    tendons[:, kernel.T_TAU] = load.tensions_n
+    tendons[:, kernel.T_SIGMA] = load.friction_direction
+    tol = model.tolerance * model.moment_scale_nm
+    return kernel.shoot(
+        m0, load.base_position_m, load.base_rotation, a["nodes"], a["intervals"], a["kse"], a["kbt"],
+        tendons, model.length_m, model.friction_coeff, load.tip_force_n, load.tip_moment_nm, a["grav"],
+        model.line_mass_kg_per_m, a["pm_s"], a["pm_m"], states, strains, tol, model.max_iterations,
+        1e-7 * model.moment_scale_nm,
+    )
+
+
+def _initial_guess(model: RodModel, load: LoadCase) -> np.ndarray:
+    """Base moment of the straight rod: the tendon moments plus the moment of the loads about the base."""
+    rot = load.base_rotation
+    m = np.zeros(3)
+    for t, tau in zip(model.tendons, load.tensions_n):
+        a = np.radians(t.angle_deg)
+        r = t.radius_m * np.array([np.cos(a), np.sin(a), 0.0])
+        m += rot @ np.cross(r, tau * np.array([0.0, 0.0, 1.0]))
+    axis = rot[:, 2]
+    g = np.array([0.0, 0.0, -model.gravity_m_s2])
+    m += np.cross(axis * model.length_m, load.tip_force_n) + load.tip_moment_nm
+    m += np.cross(axis * model.length_m / 2, model.line_mass_kg_per_m * model.length_m * g)
+    for s, mass in model.point_masses:
+        m += np.cross(axis * s, mass * g)
+    return m
+
+
+def solve(model: RodModel, tensions_n, *, tip_force_n=None, tip_moment_nm=None, base_rotation=None,
+          base_position_m=None, friction_direction=None, guess_nm=None, continuation: bool = True,
+          raise_on_failure: bool = True) -> RodSolution:
+    """Solve the static shape of the rod under tendon tensions, gravity and tip loads.
+
+    Args:
+        model: the rod (see :meth:`RodModel.from_params`).
+        tensions_n: tendon tensions at the base (N), one per ``model.tendons``.
+        tip_force_n, tip_moment_nm: external tip force (N) and moment (N·m), world frame.
+        base_rotation: base orientation (3×3, body → world); default identity ("up").
+        base_position_m: base position (m), world frame.
+        friction_direction: per tendon +1 pulled / −1 released (only with friction).
+        guess_nm: base moment m(0) to start from (warm start), e.g. a previous ``base_moment_nm``.
+        continuation: if the direct solve fails, step the loads up from a solved smaller case.
+        raise_on_failure: raise :class:`ConvergenceError` (default) instead of returning a
+            ``converged=False`` report.
+
+    Returns:
+        The :class:`RodSolution`.
+
+    Raises:
+        ConvergenceError: no solution to tolerance (with the residual), if ``raise_on_failure``.
+        ValueError: malformed input (names the argument and value).
+    """
+    load = LoadCase.make(model, tensions_n, tip_force_n=tip_force_n, tip_moment_nm=tip_moment_nm,
+                         base_rotation=base_rotation, base_position_m=base_position_m,
+                         friction_direction=friction_direction)
+    return _solve_load(model, load, guess_nm, continuation, raise_on_failure)
+
+
+def _solve_load(model, load, guess_nm, continuation, raise_on_failure) -> RodSolution:
+    start = time.perf_counter()
+    k = model.stations
+    nt = model.tendon_count
+    states = np.empty((k, 15 + 2 * nt))
+    strains = np.empty((k, 6))
+    m0 = (_initial_guess(model, load) if guess_nm is None else np.array(guess_nm, dtype=float)).copy()
+    code, res, iters, calls = _run(model, load, m0, states, strains)
+    steps_taken = 0
+    if code != 0 and guess_nm is not None:
+        m0 = _initial_guess(model, load)
+        code, res, it2, c2 = _run(model, load, m0, states, strains)
+        iters, calls = iters + it2, calls + c2
+    if code != 0 and continuation:
+        code, res, it2, c2, steps_taken, m0 = _continuation(model, load, states, strains)
+        iters, calls = iters + it2, calls + c2
+    elapsed = time.perf_counter() - start
+    status = _STATUS[code]
+    if code != 0:
+        if raise_on_failure:
+            raise ConvergenceError(
+                f"rod solve failed ({status}) after {iters} iterations and {steps_taken} continuation "
+                f"steps: tip moment residual {res:.3e} N·m (tolerance "
+                f"{model.tolerance * model.moment_scale_nm:.1e} N·m)",
+                residual_nm=float(res), iterations=iters, status=status,
+            )
+        states[:] = np.nan
+        strains[:] = np.nan
+    return _package(model, load, states, strains, m0, code == 0, status, float(res), iters, calls,
+                    steps_taken, elapsed)
+
+
+def _continuation(model, load, states, strains):
+    """Step the load factor λ from 0 to 1, halving the step on failure (warm start each time)."""
+    lam, step = 0.0, 0.25
+    m0 = _initial_guess(model, load.scaled(0.0))
+    iters = calls = steps = 0
+    code, res, it, c = _run(model, load.scaled(0.0), m0, states, strains)
+    iters, calls = iters + it, calls + c
+    if code != 0:
+        return code, res, iters, calls, steps, m0
+    while lam < 1.0:
+        target = min(1.0, lam + step)
+        trial = m0.copy()
+        code, res, it, c = _run(model, load.scaled(target), trial, states, strains)
+        iters, calls, steps = iters + it, calls + c, steps + 1
+        if code == 0:
+            lam, m0 = target, trial
+            step = min(step * 1.5, 0.5)
+        else:
+            step *= 0.5
+            if step < 1e-3:
+                return code, res, iters, calls, steps, m0
+    return 0, res, iters, calls, steps, m0
+
+
+def _package(model, load, states, strains, m0, converged, status, res, iters, calls, steps, elapsed):
+    a = model.arrays
+    nt = model.tendon_count
+    k = states.shape[0]
+    rotations = states[:, 3:12].reshape(k, 3, 3)
+    s = a["nodes"]
+    forces = np.array([
+        kernel._internal_force(si, mi, model.length_m, load.tip_force_n, a["grav"],
+                               model.line_mass_kg_per_m, a["pm_s"], a["pm_m"], np.empty(3))
+        for si, mi in zip(s, np.append(a["intervals"], a["intervals"][-1]))
+    ])
+    wraps = states[:, 15:15 + nt]
+    tensions = load.tensions_n[None, :] * np.exp(-model.friction_coeff * load.friction_direction[None, :] * wraps)
+    return RodSolution(
+        s_m=s.copy(),
+        positions_m=states[:, 0:3].copy(),
+        rotations=rotations.copy(),
+        internal_force_n=forces,
+        internal_moment_nm=states[:, 12:15].copy(),
+        strains=strains.copy(),
+        tendon_lengths_m=states[-1, 15 + nt:15 + 2 * nt].copy(),
+        tendon_tensions_n=tensions,
+        base_moment_nm=m0.copy(),
+        converged=converged,
+        status=status,
+        residual_nm=res,
+        iterations=iters,
+        integrations=calls,
+        continuation_steps=steps,
+        solve_time_s=elapsed,
+    )
+
+
+class Predictor:
+    """A warm-started predictor for a stream of slowly changing load cases (e.g. 40 Hz telemetry).
+
+    Each solve starts from the previous solution's base moment; a failed warm start falls back
+    to a cold start and continuation, so a stream never silently returns a stale shape.
+    """
+
+    def __init__(self, model: RodModel):
+        self.model = model
+        self._guess: np.ndarray | None = None
+
+    def reset(self) -> None:
+        self._guess = None
+
+    def solve(self, tensions_n, **kwargs) -> RodSolution:
+        sol = solve(self.model, tensions_n, guess_nm=self._guess, **kwargs)
+        if sol.converged:
+            self._guess = sol.base_moment_nm
+        return sol
