@@ -104,9 +104,11 @@ def test_guided_run_one_channel_at_a_time_loads_only_that_channel():
     np.testing.assert_allclose(run.calibration.gain_counts_per_n, GAIN, rtol=0.01)
 
 
-def test_guided_run_refuses_a_reader_with_the_wrong_channel_count():
+def test_guided_run_refuses_a_bad_reading_naming_it():
     with pytest.raises(ValueError, match="expected 4 finite counts"):
         run_calibration(lambda: np.zeros(3), lambda m, c: None, samples_per_mass=2)
+    with pytest.raises(ValueError, match=r"\[1.0, nan, 3.0, 4.0\]"):
+        run_calibration(lambda: [1.0, np.nan, 3.0, 4.0], lambda m, c: None)
 
 
 def _calibration(seed=13):

@@ -501,13 +501,11 @@ def run_calibration(
     if channels < 1:
         raise ValueError(f"channels = {channels!r}: must be >= 1")
 
-    def sample_block() -> np.ndarray:
-        block = np.array([np.asarray(read_raw_counts(), dtype=float) for _ in range(samples_per_mass)])
-        if block.shape != (samples_per_mass, channels) or not np.all(np.isfinite(block)):
-            raise ValueError(
-                f"read_raw_counts() gave {block.tolist()[-1]!r}: expected {channels} finite counts"
-            )
-        return block
+    def read() -> np.ndarray:
+        sample = np.asarray(read_raw_counts(), dtype=float)
+        if sample.shape != (channels,) or not np.all(np.isfinite(sample)):
+            raise ValueError(f"read_raw_counts() gave {sample.tolist()!r}: expected {channels} finite counts")
+        return sample
 
     means = np.empty((len(masses), channels))
     stds = np.empty((len(masses), channels))
@@ -515,7 +513,7 @@ def run_calibration(
     for group in groups:
         for i, mass_g in enumerate(masses):
             hang_mass(mass_g, group)
-            block = sample_block()[:, list(group)]
+            block = np.array([read() for _ in range(samples_per_mass)])[:, list(group)]
             means[i, list(group)] = block.mean(axis=0)
             # ddof=1 needs two samples; a single sample has no scatter to report.
             stds[i, list(group)] = block.std(axis=0, ddof=1) if samples_per_mass > 1 else 0.0
