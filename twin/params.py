@@ -158,6 +158,7 @@ class Rig:
     motor_speed_rpm: float = _f(_positive)
     motor_stall_torque_nm: float = _f(_positive)
     motor_no_load_speed_rpm: float = _f(_positive)
+    motor_rotor_inertia_kgm2: float = _f(_nonnegative)
     control_rate_hz: float = _f(_positive)
     telemetry_rate_hz: float = _f(_positive)
     loadcell_rate_hz: float = _f(_positive)
