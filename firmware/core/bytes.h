@@ -1,0 +1,86 @@
+// Little-endian field writer and reader over a caller-owned buffer; out-of-range access sets a
+// flag instead of writing past the end, so a short or long payload is a checked error.
+#pragma once
+
+#include <cstddef>
+#include <cstdint>
+#include <cstring>
+
+namespace twinfw {
+
+class ByteWriter {
+ public:
+  ByteWriter(uint8_t* buf, size_t capacity) : buf_(buf), capacity_(capacity) {}
+
+  void operator()(uint8_t v) { put(v, 1); }
+  void operator()(uint16_t v) { put(v, 2); }
+  void operator()(uint32_t v) { put(v, 4); }
+  void operator()(uint64_t v) { put(v, 8); }
+  void operator()(int32_t v) { put(static_cast<uint32_t>(v), 4); }
+  void operator()(float v) {
+    uint32_t bits;
+    std::memcpy(&bits, &v, sizeof bits);
+    put(bits, 4);
+  }
+  template <class T, size_t N>
+  void operator()(const T (&values)[N]) {
+    for (const T& v : values) (*this)(v);
+  }
+
+  size_t size() const { return size_; }
+  bool ok() const { return ok_; }
+
+ private:
+  void put(uint64_t v, size_t n) {
+    if (size_ + n > capacity_) {
+      ok_ = false;
+      return;
+    }
+    for (size_t i = 0; i < n; ++i) buf_[size_++] = static_cast<uint8_t>(v >> (8 * i));
+  }
+
+  uint8_t* buf_;
+  size_t capacity_;
+  size_t size_ = 0;
+  bool ok_ = true;
+};
+
+class ByteReader {
+ public:
+  ByteReader(const uint8_t* buf, size_t size) : buf_(buf), size_(size) {}
+
+  void operator()(uint8_t& v) { v = static_cast<uint8_t>(get(1)); }
+  void operator()(uint16_t& v) { v = static_cast<uint16_t>(get(2)); }
+  void operator()(uint32_t& v) { v = static_cast<uint32_t>(get(4)); }
+  void operator()(uint64_t& v) { v = get(8); }
+  void operator()(int32_t& v) { v = static_cast<int32_t>(static_cast<uint32_t>(get(4))); }
+  void operator()(float& v) {
+    const uint32_t bits = static_cast<uint32_t>(get(4));
+    std::memcpy(&v, &bits, sizeof v);
+  }
+  template <class T, size_t N>
+  void operator()(T (&values)[N]) {
+    for (T& v : values) (*this)(v);
+  }
+
+  // True when every field was present and no byte is left over.
+  bool consumed_exactly() const { return ok_ && pos_ == size_; }
+
+ private:
+  uint64_t get(size_t n) {
+    if (pos_ + n > size_) {
+      ok_ = false;
+      return 0;
+    }
+    uint64_t v = 0;
+    for (size_t i = 0; i < n; ++i) v |= static_cast<uint64_t>(buf_[pos_++]) << (8 * i);
+    return v;
+  }
+
+  const uint8_t* buf_;
+  size_t size_;
+  size_t pos_ = 0;
+  bool ok_ = true;
+};
+
+}  // namespace twinfw

@@ -1,0 +1,164 @@
+// Firmware command handlers: each validates its message against the current state and either
+// acts on it whole or refuses it with a NACK naming the reason; nothing is half-applied.
+#include <cmath>
+
+#include "firmware.h"
+
+namespace twinfw {
+
+namespace {
+
+constexpr uint8_t kAck = 0;
+constexpr uint8_t kReplied = 0xFF;  // the handler sent its own reply (HELLO)
+
+constexpr uint8_t nack(NackError e) { return static_cast<uint8_t>(e); }
+
+bool all_finite(const float* values, size_t n) {
+  for (size_t i = 0; i < n; ++i) {
+    if (!std::isfinite(values[i])) return false;
+  }
+  return true;
+}
+
+bool valid_mode(uint8_t mode) { return mode < kModes; }
+
+}  // namespace
+
+void Firmware::handle(const RawFrame& frame) {
+  uint8_t result;
+  switch (static_cast<MsgType>(frame.type)) {
+    case MsgType::kHello: result = dispatch(frame, &Firmware::on_hello); break;
+    case MsgType::kPing: result = dispatch(frame, &Firmware::on_ping); break;
+    case MsgType::kEnable: result = dispatch(frame, &Firmware::on_enable); break;
+    case MsgType::kDisable: result = dispatch(frame, &Firmware::on_disable); break;
+    case MsgType::kTare: result = dispatch(frame, &Firmware::on_tare); break;
+    case MsgType::kSetMode: result = dispatch(frame, &Firmware::on_set_mode); break;
+    case MsgType::kSetSetpoints: result = dispatch(frame, &Firmware::on_set_setpoints); break;
+    case MsgType::kSetGains: result = dispatch(frame, &Firmware::on_set_gains); break;
+    case MsgType::kSetCalibration: result = dispatch(frame, &Firmware::on_set_calibration); break;
+    case MsgType::kSetLimits: result = dispatch(frame, &Firmware::on_set_limits); break;
+    default: result = nack(NackError::kUnknownType); break;
+  }
+  if (result == kReplied) return;
+  if (result == kAck) {
+    send(msg::Ack{frame.seq, frame.type});
+  } else {
+    send(msg::Nack{frame.seq, frame.type, result});
+  }
+}
+
+// Decodes the payload, feeds the watchdog (a well-formed command proves the host is alive,
+// even one refused for the current state) and runs the handler.
+template <class T>
+uint8_t Firmware::dispatch(const RawFrame& frame, uint8_t (Firmware::*handler)(const T&)) {
+  T message{};
+  if (!read_payload(frame.payload, frame.payload_size, message)) return nack(NackError::kBadLength);
+  safety_.feed(time_us_);
+  return (this->*handler)(message);
+}
+
+uint8_t Firmware::on_hello(const msg::Hello& m) {
+  handshake_ok_ = m.protocol_version == kProtocolVersion;
+  send(msg::HelloReply{kProtocolVersion,
+                       {kFirmwareVersionMajor, kFirmwareVersionMinor, kFirmwareVersionPatch},
+                       static_cast<uint8_t>(kChannels),
+                       kControlPeriodUs,
+                       kTelemetryPeriodUs,
+                       kTendonMPerCount});
+  return kReplied;
+}
+
+uint8_t Firmware::on_ping(const msg::Ping&) { return kAck; }
+
+uint8_t Firmware::on_enable(const msg::Enable&) {
+  if (!handshake_ok_) return nack(NackError::kNoHandshake);
+  if (safety_.state() == State::kEnabled) return kAck;
+  if (controller_.mode() == Mode::kTension && !calibrated_) return nack(NackError::kNotCalibrated);
+  safety_.enable(time_us_);
+  controller_.hold(measure(), safety_.tension_limit_n());
+  motion_held_ = false;
+  return kAck;
+}
+
+uint8_t Firmware::on_disable(const msg::Disable&) {
+  safety_.disable();
+  set_outputs(false);
+  return kAck;
+}
+
+uint8_t Firmware::on_tare(const msg::Tare& m) {
+  if (safety_.state() == State::kEnabled) return nack(NackError::kNotWhileEnabled);
+  const uint8_t all = (1u << kChannels) - 1;
+  if ((m.loadcell_mask | m.length_mask) & ~all) return nack(NackError::kBadValue);
+  if (m.loadcell_mask & stale_mask()) return nack(NackError::kBadValue);
+  for (size_t i = 0; i < kChannels; ++i) {
+    if (m.loadcell_mask & (1u << i)) offset_counts_[i] = static_cast<float>(raw_counts_[i]);
+    if (m.length_mask & (1u << i)) origin_counts_[i] = counts_[i];
+  }
+  return kAck;
+}
+
+uint8_t Firmware::on_set_mode(const msg::SetMode& m) {
+  if (!valid_mode(m.mode)) return nack(NackError::kBadValue);
+  const Mode mode = static_cast<Mode>(m.mode);
+  if (mode == Mode::kTension && !calibrated_) return nack(NackError::kNotCalibrated);
+  controller_.set_mode(mode, measure(), safety_.tension_limit_n());
+  return kAck;
+}
+
+uint8_t Firmware::on_set_setpoints(const msg::SetSetpoints& m) {
+  if (safety_.state() != State::kEnabled) return nack(NackError::kNotEnabled);
+  if (m.mode != static_cast<uint8_t>(controller_.mode())) return nack(NackError::kWrongMode);
+  if (!all_finite(m.values, kChannels)) return nack(NackError::kBadValue);
+  for (size_t i = 0; i < kChannels; ++i) {
+    const float v = m.values[i];
+    bool ok = false;
+    switch (controller_.mode()) {
+      case Mode::kLengths: ok = std::fabs(v) <= kMaxLengthSetpointM; break;
+      case Mode::kPairs: ok = i < kChannels / 2 ? std::fabs(v) <= kMaxLengthSetpointM : v == 0.0f; break;
+      case Mode::kTension: ok = v >= 0.0f && v <= safety_.tension_limit_n(); break;
+    }
+    if (!ok) return nack(NackError::kBadValue);
+  }
+  controller_.set_setpoints(m.values);
+  return kAck;
+}
+
+uint8_t Firmware::on_set_gains(const msg::SetGains& m) {
+  if (!valid_mode(m.mode)) return nack(NackError::kBadValue);
+  const float values[] = {m.kp, m.ki, m.kd, m.output_limit};
+  if (!all_finite(values, 4)) return nack(NackError::kBadValue);
+  if (m.kp < 0.0f || m.ki < 0.0f || m.kd < 0.0f) return nack(NackError::kBadValue);
+  if (!(m.output_limit > 0.0f && m.output_limit <= 1.0f)) return nack(NackError::kBadValue);
+  controller_.set_gains(static_cast<Mode>(m.mode), PidGains{m.kp, m.ki, m.kd, m.output_limit});
+  return kAck;
+}
+
+uint8_t Firmware::on_set_calibration(const msg::SetCalibration& m) {
+  if (safety_.state() == State::kEnabled) return nack(NackError::kNotWhileEnabled);
+  if (!all_finite(m.gain_n_per_count, kChannels) || !all_finite(m.offset_counts, kChannels)) {
+    return nack(NackError::kBadValue);
+  }
+  for (float g : m.gain_n_per_count) {
+    if (g == 0.0f) return nack(NackError::kBadValue);
+  }
+  for (size_t i = 0; i < kChannels; ++i) {
+    gain_n_per_count_[i] = m.gain_n_per_count[i];
+    offset_counts_[i] = m.offset_counts[i];
+  }
+  calibrated_ = true;
+  return kAck;
+}
+
+uint8_t Firmware::on_set_limits(const msg::SetLimits& m) {
+  if (!(std::isfinite(m.tension_limit_n) && m.tension_limit_n > 0.0f && m.tension_limit_n <= kMaxTensionLimitN)) {
+    return nack(NackError::kBadValue);
+  }
+  if (m.watchdog_timeout_ms < kMinWatchdogMs || m.watchdog_timeout_ms > kMaxWatchdogMs) {
+    return nack(NackError::kBadValue);
+  }
+  safety_.set_limits(m.tension_limit_n, m.watchdog_timeout_ms);
+  return kAck;
+}
+
+}  // namespace twinfw

@@ -1,0 +1,87 @@
+#include "controller.h"
+
+namespace twinfw {
+
+namespace {
+
+// Pair k couples motor k with motor k + 2: tendons 1 and 3, 2 and 4 sit opposite each other.
+constexpr size_t kPairs = kChannels / 2;
+
+// Defaults, to be tuned on the rig. Lengths: the motor makes the plant an integrator of
+// ~0.096 m/s of tendon per unit duty; kp = 300 /m (1 mm of error gives 0.3 duty) and
+// ki = 1500 /(m·s) put the closed-loop poles at about −6 and −22 /s, and the integral is there
+// for friction. Tension: 1 N of error gives 0.2 duty, the integral removes the steady error in
+// about a second.
+constexpr PidGains kDefaultLengthGains{300.0f, 1500.0f, 0.0f, 1.0f};
+constexpr PidGains kDefaultTensionGains{0.2f, 0.5f, 0.0f, 0.5f};
+
+float clamp_range(float x, float lo, float hi) { return x < lo ? lo : (x > hi ? hi : x); }
+
+}  // namespace
+
+Controller::Controller()
+    : gains_{kDefaultLengthGains, kDefaultLengthGains, kDefaultTensionGains} {}
+
+void Controller::set_mode(Mode mode, const Measurements& now, float tension_limit_n) {
+  mode_ = mode;
+  hold(now, tension_limit_n);
+}
+
+void Controller::hold(const Measurements& now, float tension_limit_n) {
+  switch (mode_) {
+    case Mode::kLengths:
+      for (size_t i = 0; i < kChannels; ++i) setpoints_[i] = now.lengths_m[i];
+      break;
+    case Mode::kPairs:
+      for (size_t k = 0; k < kPairs; ++k) {
+        const float a = now.lengths_m[k];
+        const float b = now.lengths_m[k + kPairs];
+        pair_centres_m_[k] = 0.5f * (a + b);
+        setpoints_[k] = 0.5f * (a - b);
+        setpoints_[k + kPairs] = 0.0f;
+      }
+      break;
+    case Mode::kTension:
+      for (size_t i = 0; i < kChannels; ++i) {
+        setpoints_[i] = clamp_range(now.tensions_n[i], 0.0f, tension_limit_n);
+      }
+      break;
+  }
+  update_targets();
+  restart(now);
+}
+
+void Controller::restart(const Measurements& now) {
+  for (size_t i = 0; i < kChannels; ++i) pid_[i].reset(measured(now, i));
+}
+
+void Controller::set_setpoints(const float values[kChannels]) {
+  for (size_t i = 0; i < kChannels; ++i) setpoints_[i] = values[i];
+  update_targets();
+}
+
+void Controller::step(const Measurements& now, float dt_s, float duty[kChannels]) {
+  const PidGains& g = gains(mode_);
+  for (size_t i = 0; i < kChannels; ++i) {
+    // In tension mode the loop runs on −tension: paying out (positive duty) lowers tension.
+    const float sign = mode_ == Mode::kTension ? -1.0f : 1.0f;
+    duty[i] = pid_[i].step(g, sign * targets_[i], measured(now, i), dt_s);
+  }
+}
+
+float Controller::measured(const Measurements& now, size_t channel) const {
+  return mode_ == Mode::kTension ? -now.tensions_n[channel] : now.lengths_m[channel];
+}
+
+void Controller::update_targets() {
+  if (mode_ == Mode::kPairs) {
+    for (size_t k = 0; k < kPairs; ++k) {
+      targets_[k] = pair_centres_m_[k] + setpoints_[k];
+      targets_[k + kPairs] = pair_centres_m_[k] - setpoints_[k];
+    }
+    return;
+  }
+  for (size_t i = 0; i < kChannels; ++i) targets_[i] = setpoints_[i];
+}
+
+}  // namespace twinfw

@@ -1,0 +1,63 @@
+// The three control modes over four motor PIDs (thesis §4, §10.2):
+//   lengths — each motor tracks its own tendon length setpoint (m);
+//   pairs   — antagonistic pairs (1,3) and (2,4): a pair setpoint d (m) drives the first
+//             tendon to c + d and the second to c − d, so one shortens by what the other pays
+//             out; c is the pair's mean length when the mode was entered;
+//   tension — each motor tracks a tension setpoint (N) on its calibrated load cell.
+// Positive duty pays tendon out: it lengthens the tendon and lowers its tension.
+#pragma once
+
+#include <cstddef>
+
+#include "config.h"
+#include "messages.h"
+#include "pid.h"
+
+namespace twinfw {
+
+struct Measurements {
+  float lengths_m[kChannels];
+  float tensions_n[kChannels];
+};
+
+class Controller {
+ public:
+  Controller();
+
+  Mode mode() const { return mode_; }
+  const PidGains& gains(Mode mode) const { return gains_[static_cast<size_t>(mode)]; }
+  void set_gains(Mode mode, const PidGains& gains) { gains_[static_cast<size_t>(mode)] = gains; }
+
+  // Switches mode and holds: see hold().
+  void set_mode(Mode mode, const Measurements& now, float tension_limit_n);
+
+  // Bumpless start: setpoints := the current measurement (tensions clamped to
+  // [0, tension_limit_n]), PIDs restart from it. The rig holds still until new setpoints arrive.
+  void hold(const Measurements& now, float tension_limit_n);
+
+  // Restarts the PIDs from the current measurement, keeping the setpoints (motion resumes
+  // after a pause without a derivative kick).
+  void restart(const Measurements& now);
+
+  // Setpoints in the active mode's units (validated by the caller); pairs use values[0..1].
+  void set_setpoints(const float values[kChannels]);
+
+  // One control period: writes duty[kChannels] in [-limit, limit] and updates targets().
+  void step(const Measurements& now, float dt_s, float duty[kChannels]);
+
+  // Per-motor target of the last step or hold: m (length modes) or N (tension).
+  const float* targets() const { return targets_; }
+
+ private:
+  float measured(const Measurements& now, size_t channel) const;
+  void update_targets();
+
+  Mode mode_ = Mode::kLengths;
+  PidGains gains_[kModes];
+  Pid pid_[kChannels];
+  float setpoints_[kChannels] = {};
+  float pair_centres_m_[kChannels / 2] = {};
+  float targets_[kChannels] = {};
+};
+
+}  // namespace twinfw

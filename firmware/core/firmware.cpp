@@ -1,0 +1,106 @@
+#include "firmware.h"
+
+#include "units.h"
+
+namespace twinfw {
+
+Firmware::Firmware() {
+  for (float& g : gain_n_per_count_) g = kDefaultGainNPerCount;
+}
+
+void Firmware::receive(const uint8_t* data, size_t size) {
+  for (size_t i = 0; i < size; ++i) {
+    if (rx_.push(data[i])) handle(rx_.frame());
+  }
+}
+
+const Outputs& Firmware::tick(uint32_t now_us, const Inputs& inputs) {
+  advance_clock(now_us);
+  for (size_t i = 0; i < kChannels; ++i) {
+    counts_[i] = inputs.encoder_counts[i];
+    if (inputs.new_sample_mask & (1u << i)) {
+      raw_counts_[i] = inputs.raw_counts[i];
+      last_sample_us_[i] = time_us_;
+      sampled_mask_ = static_cast<uint8_t>(sampled_mask_ | (1u << i));
+    }
+  }
+  const Measurements now = measure();
+  const uint8_t stale = stale_mask();
+  const bool may_move = safety_.update(time_us_, now.tensions_n, stale);
+  if (due(next_control_us_, kControlPeriodUs) && may_move) {
+    if (motion_held_) controller_.restart(now);
+    motion_held_ = false;
+    controller_.step(now, kControlPeriodS, outputs_.duty);
+  }
+  set_outputs(may_move);
+  if (due(next_telemetry_us_, kTelemetryPeriodUs)) send_telemetry(now, stale);
+  return outputs_;
+}
+
+void Firmware::advance_clock(uint32_t now_us) {
+  if (started_) time_us_ += static_cast<uint32_t>(now_us - last_now_us_);
+  started_ = true;
+  last_now_us_ = now_us;
+}
+
+// True when `deadline_us` has passed; then moves it one period on, or one period past now after
+// a long gap, so that a stalled caller does not get a burst of catch-up steps.
+bool Firmware::due(uint64_t& deadline_us, uint32_t period_us) const {
+  if (time_us_ < deadline_us) return false;
+  deadline_us += period_us;
+  if (deadline_us <= time_us_) deadline_us = time_us_ + period_us;
+  return true;
+}
+
+void Firmware::set_outputs(bool may_move) {
+  const bool enabled = safety_.state() == State::kEnabled;
+  if (!may_move) motion_held_ = true;
+  for (size_t i = 0; i < kChannels; ++i) {
+    if (!may_move) outputs_.duty[i] = 0.0f;
+    outputs_.drive[i] = may_move ? Drive::kDrive : (enabled ? Drive::kBrake : Drive::kCoast);
+  }
+}
+
+Measurements Firmware::measure() const {
+  Measurements m{};
+  for (size_t i = 0; i < kChannels; ++i) {
+    m.lengths_m[i] = counts_to_length_m(counts_[i], origin_counts_[i]);
+    m.tensions_n[i] = raw_to_tension_n(raw_counts_[i], gain_n_per_count_[i], offset_counts_[i]);
+  }
+  return m;
+}
+
+uint8_t Firmware::stale_mask() const {
+  uint8_t mask = 0;
+  for (size_t i = 0; i < kChannels; ++i) {
+    const bool never = (sampled_mask_ & (1u << i)) == 0;
+    if (never || time_us_ - last_sample_us_[i] > kLoadcellStaleUs) mask = static_cast<uint8_t>(mask | (1u << i));
+  }
+  return mask;
+}
+
+void Firmware::send_telemetry(const Measurements& now, uint8_t stale_mask) {
+  msg::Telemetry t{};
+  t.time_us = time_us_;
+  t.sample_seq = telemetry_seq_++;
+  uint8_t drive_modes = 0;
+  for (size_t i = 0; i < kChannels; ++i) {
+    t.encoder_counts[i] = counts_[i];
+    t.lengths_m[i] = now.lengths_m[i];
+    t.raw_counts[i] = raw_counts_[i];
+    t.tensions_n[i] = now.tensions_n[i];
+    t.targets[i] = controller_.targets()[i];
+    t.duty[i] = outputs_.duty[i];
+    drive_modes = static_cast<uint8_t>(drive_modes | (static_cast<uint8_t>(outputs_.drive[i]) << (2 * i)));
+  }
+  t.state = static_cast<uint8_t>(safety_.state());
+  t.mode = static_cast<uint8_t>(controller_.mode());
+  t.fault_flags = safety_.faults();
+  t.stale_mask = stale_mask;
+  t.drive_modes = drive_modes;
+  t.rx_bad_frames = rx_.bad_frames();
+  t.tx_dropped_frames = tx_.dropped();
+  send(t);
+}
+
+}  // namespace twinfw

@@ -1,0 +1,112 @@
+// The whole board logic as one object stepped with explicit time, so that the same code runs
+// on the Teensy (firmware/teensy), in host unit tests, under QEMU and in the emulated board.
+// Commands are acted on inside receive() at the time of the latest tick; tick() runs the
+// safety checks every call, the control loop every kControlPeriodUs and queues telemetry every
+// kTelemetryPeriodUs, whatever the calling rate.
+#pragma once
+
+#include <cstddef>
+#include <cstdint>
+
+#include "config.h"
+#include "controller.h"
+#include "frame.h"
+#include "messages.h"
+#include "safety.h"
+#include "tx_queue.h"
+
+namespace twinfw {
+
+struct Inputs {
+  int32_t encoder_counts[kChannels];
+  int32_t raw_counts[kChannels];  // HX711 readings; only channels set in new_sample_mask are read
+  uint8_t new_sample_mask;        // bit i: raw_counts[i] is a sample taken since the last tick
+};
+
+struct Outputs {
+  float duty[kChannels];  // in [-1, 1]; positive pays tendon out. 0 unless drive is kDrive
+  Drive drive[kChannels];
+};
+
+class Firmware {
+ public:
+  static constexpr size_t kTxQueueBytes = 1024;
+
+  Firmware();
+
+  // Host bytes in any chunking; each complete valid command is acted on and answered.
+  void receive(const uint8_t* data, size_t size);
+
+  // One step at `now_us` (a wrapping microsecond clock such as micros()).
+  const Outputs& tick(uint32_t now_us, const Inputs& inputs);
+
+  // Moves up to `capacity` queued outgoing bytes into `out`; returns how many.
+  size_t take_tx(uint8_t* out, size_t capacity) { return tx_.take(out, capacity); }
+  size_t tx_pending() const { return tx_.size(); }
+
+  State state() const { return safety_.state(); }
+  uint16_t faults() const { return safety_.faults(); }
+  Mode mode() const { return controller_.mode(); }
+  uint32_t rx_bad_frames() const { return rx_.bad_frames(); }
+
+ private:
+  void handle(const RawFrame& frame);
+  template <class T>
+  uint8_t dispatch(const RawFrame& frame, uint8_t (Firmware::*handler)(const T&));
+  uint8_t on_hello(const msg::Hello& m);
+  uint8_t on_ping(const msg::Ping& m);
+  uint8_t on_enable(const msg::Enable& m);
+  uint8_t on_disable(const msg::Disable& m);
+  uint8_t on_tare(const msg::Tare& m);
+  uint8_t on_set_mode(const msg::SetMode& m);
+  uint8_t on_set_setpoints(const msg::SetSetpoints& m);
+  uint8_t on_set_gains(const msg::SetGains& m);
+  uint8_t on_set_calibration(const msg::SetCalibration& m);
+  uint8_t on_set_limits(const msg::SetLimits& m);
+
+  template <class T>
+  void send(const T& message);
+  void send_telemetry(const Measurements& now, uint8_t stale_mask);
+
+  void advance_clock(uint32_t now_us);
+  bool due(uint64_t& deadline_us, uint32_t period_us) const;
+  Measurements measure() const;
+  uint8_t stale_mask() const;
+  void set_outputs(bool may_move);
+
+  FrameDecoder rx_;
+  TxQueue<kTxQueueBytes> tx_;
+  Controller controller_;
+  Safety safety_;
+  Outputs outputs_{};
+
+  bool started_ = false;
+  uint32_t last_now_us_ = 0;
+  uint64_t time_us_ = 0;  // device time: µs since the first tick, never wraps
+  uint64_t next_control_us_ = 0;
+  uint64_t next_telemetry_us_ = 0;
+
+  int32_t counts_[kChannels] = {};
+  int32_t origin_counts_[kChannels] = {};
+  int32_t raw_counts_[kChannels] = {};
+  uint64_t last_sample_us_[kChannels] = {};
+  uint8_t sampled_mask_ = 0;
+  float gain_n_per_count_[kChannels];
+  float offset_counts_[kChannels] = {};
+  bool calibrated_ = false;
+
+  bool handshake_ok_ = false;
+  bool motion_held_ = true;
+  uint16_t tx_seq_ = 0;
+  uint32_t telemetry_seq_ = 0;
+};
+
+template <class T>
+void Firmware::send(const T& message) {
+  uint8_t frame[kMaxEncodedFrameBytes];
+  const size_t n = encode_message(message, tx_seq_, frame, sizeof frame);
+  ++tx_seq_;
+  tx_.push(frame, n);
+}
+
+}  // namespace twinfw

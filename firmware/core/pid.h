@@ -1,0 +1,28 @@
+// PID after Beauregard's Arduino PID: fixed sample time, derivative on measurement (no kick
+// when the setpoint steps), integral kept in output units and clamped to the output limit
+// (no windup, and a change of ki does not bump the output), output clamped.
+#pragma once
+
+namespace twinfw {
+
+struct PidGains {
+  float kp;            // output per unit of error
+  float ki;            // output per unit of error per second
+  float kd;            // output per unit of measurement rate (unit·s)
+  float output_limit;  // |output| and |integral| bound, > 0
+};
+
+class Pid {
+ public:
+  // Bumpless start: the output was 0 (motor stopped), so the integral restarts at 0, and the
+  // derivative restarts from `measurement` instead of differencing against a stale value.
+  void reset(float measurement);
+
+  float step(const PidGains& gains, float setpoint, float measurement, float dt_s);
+
+ private:
+  float integral_ = 0.0f;
+  float last_measurement_ = 0.0f;
+};
+
+}  // namespace twinfw

@@ -1,0 +1,85 @@
+// C API of twinfw.h. The core never allocates; this host-only wrapper owns its objects on the
+// heap so that callers only hold opaque pointers.
+#include "twinfw.h"
+
+#include <cstring>
+#include <new>
+
+#include "firmware.h"
+
+static_assert(TWINFW_CHANNELS == twinfw::kChannels, "C API and core disagree on the channel count");
+
+struct twinfw {
+  twinfw::Firmware firmware;
+};
+
+struct twinfw_decoder {
+  twinfw::FrameDecoder decoder;
+  uint32_t overflows = 0;
+};
+
+#define TWINFW_EXPORT extern "C" __attribute__((visibility("default")))
+
+TWINFW_EXPORT uint32_t twinfw_abi_version(void) { return TWINFW_ABI_VERSION; }
+
+TWINFW_EXPORT uint32_t twinfw_protocol_version(void) { return twinfw::kProtocolVersion; }
+
+TWINFW_EXPORT twinfw* twinfw_create(void) { return new (std::nothrow) twinfw(); }
+
+TWINFW_EXPORT void twinfw_destroy(twinfw* fw) { delete fw; }
+
+TWINFW_EXPORT void twinfw_receive(twinfw* fw, const uint8_t* data, size_t size) {
+  fw->firmware.receive(data, size);
+}
+
+TWINFW_EXPORT void twinfw_tick(twinfw* fw, uint64_t now_us, const int32_t* encoder_counts,
+                               const int32_t* raw_counts, uint32_t new_sample_mask, float* duty_out,
+                               uint8_t* drive_out) {
+  twinfw::Inputs in{};
+  std::memcpy(in.encoder_counts, encoder_counts, sizeof in.encoder_counts);
+  std::memcpy(in.raw_counts, raw_counts, sizeof in.raw_counts);
+  in.new_sample_mask = static_cast<uint8_t>(new_sample_mask & ((1u << twinfw::kChannels) - 1));
+  // The core runs on a wrapping 32-bit microsecond clock like the Teensy's micros().
+  const twinfw::Outputs& out = fw->firmware.tick(static_cast<uint32_t>(now_us), in);
+  for (size_t i = 0; i < twinfw::kChannels; ++i) {
+    duty_out[i] = out.duty[i];
+    drive_out[i] = static_cast<uint8_t>(out.drive[i]);
+  }
+}
+
+TWINFW_EXPORT size_t twinfw_tx_pending(const twinfw* fw) { return fw->firmware.tx_pending(); }
+
+TWINFW_EXPORT size_t twinfw_take_tx(twinfw* fw, uint8_t* out, size_t capacity) {
+  return fw->firmware.take_tx(out, capacity);
+}
+
+TWINFW_EXPORT twinfw_decoder* twinfw_decoder_create(void) { return new (std::nothrow) twinfw_decoder(); }
+
+TWINFW_EXPORT void twinfw_decoder_destroy(twinfw_decoder* decoder) { delete decoder; }
+
+TWINFW_EXPORT size_t twinfw_decoder_feed(twinfw_decoder* decoder, const uint8_t* data, size_t size,
+                                         uint8_t* out, size_t capacity) {
+  size_t written = 0;
+  for (size_t i = 0; i < size; ++i) {
+    if (!decoder->decoder.push(data[i])) continue;
+    const twinfw::RawFrame& f = decoder->decoder.frame();
+    const size_t record = 1 + twinfw::kFrameHeaderBytes + f.payload_size;
+    if (written + record > capacity) {
+      ++decoder->overflows;
+      continue;
+    }
+    out[written] = static_cast<uint8_t>(record - 1);
+    out[written + 1] = f.type;
+    out[written + 2] = static_cast<uint8_t>(f.seq);
+    out[written + 3] = static_cast<uint8_t>(f.seq >> 8);
+    std::memcpy(out + written + 4, f.payload, f.payload_size);
+    written += record;
+  }
+  return written;
+}
+
+TWINFW_EXPORT uint32_t twinfw_decoder_bad_frames(const twinfw_decoder* decoder) {
+  return decoder->decoder.bad_frames();
+}
+
+TWINFW_EXPORT uint32_t twinfw_decoder_overflows(const twinfw_decoder* decoder) { return decoder->overflows; }

@@ -1,0 +1,58 @@
+/* C API over the firmware core for host programs (the emulated board, tests): a Firmware
+ * object stepped with explicit time, and a standalone frame decoder for fuzzing the C++ codec.
+ * Arrays have TWINFW_CHANNELS entries. Not thread-safe: one caller per object. */
+#ifndef TWINFW_H
+#define TWINFW_H
+
+#include <stddef.h>
+#include <stdint.h>
+
+#ifdef __cplusplus
+extern "C" {
+#endif
+
+#define TWINFW_ABI_VERSION 1
+#define TWINFW_CHANNELS 4
+
+typedef struct twinfw twinfw;
+typedef struct twinfw_decoder twinfw_decoder;
+
+/* TWINFW_ABI_VERSION of the built library; callers refuse a mismatch. */
+uint32_t twinfw_abi_version(void);
+/* Protocol version the firmware speaks (firmware/PROTOCOL.md). */
+uint32_t twinfw_protocol_version(void);
+
+/* A fresh board as after power-up; NULL if out of memory. */
+twinfw* twinfw_create(void);
+void twinfw_destroy(twinfw* fw);
+
+/* Host bytes, any chunking; commands are acted on at the time of the latest tick. */
+void twinfw_receive(twinfw* fw, const uint8_t* data, size_t size);
+
+/* One step at now_us (µs, any origin, non-decreasing). new_sample_mask bit i marks
+ * raw_counts[i] as a fresh HX711 sample. Writes duty_out in [-1, 1] and drive_out
+ * (0 coast, 1 drive, 2 brake). */
+void twinfw_tick(twinfw* fw, uint64_t now_us, const int32_t* encoder_counts, const int32_t* raw_counts,
+                 uint32_t new_sample_mask, float* duty_out, uint8_t* drive_out);
+
+/* Bytes queued for the host. */
+size_t twinfw_tx_pending(const twinfw* fw);
+/* Moves up to capacity queued bytes into out; returns how many. */
+size_t twinfw_take_tx(twinfw* fw, uint8_t* out, size_t capacity);
+
+twinfw_decoder* twinfw_decoder_create(void);
+void twinfw_decoder_destroy(twinfw_decoder* decoder);
+/* Feeds bytes; each frame that passes COBS and CRC is written to out as one record
+ * [length u8][type u8][seq u16 LE][payload], records back to back. Returns the bytes written;
+ * a record that does not fit in capacity is dropped and counted in twinfw_decoder_overflows. */
+size_t twinfw_decoder_feed(twinfw_decoder* decoder, const uint8_t* data, size_t size, uint8_t* out,
+                           size_t capacity);
+/* Frames rejected for framing or CRC errors so far. */
+uint32_t twinfw_decoder_bad_frames(const twinfw_decoder* decoder);
+uint32_t twinfw_decoder_overflows(const twinfw_decoder* decoder);
+
+#ifdef __cplusplus
+}
+#endif
+
+#endif

@@ -1,0 +1,106 @@
+#include "bench.h"
+#include "check.h"
+#include "controller.h"
+#include "suites.h"
+
+using namespace twinfw;
+
+namespace {
+
+Measurements at(float l0, float l1, float l2, float l3, float tension_n = 1.0f) {
+  return Measurements{{l0, l1, l2, l3}, {tension_n, tension_n, tension_n, tension_n}};
+}
+
+void hold_is_bumpless() {
+  for (uint8_t m = 0; m < kModes; ++m) {
+    Controller c;
+    const Measurements now = at(0.002f, -0.001f, 0.0005f, 0.003f, 1.3f);
+    c.set_mode(static_cast<Mode>(m), now, 6.0f);
+    float duty[kChannels];
+    c.step(now, kControlPeriodS, duty);
+    for (float d : duty) CHECK_NEAR(d, 0.0, 1e-6);
+  }
+}
+
+void antagonistic_pairs_couple() {
+  Controller c;
+  // Pair (1,3) centred at 1 mm, pair (2,4) at −0.5 mm when the mode is entered.
+  c.set_mode(Mode::kPairs, at(0.002f, -0.001f, 0.0f, 0.0f), 6.0f);
+  CHECK_NEAR(c.targets()[0], 0.002, 1e-7);
+  CHECK_NEAR(c.targets()[2], 0.0, 1e-7);
+  const float d[kChannels] = {0.003f, -0.0005f, 0.0f, 0.0f};
+  c.set_setpoints(d);
+  // One tendon shortens by what the other pays out, about the pair's centre.
+  CHECK_NEAR(c.targets()[0], 0.001 + 0.003, 1e-7);
+  CHECK_NEAR(c.targets()[2], 0.001 - 0.003, 1e-7);
+  CHECK_NEAR(c.targets()[1], -0.0005 - 0.0005, 1e-7);
+  CHECK_NEAR(c.targets()[3], -0.0005 + 0.0005, 1e-7);
+  CHECK_NEAR(c.targets()[0] + c.targets()[2], 0.002, 1e-7);
+  float duty[kChannels];
+  c.step(at(0.002f, -0.001f, 0.0f, 0.0f), kControlPeriodS, duty);
+  CHECK(duty[0] > 0.0f && duty[2] < 0.0f);  // tendon 1 pays out, tendon 3 reels in
+}
+
+void tension_mode_sign() {
+  Controller c;
+  c.set_mode(Mode::kTension, at(0, 0, 0, 0, 1.0f), 6.0f);
+  const float sp[kChannels] = {1.5f, 0.5f, 1.0f, 1.0f};
+  c.set_setpoints(sp);
+  float duty[kChannels];
+  c.step(at(0, 0, 0, 0, 1.0f), kControlPeriodS, duty);
+  CHECK(duty[0] < 0.0f);  // too slack: reel in
+  CHECK(duty[1] > 0.0f);  // too tight: pay out
+  CHECK_NEAR(duty[2], 0.0, 1e-6);
+}
+
+void tension_hold_clamps_to_limit() {
+  Controller c;
+  Measurements now = at(0, 0, 0, 0, 0.0f);
+  now.tensions_n[0] = -0.2f;
+  now.tensions_n[1] = 9.0f;
+  c.set_mode(Mode::kTension, now, 6.0f);
+  CHECK_NEAR(c.targets()[0], 0.0, 0.0);
+  CHECK_NEAR(c.targets()[1], 6.0, 0.0);
+}
+
+void closed_loops_on_the_bench() {
+  {
+    bench::Bench b;
+    CHECK(b.start(Mode::kLengths));
+    b.send(msg::SetSetpoints{0, {0.002f, -0.003f, 0.0f, 0.001f}});
+    b.run_fed(1.0);
+    CHECK_NEAR(b.length_m(0), 0.002, 5e-6);
+    CHECK_NEAR(b.length_m(1), -0.003, 5e-6);
+    CHECK_NEAR(b.length_m(3), 0.001, 5e-6);
+  }
+  {
+    bench::Bench b;
+    CHECK(b.start(Mode::kPairs));
+    b.send(msg::SetSetpoints{1, {0.002f, -0.001f, 0.0f, 0.0f}});
+    b.run_fed(1.0);
+    CHECK_NEAR(b.length_m(0), 0.002, 5e-6);
+    CHECK_NEAR(b.length_m(2), -0.002, 5e-6);
+    CHECK_NEAR(b.length_m(1), -0.001, 5e-6);
+    CHECK_NEAR(b.length_m(3), 0.001, 5e-6);
+  }
+  {
+    bench::Bench b;
+    CHECK(b.start(Mode::kTension));
+    b.send(msg::SetSetpoints{2, {1.5f, 0.5f, 1.0f, 1.2f}});
+    b.run_fed(3.0);
+    CHECK_NEAR(b.tension_n(0), 1.5, 0.01);
+    CHECK_NEAR(b.tension_n(1), 0.5, 0.01);
+    CHECK_NEAR(b.tension_n(3), 1.2, 0.01);
+    CHECK(b.length_m(0) < 0.0f);  // reeled in to tighten
+  }
+}
+
+}  // namespace
+
+void test_controller() {
+  hold_is_bumpless();
+  antagonistic_pairs_couple();
+  tension_mode_sign();
+  tension_hold_clamps_to_limit();
+  closed_loops_on_the_bench();
+}

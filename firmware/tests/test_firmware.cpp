@@ -1,0 +1,171 @@
+#include <cmath>
+#include <cstring>
+
+#include "bench.h"
+#include "check.h"
+#include "suites.h"
+
+using namespace twinfw;
+using bench::Bench;
+
+namespace {
+
+void handshake() {
+  Bench b;
+  b.send(msg::Enable{});
+  CHECK(b.replies.nacks == 1 && b.replies.last_nack_error == static_cast<uint8_t>(NackError::kNoHandshake));
+  b.send(msg::Hello{static_cast<uint16_t>(kProtocolVersion + 1)});
+  CHECK(b.replies.hello_replies == 1 && b.replies.hello.protocol_version == kProtocolVersion);
+  b.send(msg::Enable{});
+  CHECK(b.replies.nacks == 2 && b.fw.state() == State::kDisabled);  // version mismatch
+  b.send(msg::Hello{kProtocolVersion});
+  CHECK(b.replies.hello.channels == 4 && b.replies.hello.control_period_us == 10000 &&
+        b.replies.hello.telemetry_period_us == 25000);
+  CHECK_NEAR(b.replies.hello.tendon_m_per_count, 9.4064859e-7, 1e-13);
+  const uint16_t seq = b.send(msg::Enable{});
+  CHECK(b.replies.acks == 1 && b.replies.last_acked_seq == seq && b.fw.state() == State::kEnabled);
+}
+
+void setpoint_gives_pwm_sign() {
+  Bench b;
+  b.counts[0] = 5000;  // enabling away from zero must not move anything
+  CHECK(b.start());
+  b.run(0.05);
+  CHECK(b.out.drive[0] == Drive::kDrive);
+  CHECK_NEAR(b.out.duty[0], 0.0, 1e-6);
+  b.send(msg::SetSetpoints{0, {b.length_m(0) + 0.001f, -0.001f, 0.0f, 0.0f}});
+  b.run(0.011);
+  CHECK(b.out.duty[0] > 0.0f && b.out.duty[1] < 0.0f);
+  CHECK_NEAR(b.out.duty[2], 0.0, 1e-6);
+  CHECK_NEAR(b.replies.last.targets[1], -0.001, 1e-7);
+}
+
+void telemetry_schedule() {
+  const uint32_t tick_periods_us[] = {1000u, 5000u, 10000u};
+  for (uint32_t tick_us : tick_periods_us) {
+    Bench b;
+    b.run(1.0, tick_us);
+    // 40 Hz: the first at t = tick, then every 25 ms (rounded to ticks at 10 ms).
+    CHECK(b.replies.telemetry == 40);
+    CHECK(b.replies.last.sample_seq == 39);
+    const double expected = tick_us == 10000u ? 980000.0 : 975000.0;
+    CHECK_NEAR(static_cast<double>(b.replies.last.time_us), expected, 0.0);
+  }
+}
+
+void control_runs_at_100_hz() {
+  Bench b;
+  CHECK(b.start());
+  b.send(msg::SetSetpoints{0, {0.003f, 0.0f, 0.0f, 0.0f}});
+  int changes = 0;
+  float last = b.out.duty[0];
+  for (int i = 0; i < 100; ++i) {  // 100 ms at 1 kHz while the tendon moves
+    b.run(0.001);
+    if (b.out.duty[0] != last) ++changes;
+    last = b.out.duty[0];
+  }
+  CHECK(changes >= 9 && changes <= 10);
+}
+
+void corrupted_command_is_not_acted_on() {
+  Bench b;
+  b.send(msg::Hello{kProtocolVersion});
+  uint8_t frame[kMaxEncodedFrameBytes];
+  const size_t n = encode_message(msg::Enable{}, 77, frame, sizeof frame);
+  for (size_t pos = 0; pos + 1 < n; ++pos) {
+    for (int bit = 0; bit < 8; ++bit) {
+      uint8_t bad[kMaxEncodedFrameBytes];
+      std::memcpy(bad, frame, n);
+      bad[pos] = static_cast<uint8_t>(bad[pos] ^ (1u << bit));
+      b.send_bytes(bad, n);
+    }
+  }
+  CHECK(b.fw.state() == State::kDisabled && b.replies.acks == 0 && b.replies.nacks == 0);
+  CHECK(b.fw.rx_bad_frames() >= (n - 1) * 8);
+  b.run(0.03);
+  CHECK(b.replies.last.rx_bad_frames == b.fw.rx_bad_frames());
+  b.send_bytes(frame, n);  // the intact frame still works afterwards
+  CHECK(b.fw.state() == State::kEnabled && b.replies.acks == 1);
+}
+
+void garbage_is_counted_and_ignored() {
+  Bench b;
+  b.send(msg::Hello{kProtocolVersion});
+  uint32_t state = 7u;
+  uint8_t chunk[97];
+  for (int k = 0; k < 500; ++k) {
+    for (uint8_t& byte : chunk) {
+      state = state * 1664525u + 1013904223u;
+      byte = (state >> 24) < 24 ? 0 : static_cast<uint8_t>(state >> 8);
+    }
+    b.send_bytes(chunk, sizeof chunk);
+  }
+  CHECK(b.fw.state() == State::kDisabled && b.replies.acks == 0 && b.replies.nacks == 0);
+  CHECK(b.fw.rx_bad_frames() > 1000);
+}
+
+void commands_are_validated() {
+  Bench b;
+  b.send(msg::Hello{kProtocolVersion});
+  auto last_error = [&b] { return static_cast<NackError>(b.replies.last_nack_error); };
+  b.send(msg::SetSetpoints{0, {0.001f, 0, 0, 0}});
+  CHECK(last_error() == NackError::kNotEnabled);
+  b.send(msg::SetMode{2});
+  CHECK(last_error() == NackError::kNotCalibrated);
+  b.send(msg::SetMode{3});
+  CHECK(last_error() == NackError::kBadValue);
+  b.run(0.05);
+  b.send(msg::Enable{});
+  const int nacks = b.replies.nacks;
+  b.send(msg::SetSetpoints{1, {0.001f, 0, 0, 0}});
+  CHECK(last_error() == NackError::kWrongMode);
+  b.send(msg::SetSetpoints{0, {NAN, 0, 0, 0}});
+  b.send(msg::SetSetpoints{0, {2.0f, 0, 0, 0}});  // 2 m: a value in mm sent as m
+  b.send(msg::SetGains{0, -1.0f, 0, 0, 1.0f});
+  b.send(msg::SetGains{0, 1.0f, 0, 0, 1.5f});
+  b.send(msg::SetLimits{0.0f, 250});
+  b.send(msg::SetLimits{6.0f, 5});
+  b.send(msg::Tare{1, 0});
+  b.send(msg::SetCalibration{{1, 1, 1, 1}, {0, 0, 0, 0}});
+  CHECK(b.replies.nacks == nacks + 9);
+  CHECK(last_error() == NackError::kNotWhileEnabled);
+  b.run(0.03);
+  CHECK_NEAR(b.replies.last.targets[0], 0.0, 0.0);  // nothing refused was applied
+  // An intact frame of unknown type or wrong length is refused, not acted on.
+  const uint8_t unknown_payload[1] = {0};
+  uint8_t frame[kMaxEncodedFrameBytes];
+  size_t n = encode_frame(0x42, 900, unknown_payload, 1, frame, sizeof frame);
+  b.send_bytes(frame, n);
+  CHECK(last_error() == NackError::kUnknownType && b.replies.last_acked_seq == 900);
+  n = encode_frame(static_cast<uint8_t>(MsgType::kDisable), 901, unknown_payload, 1, frame, sizeof frame);
+  b.send_bytes(frame, n);
+  CHECK(last_error() == NackError::kBadLength && b.fw.state() == State::kEnabled);
+}
+
+void tare_sets_origins() {
+  Bench b;
+  b.counts[2] = 12345;
+  b.extra_tension_n[1] = 0.5f;
+  b.send(msg::Hello{kProtocolVersion});
+  b.run(0.05);
+  b.send(msg::Tare{0b0010, 0b0100});
+  b.run(0.03);
+  CHECK(b.replies.acks == 1);
+  CHECK_NEAR(b.replies.last.lengths_m[2], 0.0, 0.0);
+  CHECK(b.replies.last.encoder_counts[2] == 12345);
+  CHECK_NEAR(b.replies.last.tensions_n[1], 0.0, 1e-6);
+  CHECK(b.replies.last.tensions_n[0] > 0.1f);  // untouched channel keeps its nominal offset 0
+}
+
+}  // namespace
+
+void test_firmware() {
+  handshake();
+  setpoint_gives_pwm_sign();
+  telemetry_schedule();
+  control_runs_at_100_hz();
+  corrupted_command_is_not_acted_on();
+  garbage_is_counted_and_ignored();
+  commands_are_validated();
+  tare_sets_origins();
+}

@@ -1,0 +1,32 @@
+// Runs every suite; the exit code is the number of failed checks (0 = pass), which the host
+// shell and QEMU's semihosting exit both hand back.
+#include <cstdio>
+
+#include "check.h"
+#include "suites.h"
+
+namespace check {
+Counters& counters() {
+  static Counters c;
+  return c;
+}
+}  // namespace check
+
+int main() {
+  struct Suite {
+    const char* name;
+    void (*run)();
+  };
+  const Suite suites[] = {
+      {"units", test_units},       {"pid", test_pid},         {"codec", test_codec},
+      {"controller", test_controller}, {"firmware", test_firmware}, {"safety", test_safety},
+  };
+  for (const Suite& s : suites) {
+    const int before = check::counters().failures;
+    s.run();
+    std::printf("%-10s %s\n", s.name, check::counters().failures == before ? "ok" : "FAILED");
+  }
+  const check::Counters& c = check::counters();
+  std::printf("%d checks, %d failures\n", c.checks, c.failures);
+  return c.failures;
+}
