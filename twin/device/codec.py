@@ -1,0 +1,554 @@
+"""Host side of the board protocol: messages, frames and a streaming decoder.
+
+The protocol is specified in ``firmware/PROTOCOL.md``; ``firmware/golden/vectors.json`` pins
+its bytes for this codec and the firmware's C++ codec alike. A frame is
+``[type u8][seq u16][payload][crc u16]`` (little-endian, CRC-16/CCITT-FALSE over everything
+before it), COBS-encoded and terminated by ``0x00``.
+
+Example:
+    >>> frame = encode_frame(SetSetpoints.lengths([0.001, 0.0, -0.001, 0.0]), seq=7)
+    >>> decoder = FrameDecoder()
+    >>> [f.seq for f in decoder.feed(b"garbage\\x00" + frame)], decoder.bad_frames
+    ([7], 1)
+"""
+
+from __future__ import annotations
+
+import binascii
+import dataclasses
+import enum
+import struct
+from typing import ClassVar, Iterable, Sequence
+
+__all__ = [
+    "PROTOCOL_VERSION",
+    "CHANNELS",
+    "MAX_PAYLOAD_BYTES",
+    "MAX_RAW_FRAME_BYTES",
+    "MsgType",
+    "Mode",
+    "State",
+    "Drive",
+    "NackError",
+    "Fault",
+    "CodecError",
+    "FrameError",
+    "MessageError",
+    "Message",
+    "Hello",
+    "Ping",
+    "Enable",
+    "Disable",
+    "Tare",
+    "SetMode",
+    "SetSetpoints",
+    "SetGains",
+    "SetCalibration",
+    "SetLimits",
+    "HelloReply",
+    "Ack",
+    "Nack",
+    "Telemetry",
+    "MESSAGE_TYPES",
+    "Frame",
+    "FrameDecoder",
+    "crc16",
+    "cobs_encode",
+    "cobs_decode",
+    "encode_payload",
+    "decode_payload",
+    "encode_frame",
+    "decode_frame",
+]
+
+PROTOCOL_VERSION = 1
+CHANNELS = 4
+MAX_PAYLOAD_BYTES = 160
+_HEADER = struct.Struct("<BH")
+_CRC = struct.Struct("<H")
+MAX_RAW_FRAME_BYTES = _HEADER.size + MAX_PAYLOAD_BYTES + _CRC.size
+# Longest COBS encoding of a raw frame (without its delimiter).
+_MAX_ENCODED_BYTES = MAX_RAW_FRAME_BYTES + MAX_RAW_FRAME_BYTES // 254 + 1
+
+
+class MsgType(enum.IntEnum):
+    HELLO = 0x01
+    PING = 0x02
+    ENABLE = 0x03
+    DISABLE = 0x04
+    TARE = 0x05
+    SET_MODE = 0x06
+    SET_SETPOINTS = 0x07
+    SET_GAINS = 0x08
+    SET_CALIBRATION = 0x09
+    SET_LIMITS = 0x0A
+    HELLO_REPLY = 0x81
+    ACK = 0x82
+    NACK = 0x83
+    TELEMETRY = 0x84
+
+
+class Mode(enum.IntEnum):
+    """Control mode: setpoints are 4 lengths (m), 2 antagonistic pair lengths (m) or 4 tensions (N)."""
+
+    LENGTHS = 0
+    PAIRS = 1
+    TENSION = 2
+
+
+class State(enum.IntEnum):
+    DISABLED = 0
+    ENABLED = 1
+    FAULT = 2
+
+
+class Drive(enum.IntEnum):
+    """H-bridge drive of one motor: coast (both inputs low), PWM drive, or brake (both high)."""
+
+    COAST = 0
+    DRIVE = 1
+    BRAKE = 2
+
+
+class NackError(enum.IntEnum):
+    UNKNOWN_TYPE = 1
+    BAD_LENGTH = 2
+    BAD_VALUE = 3
+    WRONG_MODE = 4
+    NOT_ENABLED = 5
+    NOT_WHILE_ENABLED = 6
+    NO_HANDSHAKE = 7
+    NOT_CALIBRATED = 8
+
+
+class Fault(enum.IntFlag):
+    """Telemetry fault flags: WATCHDOG and TENSION_LIMIT latch until ENABLE; LOADCELL_STALE is live."""
+
+    WATCHDOG = 1 << 0
+    TENSION_LIMIT = 1 << 1
+    LOADCELL_STALE = 1 << 2
+    TENSION_CHANNEL_1 = 1 << 8
+    TENSION_CHANNEL_2 = 1 << 9
+    TENSION_CHANNEL_3 = 1 << 10
+    TENSION_CHANNEL_4 = 1 << 11
+
+
+class CodecError(ValueError):
+    """Bytes or a message that the protocol cannot carry; the message names the bad value."""
+
+
+class FrameError(CodecError):
+    """A frame failed COBS, length or CRC checks: its content cannot be trusted."""
+
+
+class MessageError(CodecError):
+    """A frame passed its CRC but its type is unknown or its payload has the wrong length."""
+
+
+@dataclasses.dataclass(frozen=True)
+class Message:
+    """Base of all messages. ``LAYOUT`` lists (field, struct code) in wire order; a code with a
+    count (``"4f"``) is a tuple field."""
+
+    TYPE: ClassVar[MsgType]
+    LAYOUT: ClassVar[tuple[tuple[str, str], ...]] = ()
+
+
+# Host → board.
+@dataclasses.dataclass(frozen=True)
+class Hello(Message):
+    """Version request; the board answers HelloReply and accepts ENABLE only if the versions match."""
+
+    TYPE = MsgType.HELLO
+    LAYOUT = (("protocol_version", "H"),)
+    protocol_version: int = PROTOCOL_VERSION
+
+
+@dataclasses.dataclass(frozen=True)
+class Ping(Message):
+    """Keepalive: feeds the watchdog; answered by Ack."""
+
+    TYPE = MsgType.PING
+
+
+@dataclasses.dataclass(frozen=True)
+class Enable(Message):
+    """Enter ENABLED (clearing latched faults); the rig holds its current lengths/tensions."""
+
+    TYPE = MsgType.ENABLE
+
+
+@dataclasses.dataclass(frozen=True)
+class Disable(Message):
+    """Enter DISABLED: all motors coast."""
+
+    TYPE = MsgType.DISABLE
+
+
+@dataclasses.dataclass(frozen=True)
+class Tare(Message):
+    """Zero load cells (bit i: offset := latest raw count) and lengths (bit i: origin := encoder count).
+
+    Refused while enabled.
+    """
+
+    TYPE = MsgType.TARE
+    LAYOUT = (("loadcell_mask", "B"), ("length_mask", "B"))
+    loadcell_mask: int = 0
+    length_mask: int = 0
+
+
+@dataclasses.dataclass(frozen=True)
+class SetMode(Message):
+    TYPE = MsgType.SET_MODE
+    LAYOUT = (("mode", "B"),)
+    mode: int = Mode.LENGTHS
+
+
+@dataclasses.dataclass(frozen=True)
+class SetSetpoints(Message):
+    """Setpoints of the active mode (``mode`` must match it).
+
+    ``values``: four tendon lengths (m) in LENGTHS; two pair lengths (m) then two zeros in
+    PAIRS; four tensions (N) in TENSION.
+    """
+
+    TYPE = MsgType.SET_SETPOINTS
+    LAYOUT = (("mode", "B"), ("values", "4f"))
+    mode: int = Mode.LENGTHS
+    values: tuple[float, ...] = (0.0, 0.0, 0.0, 0.0)
+
+    @classmethod
+    def lengths(cls, lengths_m: Sequence[float]) -> "SetSetpoints":
+        return cls(Mode.LENGTHS, _floats("lengths_m", lengths_m, CHANNELS))
+
+    @classmethod
+    def pairs(cls, pair_lengths_m: Sequence[float]) -> "SetSetpoints":
+        """Pair (1,3) then pair (2,4): tendon 1 at c₁₃ + d, tendon 3 at c₁₃ − d (m)."""
+        return cls(Mode.PAIRS, _floats("pair_lengths_m", pair_lengths_m, CHANNELS // 2) + (0.0, 0.0))
+
+    @classmethod
+    def tensions(cls, tensions_n: Sequence[float]) -> "SetSetpoints":
+        return cls(Mode.TENSION, _floats("tensions_n", tensions_n, CHANNELS))
+
+
+@dataclasses.dataclass(frozen=True)
+class SetGains(Message):
+    """PID gains of one mode. Units per m of length (LENGTHS, PAIRS) or per N (TENSION):
+    ``kp`` duty/unit, ``ki`` duty/(unit·s), ``kd`` duty·s/unit; ``output_limit`` in (0, 1]."""
+
+    TYPE = MsgType.SET_GAINS
+    LAYOUT = (("mode", "B"), ("kp", "f"), ("ki", "f"), ("kd", "f"), ("output_limit", "f"))
+    mode: int = Mode.LENGTHS
+    kp: float = 0.0
+    ki: float = 0.0
+    kd: float = 0.0
+    output_limit: float = 1.0
+
+
+@dataclasses.dataclass(frozen=True)
+class SetCalibration(Message):
+    """Load-cell calibration: tension_n = gain_n_per_count · (raw − offset_counts). Refused while enabled."""
+
+    TYPE = MsgType.SET_CALIBRATION
+    LAYOUT = (("gain_n_per_count", "4f"), ("offset_counts", "4f"))
+    gain_n_per_count: tuple[float, ...] = (1.0, 1.0, 1.0, 1.0)
+    offset_counts: tuple[float, ...] = (0.0, 0.0, 0.0, 0.0)
+
+
+@dataclasses.dataclass(frozen=True)
+class SetLimits(Message):
+    TYPE = MsgType.SET_LIMITS
+    LAYOUT = (("tension_limit_n", "f"), ("watchdog_timeout_ms", "H"))
+    tension_limit_n: float = 6.0
+    watchdog_timeout_ms: int = 250
+
+
+# Board → host.
+@dataclasses.dataclass(frozen=True)
+class HelloReply(Message):
+    TYPE = MsgType.HELLO_REPLY
+    LAYOUT = (
+        ("protocol_version", "H"),
+        ("firmware_version", "3B"),
+        ("channels", "B"),
+        ("control_period_us", "I"),
+        ("telemetry_period_us", "I"),
+        ("tendon_m_per_count", "f"),
+    )
+    protocol_version: int = PROTOCOL_VERSION
+    firmware_version: tuple[int, ...] = (0, 0, 0)
+    channels: int = CHANNELS
+    control_period_us: int = 0
+    telemetry_period_us: int = 0
+    tendon_m_per_count: float = 0.0
+
+
+@dataclasses.dataclass(frozen=True)
+class Ack(Message):
+    TYPE = MsgType.ACK
+    LAYOUT = (("acked_seq", "H"), ("acked_type", "B"))
+    acked_seq: int = 0
+    acked_type: int = 0
+
+
+@dataclasses.dataclass(frozen=True)
+class Nack(Message):
+    TYPE = MsgType.NACK
+    LAYOUT = (("acked_seq", "H"), ("acked_type", "B"), ("error", "B"))
+    acked_seq: int = 0
+    acked_type: int = 0
+    error: int = 0
+
+
+@dataclasses.dataclass(frozen=True)
+class Telemetry(Message):
+    """One 40 Hz sample. ``targets`` are per motor, in m (length modes) or N (tension);
+    ``duty`` in [-1, 1], positive pays tendon out; ``drive_modes`` packs a Drive per motor in
+    bits 2i..2i+1; ``stale_mask`` bit i = load cell i stale."""
+
+    TYPE = MsgType.TELEMETRY
+    LAYOUT = (
+        ("time_us", "Q"),
+        ("sample_seq", "I"),
+        ("encoder_counts", "4i"),
+        ("lengths_m", "4f"),
+        ("raw_counts", "4i"),
+        ("tensions_n", "4f"),
+        ("targets", "4f"),
+        ("duty", "4f"),
+        ("state", "B"),
+        ("mode", "B"),
+        ("fault_flags", "H"),
+        ("stale_mask", "B"),
+        ("drive_modes", "B"),
+        ("rx_bad_frames", "I"),
+        ("tx_dropped_frames", "I"),
+    )
+    time_us: int = 0
+    sample_seq: int = 0
+    encoder_counts: tuple[int, ...] = (0, 0, 0, 0)
+    lengths_m: tuple[float, ...] = (0.0, 0.0, 0.0, 0.0)
+    raw_counts: tuple[int, ...] = (0, 0, 0, 0)
+    tensions_n: tuple[float, ...] = (0.0, 0.0, 0.0, 0.0)
+    targets: tuple[float, ...] = (0.0, 0.0, 0.0, 0.0)
+    duty: tuple[float, ...] = (0.0, 0.0, 0.0, 0.0)
+    state: int = State.DISABLED
+    mode: int = Mode.LENGTHS
+    fault_flags: int = 0
+    stale_mask: int = 0
+    drive_modes: int = 0
+    rx_bad_frames: int = 0
+    tx_dropped_frames: int = 0
+
+    def drives(self) -> tuple[Drive, ...]:
+        """The Drive of each motor, unpacked from ``drive_modes``."""
+        return tuple(Drive((self.drive_modes >> (2 * i)) & 0b11) for i in range(CHANNELS))
+
+
+MESSAGE_TYPES: dict[int, type[Message]] = {
+    cls.TYPE: cls
+    for cls in (Hello, Ping, Enable, Disable, Tare, SetMode, SetSetpoints, SetGains, SetCalibration,
+                SetLimits, HelloReply, Ack, Nack, Telemetry)
+}
+
+
+def _floats(name: str, values: Iterable[float], count: int) -> tuple[float, ...]:
+    values = tuple(float(v) for v in values)
+    if len(values) != count:
+        raise CodecError(f"{name} = {values!r}: must have {count} entries")
+    return values
+
+
+def _struct_of(cls: type[Message]) -> struct.Struct:
+    return struct.Struct("<" + "".join(code for _, code in cls.LAYOUT))
+
+
+_STRUCTS = {t: _struct_of(cls) for t, cls in MESSAGE_TYPES.items()}
+
+
+def crc16(data: bytes) -> int:
+    """CRC-16/CCITT-FALSE (poly 0x1021, init 0xFFFF, no reflection, no final XOR)."""
+    return binascii.crc_hqx(data, 0xFFFF)
+
+
+def cobs_encode(data: bytes) -> bytes:
+    """COBS-encode ``data`` (no delimiter appended); the result contains no 0x00."""
+    out = bytearray(b"\x00")
+    code_pos, code = 0, 1
+    for i, byte in enumerate(data):
+        if byte == 0:
+            out[code_pos] = code
+            code_pos, code = len(out), 1
+            out.append(0)
+            continue
+        out.append(byte)
+        code += 1
+        # A full block ends here; a new one starts only if data follows (canonical COBS).
+        if code == 0xFF and i + 1 < len(data):
+            out[code_pos] = code
+            code_pos, code = len(out), 1
+            out.append(0)
+    out[code_pos] = code
+    return bytes(out)
+
+
+def cobs_decode(data: bytes) -> bytes:
+    """Decode one COBS frame (without its delimiter).
+
+    Raises:
+        FrameError: a zero byte, or a block running past the end.
+    """
+    out = bytearray()
+    i, n = 0, len(data)
+    while i < n:
+        code = data[i]
+        i += 1
+        block = data[i : i + code - 1]
+        if code == 0 or len(block) != code - 1 or 0 in block:
+            raise FrameError(f"invalid COBS block code {code} at byte {i - 1} of {n}")
+        out += block
+        i += code - 1
+        if code != 0xFF and i < n:
+            out.append(0)
+    return bytes(out)
+
+
+def encode_payload(message: Message) -> bytes:
+    """The payload bytes of ``message`` (little-endian, fields in LAYOUT order)."""
+    flat: list = []
+    for name, code in message.LAYOUT:
+        value = getattr(message, name)
+        if code[0].isdigit():
+            count = int(code[:-1])
+            if len(value) != count:
+                raise CodecError(f"{type(message).__name__}.{name} = {value!r}: must have {count} entries")
+            flat.extend(value)
+        else:
+            flat.append(value)
+    try:
+        return _STRUCTS[message.TYPE].pack(*flat)
+    except (struct.error, OverflowError) as exc:
+        raise CodecError(f"{message!r} cannot be encoded: {exc}") from None
+
+
+def decode_payload(msg_type: int, payload: bytes) -> Message:
+    """The message of type ``msg_type`` carried by ``payload``.
+
+    Raises:
+        MessageError: unknown type or a payload of the wrong length.
+    """
+    cls = MESSAGE_TYPES.get(msg_type)
+    if cls is None:
+        raise MessageError(f"unknown message type 0x{msg_type:02x}")
+    layout = _STRUCTS[msg_type]
+    if len(payload) != layout.size:
+        raise MessageError(f"{cls.__name__} payload is {len(payload)} bytes, expected {layout.size}")
+    flat = list(layout.unpack(payload))
+    fields = {}
+    for name, code in cls.LAYOUT:
+        if code[0].isdigit():
+            count = int(code[:-1])
+            fields[name], flat = tuple(flat[:count]), flat[count:]
+        else:
+            fields[name] = flat.pop(0)
+    return cls(**fields)
+
+
+@dataclasses.dataclass(frozen=True)
+class Frame:
+    """A received frame: the sender's sequence number and the message."""
+
+    seq: int
+    message: Message
+
+
+def encode_frame(message: Message, seq: int) -> bytes:
+    """The wire bytes of ``message`` with sequence number ``seq`` (0..65535), delimiter included."""
+    if not 0 <= seq <= 0xFFFF:
+        raise CodecError(f"seq = {seq!r}: must be in 0..65535")
+    payload = encode_payload(message)
+    if len(payload) > MAX_PAYLOAD_BYTES:
+        raise CodecError(f"{type(message).__name__} payload is {len(payload)} bytes, max {MAX_PAYLOAD_BYTES}")
+    body = _HEADER.pack(message.TYPE, seq) + payload
+    return cobs_encode(body + _CRC.pack(crc16(body))) + b"\x00"
+
+
+def _check_frame(encoded: bytes) -> tuple[int, int, bytes]:
+    """(type, seq, payload) of an encoded frame without delimiter; FrameError unless intact."""
+    if len(encoded) > _MAX_ENCODED_BYTES:
+        raise FrameError(f"frame of {len(encoded)} encoded bytes exceeds {_MAX_ENCODED_BYTES}")
+    raw = cobs_decode(encoded)
+    if not _HEADER.size + _CRC.size <= len(raw) <= MAX_RAW_FRAME_BYTES:
+        raise FrameError(f"frame of {len(raw)} bytes outside {_HEADER.size + _CRC.size}..{MAX_RAW_FRAME_BYTES}")
+    body, (crc,) = raw[: -_CRC.size], _CRC.unpack(raw[-_CRC.size :])
+    if crc != crc16(body):
+        raise FrameError(f"CRC 0x{crc:04x} does not match 0x{crc16(body):04x}")
+    msg_type, seq = _HEADER.unpack(body[: _HEADER.size])
+    return msg_type, seq, body[_HEADER.size :]
+
+
+def decode_frame(encoded: bytes) -> Frame:
+    """Decode one frame given without its 0x00 delimiter.
+
+    Raises:
+        FrameError: COBS, length or CRC failure.
+        MessageError: intact frame of an unknown type or wrong payload length.
+    """
+    msg_type, seq, payload = _check_frame(encoded)
+    return Frame(seq, decode_payload(msg_type, payload))
+
+
+class FrameDecoder:
+    """Streaming receiver: feed bytes in any chunking, get the complete frames.
+
+    Whatever is not a valid frame is skipped and counted, and reception resynchronises on the
+    next 0x00: ``bad_frames`` counts framing and CRC failures (corruption, truncation,
+    garbage, over-long runs), ``bad_messages`` intact frames of an unknown type or wrong
+    length. Empty frames (repeated delimiters) are ignored.
+    """
+
+    def __init__(self) -> None:
+        self._buffer = bytearray()
+        self._overflow = False
+        self.bad_frames = 0
+        self.bad_messages = 0
+
+    def feed(self, data: bytes) -> list[Frame]:
+        frames = []
+        start = 0
+        while True:
+            end = data.find(0, start)
+            if end < 0:
+                self._append(data[start:])
+                return frames
+            self._append(data[start:end])
+            frame = self._finish()
+            if frame is not None:
+                frames.append(frame)
+            start = end + 1
+
+    def _append(self, chunk: bytes) -> None:
+        if self._overflow:
+            return
+        self._buffer += chunk
+        if len(self._buffer) > _MAX_ENCODED_BYTES:
+            self._buffer.clear()
+            self._overflow = True
+
+    def _finish(self) -> Frame | None:
+        encoded, overflow = bytes(self._buffer), self._overflow
+        self._buffer.clear()
+        self._overflow = False
+        if overflow:
+            self.bad_frames += 1
+            return None
+        if not encoded:
+            return None
+        try:
+            return decode_frame(encoded)
+        except FrameError:
+            self.bad_frames += 1
+        except MessageError:
+            self.bad_messages += 1
+        return None
