@@ -9,7 +9,7 @@
 
 static_assert(TWINFW_CHANNELS == twinfw::kChannels, "C API and core disagree on the channel count");
 
-struct twinfw {
+struct twinfw_board {
   twinfw::Firmware firmware;
 };
 
@@ -24,15 +24,15 @@ TWINFW_EXPORT uint32_t twinfw_abi_version(void) { return TWINFW_ABI_VERSION; }
 
 TWINFW_EXPORT uint32_t twinfw_protocol_version(void) { return twinfw::kProtocolVersion; }
 
-TWINFW_EXPORT twinfw* twinfw_create(void) { return new (std::nothrow) twinfw(); }
+TWINFW_EXPORT twinfw_board* twinfw_create(void) { return new (std::nothrow) twinfw_board(); }
 
-TWINFW_EXPORT void twinfw_destroy(twinfw* fw) { delete fw; }
+TWINFW_EXPORT void twinfw_destroy(twinfw_board* fw) { delete fw; }
 
-TWINFW_EXPORT void twinfw_receive(twinfw* fw, const uint8_t* data, size_t size) {
+TWINFW_EXPORT void twinfw_receive(twinfw_board* fw, const uint8_t* data, size_t size) {
   fw->firmware.receive(data, size);
 }
 
-TWINFW_EXPORT void twinfw_tick(twinfw* fw, uint64_t now_us, const int32_t* encoder_counts,
+TWINFW_EXPORT void twinfw_tick(twinfw_board* fw, uint64_t now_us, const int32_t* encoder_counts,
                                const int32_t* raw_counts, uint32_t new_sample_mask, float* duty_out,
                                uint8_t* drive_out) {
   twinfw::Inputs in{};
@@ -47,9 +47,9 @@ TWINFW_EXPORT void twinfw_tick(twinfw* fw, uint64_t now_us, const int32_t* encod
   }
 }
 
-TWINFW_EXPORT size_t twinfw_tx_pending(const twinfw* fw) { return fw->firmware.tx_pending(); }
+TWINFW_EXPORT size_t twinfw_tx_pending(const twinfw_board* fw) { return fw->firmware.tx_pending(); }
 
-TWINFW_EXPORT size_t twinfw_take_tx(twinfw* fw, uint8_t* out, size_t capacity) {
+TWINFW_EXPORT size_t twinfw_take_tx(twinfw_board* fw, uint8_t* out, size_t capacity) {
   return fw->firmware.take_tx(out, capacity);
 }
 

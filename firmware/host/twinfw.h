@@ -14,7 +14,7 @@ extern "C" {
 #define TWINFW_ABI_VERSION 1
 #define TWINFW_CHANNELS 4
 
-typedef struct twinfw twinfw;
+typedef struct twinfw_board twinfw_board;
 typedef struct twinfw_decoder twinfw_decoder;
 
 /* TWINFW_ABI_VERSION of the built library; callers refuse a mismatch. */
@@ -23,22 +23,22 @@ uint32_t twinfw_abi_version(void);
 uint32_t twinfw_protocol_version(void);
 
 /* A fresh board as after power-up; NULL if out of memory. */
-twinfw* twinfw_create(void);
-void twinfw_destroy(twinfw* fw);
+twinfw_board* twinfw_create(void);
+void twinfw_destroy(twinfw_board* fw);
 
 /* Host bytes, any chunking; commands are acted on at the time of the latest tick. */
-void twinfw_receive(twinfw* fw, const uint8_t* data, size_t size);
+void twinfw_receive(twinfw_board* fw, const uint8_t* data, size_t size);
 
 /* One step at now_us (µs, any origin, non-decreasing). new_sample_mask bit i marks
  * raw_counts[i] as a fresh HX711 sample. Writes duty_out in [-1, 1] and drive_out
  * (0 coast, 1 drive, 2 brake). */
-void twinfw_tick(twinfw* fw, uint64_t now_us, const int32_t* encoder_counts, const int32_t* raw_counts,
+void twinfw_tick(twinfw_board* fw, uint64_t now_us, const int32_t* encoder_counts, const int32_t* raw_counts,
                  uint32_t new_sample_mask, float* duty_out, uint8_t* drive_out);
 
 /* Bytes queued for the host. */
-size_t twinfw_tx_pending(const twinfw* fw);
+size_t twinfw_tx_pending(const twinfw_board* fw);
 /* Moves up to capacity queued bytes into out; returns how many. */
-size_t twinfw_take_tx(twinfw* fw, uint8_t* out, size_t capacity);
+size_t twinfw_take_tx(twinfw_board* fw, uint8_t* out, size_t capacity);
 
 twinfw_decoder* twinfw_decoder_create(void);
 void twinfw_decoder_destroy(twinfw_decoder* decoder);

@@ -1,0 +1,228 @@
+"""The Python codec against the golden vectors, and both codecs under fuzzing.
+
+The same ``firmware/golden/vectors.json`` is checked by the C++ tests (``make -C firmware
+host-test``), so a change to either codec that moves a byte fails one side.
+"""
+
+from __future__ import annotations
+
+import binascii
+import dataclasses
+import importlib.util
+import json
+import struct
+
+import numpy as np
+import pytest
+
+from twin.device import codec as c
+from twin.device.firmware_lib import FIRMWARE_DIR, FirmwareFrameDecoder
+
+VECTORS_PATH = FIRMWARE_DIR / "golden" / "vectors.json"
+VECTORS = json.loads(VECTORS_PATH.read_text())
+
+
+def _f32(x: float) -> float:
+    return struct.unpack("<f", struct.pack("<f", x))[0]
+
+
+def _wire_value(value):
+    """A JSON field value as it reads back from the wire (floats rounded to float32)."""
+    if isinstance(value, list):
+        return tuple(_wire_value(v) for v in value)
+    return _f32(value) if isinstance(value, float) else value
+
+
+@pytest.mark.parametrize("vector", VECTORS["valid"], ids=lambda v: v["name"])
+def test_golden_valid_vector_decodes_to_its_fields_and_encodes_back(vector):
+    frame = bytes.fromhex(vector["hex"])
+    assert frame.endswith(b"\x00") and b"\x00" not in frame[:-1]
+    decoded = c.decode_frame(frame[:-1])
+    assert type(decoded.message).__name__ == vector["message"]
+    assert decoded.seq == vector["seq"]
+    assert dataclasses.asdict(decoded.message) == {k: _wire_value(v) for k, v in vector["fields"].items()}
+    cls = c.MESSAGE_TYPES[decoded.message.TYPE]
+    rebuilt = cls(**{k: tuple(v) if isinstance(v, list) else v for k, v in vector["fields"].items()})
+    assert c.encode_frame(rebuilt, vector["seq"]).hex() == vector["hex"]
+
+
+@pytest.mark.parametrize("vector", VECTORS["invalid"], ids=lambda v: v["name"])
+def test_golden_invalid_vector_is_counted_and_skipped(vector):
+    decoder = c.FrameDecoder()
+    assert decoder.feed(bytes.fromhex(vector["hex"])) == []
+    expected = (1, 0) if vector["expect"] == "bad_frame" else (0, 1)
+    assert (decoder.bad_frames, decoder.bad_messages) == expected
+
+
+def test_every_message_type_has_a_golden_vector():
+    assert {v["message"] for v in VECTORS["valid"]} == {cls.__name__ for cls in c.MESSAGE_TYPES.values()}
+    assert VECTORS["protocol_version"] == c.PROTOCOL_VERSION
+
+
+def test_golden_file_is_what_its_script_writes():
+    spec = importlib.util.spec_from_file_location("make_vectors", FIRMWARE_DIR / "golden" / "make_vectors.py")
+    make_vectors = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(make_vectors)
+    assert make_vectors.build() == VECTORS
+
+
+def test_set_limits_frame_built_by_hand_from_protocol_md():
+    # PROTOCOL.md: [type][seq u16][payload][crc u16 over the rest], COBS, 0x00. SET_LIMITS = 0x0A,
+    # payload tension_limit_n f32 + watchdog_timeout_ms u16.
+    body = bytes([0x0A]) + struct.pack("<H", 12) + struct.pack("<fH", 6.0, 250)
+    raw = body + struct.pack("<H", binascii.crc_hqx(body, 0xFFFF))
+    assert raw.hex() == "0a0c000000c040fa005eb4"
+    cobs = bytes.fromhex("030a0c010104c040fa035eb4")  # zeros at bytes 2, 3, 4 and 8 stuffed by hand
+    assert c.cobs_decode(cobs) == raw
+    assert c.encode_frame(c.SetLimits(6.0, 250), seq=12) == cobs + b"\x00"
+
+
+def test_crc_check_value():
+    assert c.crc16(b"123456789") == 0x29B1
+
+
+@pytest.mark.parametrize(
+    "data, encoded",
+    [
+        ("00", "0101"),
+        ("0000", "010101"),
+        ("11220033", "0311220233"),
+        ("11223344", "0511223344"),
+        ("11000000", "0211010101"),
+        (bytes(range(1, 255)).hex(), "ff" + bytes(range(1, 255)).hex()),
+        (bytes(range(1, 256)).hex(), "ff" + bytes(range(1, 255)).hex() + "02ff"),
+        ("00" + bytes(range(1, 255)).hex(), "01ff" + bytes(range(1, 255)).hex()),
+    ],
+)
+def test_cobs_reference_examples(data, encoded):
+    assert c.cobs_encode(bytes.fromhex(data)).hex() == encoded
+    assert c.cobs_decode(bytes.fromhex(encoded)).hex() == data
+
+
+def test_cobs_round_trips_random_data():
+    rng = np.random.default_rng(1)
+    for size in [0, 1, 2, 253, 254, 255, 508, 600]:
+        for zero_fraction in (0.0, 0.1, 0.9):
+            data = rng.integers(1, 256, size).astype(np.uint8)
+            data[rng.random(size) < zero_fraction] = 0
+            encoded = c.cobs_encode(data.tobytes())
+            assert 0 not in encoded and len(encoded) <= size + size // 254 + 1
+            assert c.cobs_decode(encoded) == data.tobytes()
+
+
+@pytest.mark.parametrize("bad, code", [("00", 0), ("0511", 5), ("031100", 3), ("02", 2)])
+def test_cobs_rejects_invalid_input(bad, code):
+    with pytest.raises(c.FrameError, match=f"code {code} at byte 0"):
+        c.cobs_decode(bytes.fromhex(bad))
+
+
+def _random_message(cls: type[c.Message], rng: np.random.Generator) -> c.Message:
+    ranges = {"B": (0, 2**8), "H": (0, 2**16), "I": (0, 2**32), "Q": (0, 2**64), "i": (-(2**31), 2**31)}
+    fields = {}
+    for name, code in cls.LAYOUT:
+        count, kind = (int(code[:-1]), code[-1]) if code[0].isdigit() else (None, code)
+        def one():
+            if kind == "f":
+                return _f32(float(rng.normal(0.0, 10.0)))
+            lo, hi = ranges[kind]
+            return int(rng.integers(lo, hi, dtype=np.uint64 if kind == "Q" else np.int64))
+        fields[name] = tuple(one() for _ in range(count)) if count else one()
+    return cls(**fields)
+
+
+@pytest.mark.parametrize("cls", list(c.MESSAGE_TYPES.values()), ids=lambda cls: cls.__name__)
+def test_every_message_round_trips(cls):
+    rng = np.random.default_rng(cls.TYPE)
+    for k in range(20):
+        message = _random_message(cls, rng)
+        seq = int(rng.integers(0, 2**16))
+        frame = c.encode_frame(message, seq)
+        assert c.decode_frame(frame[:-1]) == c.Frame(seq, message)
+
+
+def test_encode_names_the_bad_value():
+    with pytest.raises(c.CodecError, match="seq = 70000"):
+        c.encode_frame(c.Ping(), 70000)
+    with pytest.raises(c.CodecError, match="must have 4 entries"):
+        c.encode_frame(c.SetSetpoints(0, (1.0, 2.0)), 1)
+    with pytest.raises(c.CodecError, match="lengths_m"):
+        c.SetSetpoints.lengths([0.0, 0.0, 0.0])
+    with pytest.raises(c.CodecError, match="Tare"):
+        c.encode_frame(c.Tare(loadcell_mask=300), 1)
+
+
+def _golden_frames() -> list[bytes]:
+    return [bytes.fromhex(v["hex"]) for v in VECTORS["valid"]]
+
+
+def test_stream_in_random_chunks_yields_every_frame():
+    rng = np.random.default_rng(2)
+    frames = _golden_frames() * 5
+    stream = b"\x00".join([b"\x07\x08\x09garbage"] + frames)
+    decoder = c.FrameDecoder()
+    out = []
+    cuts = np.sort(rng.integers(0, len(stream), 60))
+    for chunk in np.split(np.frombuffer(stream, np.uint8), cuts):
+        out += decoder.feed(chunk.tobytes())
+    # The garbage runs into the first frame up to its delimiter; the sender can lead with 0x00.
+    assert [f.seq for f in out] == [v["seq"] for v in VECTORS["valid"]] * 5
+    assert decoder.bad_frames == 1
+
+
+def _mutate(frame: bytes, rng: np.random.Generator) -> bytes:
+    """One random corruption of an encoded frame (delimiter kept at the end)."""
+    body = bytearray(frame[:-1])
+    kind = rng.integers(0, 6)
+    pos = int(rng.integers(0, len(body)))
+    if kind == 0:
+        body[pos] ^= 1 << int(rng.integers(0, 8))  # bit flip
+    elif kind == 1:
+        body[pos] = (body[pos] + int(rng.integers(1, 256))) % 256  # byte substitution, may be 0x00
+    elif kind == 2:
+        del body[pos]  # dropped byte
+    elif kind == 3:
+        body.insert(pos, int(rng.integers(0, 256)))  # inserted byte
+    elif kind == 4:
+        body = body[:pos]  # truncated
+    else:
+        for p in rng.integers(0, len(body), 3):  # a burst of three random bytes
+            body[int(p)] = int(rng.integers(0, 256))
+    return bytes(body) + b"\x00"
+
+
+def test_mutated_frames_are_never_accepted_by_either_codec():
+    rng = np.random.default_rng(3)
+    golden = _golden_frames()
+    mutations = false_accepts_py = false_accepts_cpp = 0
+    for _ in range(4000):
+        frame = golden[int(rng.integers(0, len(golden)))]
+        mutated = _mutate(frame, rng)
+        if mutated == frame:
+            continue
+        mutations += 1
+        original = c.decode_frame(frame[:-1])
+        py, cpp = c.FrameDecoder(), FirmwareFrameDecoder()
+        false_accepts_py += sum(f != original for f in py.feed(mutated))
+        raw = c.cobs_decode(frame[:-1])
+        false_accepts_cpp += sum((t, s, p) != (raw[0], raw[1] | raw[2] << 8, raw[3:-2]) for t, s, p in cpp.feed(mutated))
+        # Same algorithm, same verdict: every fragment the C++ decoder rejects, Python rejects.
+        assert cpp.bad_frames == py.bad_frames, mutated.hex()
+    assert mutations > 3900
+    assert false_accepts_py == 0 and false_accepts_cpp == 0
+
+
+def test_random_bytes_never_crash_and_are_counted():
+    rng = np.random.default_rng(4)
+    stream = rng.integers(0, 256, 300_000).astype(np.uint8)
+    stream[rng.random(stream.size) < 0.05] = 0  # many short candidate frames
+    data = stream.tobytes()
+    py, cpp = c.FrameDecoder(), FirmwareFrameDecoder()
+    py_frames, cpp_frames = [], []
+    for start in range(0, len(data), 4096):
+        py_frames += py.feed(data[start : start + 4096])
+        cpp_frames += cpp.feed(data[start : start + 4096])
+    candidates = data.count(0)
+    assert py.bad_frames > 0.9 * candidates
+    assert cpp.bad_frames == py.bad_frames
+    # ~14,000 candidates, each passing the CRC with p = 2^-16: none expected for this seed.
+    assert py_frames == [] and cpp_frames == []

@@ -1,0 +1,250 @@
+"""The firmware core, built for the host and driven through ctypes.
+
+This is the board's logic without the board: the same C++ (``firmware/core``) that runs on the
+Teensy, stepped with explicit time, so the emulated board and the tests exercise the real PID,
+safety state machine and codec. The library is built on first use with ``make -C firmware
+lib`` (host g++), and rebuilt when a firmware source is newer than it.
+
+Example:
+    >>> fw = FirmwareLib()
+    >>> fw.receive(codec.encode_frame(codec.Hello(), seq=1))
+    >>> duty = fw.tick(0, [0, 0, 0, 0], [0, 0, 0, 0], new_mask=0b1111)
+    >>> [type(f.message).__name__ for f in codec.FrameDecoder().feed(fw.take_tx())]
+    ['HelloReply', 'Telemetry']
+"""
+
+from __future__ import annotations
+
+import ctypes
+import fcntl
+import functools
+import subprocess
+from pathlib import Path
+from typing import Sequence
+
+import numpy as np
+
+from twin.device import codec
+
+__all__ = [
+    "FIRMWARE_DIR",
+    "LIB_PATH",
+    "ABI_VERSION",
+    "FirmwareBuildError",
+    "build_library",
+    "load_library",
+    "FirmwareLib",
+    "FirmwareFrameDecoder",
+]
+
+FIRMWARE_DIR = Path(__file__).resolve().parents[2] / "firmware"
+LIB_PATH = FIRMWARE_DIR / "build" / "libtwinfw.so"
+ABI_VERSION = 1
+_CHANNELS = codec.CHANNELS
+
+
+class FirmwareBuildError(RuntimeError):
+    """``make -C firmware lib`` failed or the built library does not match this binding."""
+
+
+def _sources() -> list[Path]:
+    return [
+        *sorted((FIRMWARE_DIR / "core").glob("*.[ch]*")),
+        *sorted((FIRMWARE_DIR / "host").glob("*.[ch]*")),
+        FIRMWARE_DIR / "Makefile",
+    ]
+
+
+def _stale() -> bool:
+    if not LIB_PATH.exists():
+        return True
+    built = LIB_PATH.stat().st_mtime
+    return any(p.stat().st_mtime > built for p in _sources())
+
+
+def build_library(*, force: bool = False) -> Path:
+    """Build ``firmware/build/libtwinfw.so`` if it is missing or older than its sources.
+
+    Concurrent callers (parallel test processes) serialise on a lock file.
+
+    Raises:
+        FirmwareBuildError: make is missing or the build failed (the message holds its output).
+    """
+    LIB_PATH.parent.mkdir(parents=True, exist_ok=True)
+    with open(LIB_PATH.parent / ".libtwinfw.lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        if force or _stale():
+            command = ["make", "-C", str(FIRMWARE_DIR), "lib"]
+            try:
+                result = subprocess.run(command, capture_output=True, text=True, check=False)
+            except FileNotFoundError as exc:
+                raise FirmwareBuildError(f"{' '.join(command)}: {exc}") from None
+            if result.returncode != 0:
+                raise FirmwareBuildError(
+                    f"{' '.join(command)} exited {result.returncode}:\n{result.stdout[-2000:]}{result.stderr[-4000:]}"
+                )
+    return LIB_PATH
+
+
+@functools.lru_cache(maxsize=1)
+def load_library() -> ctypes.CDLL:
+    """Build if needed and load the library, with argument types declared.
+
+    Raises:
+        FirmwareBuildError: the build failed, or the library's ABI version is not ABI_VERSION.
+    """
+    lib = ctypes.CDLL(str(build_library()))
+    p, u8p, i32p, f32p = ctypes.c_void_p, ctypes.POINTER(ctypes.c_uint8), ctypes.POINTER(ctypes.c_int32), ctypes.POINTER(ctypes.c_float)
+    signatures = {
+        "twinfw_abi_version": ([], ctypes.c_uint32),
+        "twinfw_protocol_version": ([], ctypes.c_uint32),
+        "twinfw_create": ([], p),
+        "twinfw_destroy": ([p], None),
+        "twinfw_receive": ([p, ctypes.c_char_p, ctypes.c_size_t], None),
+        "twinfw_tick": ([p, ctypes.c_uint64, i32p, i32p, ctypes.c_uint32, f32p, u8p], None),
+        "twinfw_tx_pending": ([p], ctypes.c_size_t),
+        "twinfw_take_tx": ([p, ctypes.c_char_p, ctypes.c_size_t], ctypes.c_size_t),
+        "twinfw_decoder_create": ([], p),
+        "twinfw_decoder_destroy": ([p], None),
+        "twinfw_decoder_feed": ([p, ctypes.c_char_p, ctypes.c_size_t, ctypes.c_char_p, ctypes.c_size_t], ctypes.c_size_t),
+        "twinfw_decoder_bad_frames": ([p], ctypes.c_uint32),
+        "twinfw_decoder_overflows": ([p], ctypes.c_uint32),
+    }
+    for name, (argtypes, restype) in signatures.items():
+        fn = getattr(lib, name)
+        fn.argtypes, fn.restype = argtypes, restype
+    abi = lib.twinfw_abi_version()
+    if abi != ABI_VERSION:
+        raise FirmwareBuildError(f"{LIB_PATH} has ABI version {abi}, this binding needs {ABI_VERSION}")
+    return lib
+
+
+def _channels(name: str, values: Sequence[int]) -> np.ndarray:
+    array = np.ascontiguousarray(values, dtype=np.int64)
+    if array.shape != (_CHANNELS,):
+        raise ValueError(f"{name} = {values!r}: must have {_CHANNELS} entries")
+    if np.any(array < -(2**31)) or np.any(array >= 2**31):
+        raise ValueError(f"{name} = {values!r}: must fit in int32")
+    return array.astype(np.int32)
+
+
+class FirmwareLib:
+    """One emulated board: the firmware core with its own state, stepped by the caller.
+
+    Time is whatever the caller says: ``tick(now_us, ...)`` runs the safety checks, the 100 Hz
+    control loop when due and the 40 Hz telemetry when due; commands given to ``receive`` take
+    effect at the time of the latest tick. Call ``tick`` at 200 Hz or faster to hit both rates
+    exactly. Not thread-safe.
+    """
+
+    def __init__(self) -> None:
+        self._lib = load_library()
+        self._fw = self._lib.twinfw_create()
+        if not self._fw:
+            raise MemoryError("twinfw_create returned NULL")
+        self._duty = np.zeros(_CHANNELS, dtype=np.float32)
+        self._drive = np.zeros(_CHANNELS, dtype=np.uint8)
+
+    def receive(self, data: bytes) -> None:
+        """Host → board bytes, in any chunking."""
+        self._check_open()
+        self._lib.twinfw_receive(self._fw, bytes(data), len(data))
+
+    def tick(
+        self, now_us: int, encoder_counts: Sequence[int], raw_counts: Sequence[int], new_mask: int
+    ) -> np.ndarray:
+        """Step the board at ``now_us`` (µs, non-decreasing, any origin).
+
+        Args:
+            now_us: board time in microseconds.
+            encoder_counts: 4 quadrature counts (int32).
+            raw_counts: 4 HX711 readings (int32); only channels in ``new_mask`` are taken.
+            new_mask: bit i set when ``raw_counts[i]`` is a sample taken since the last tick.
+
+        Returns:
+            Duty per motor in [-1, 1], shape (4,); positive pays tendon out. The drive state
+            (coast/drive/brake) of the same step is in :attr:`drive_modes`.
+        """
+        self._check_open()
+        if now_us < 0:
+            raise ValueError(f"now_us = {now_us!r}: must be >= 0")
+        if not 0 <= new_mask < 1 << _CHANNELS:
+            raise ValueError(f"new_mask = {new_mask!r}: must be in 0..{(1 << _CHANNELS) - 1}")
+        counts = _channels("encoder_counts", encoder_counts)
+        raw = _channels("raw_counts", raw_counts)
+        self._lib.twinfw_tick(
+            self._fw,
+            now_us,
+            counts.ctypes.data_as(ctypes.POINTER(ctypes.c_int32)),
+            raw.ctypes.data_as(ctypes.POINTER(ctypes.c_int32)),
+            new_mask,
+            self._duty.ctypes.data_as(ctypes.POINTER(ctypes.c_float)),
+            self._drive.ctypes.data_as(ctypes.POINTER(ctypes.c_uint8)),
+        )
+        return self._duty.astype(np.float64)
+
+    @property
+    def drive_modes(self) -> np.ndarray:
+        """:class:`codec.Drive` per motor after the latest tick, shape (4,), uint8."""
+        return self._drive.copy()
+
+    def take_tx(self) -> bytes:
+        """All board → host bytes queued so far (frames are whole)."""
+        self._check_open()
+        size = self._lib.twinfw_tx_pending(self._fw)
+        if size == 0:
+            return b""
+        buffer = ctypes.create_string_buffer(size)
+        n = self._lib.twinfw_take_tx(self._fw, buffer, size)
+        return buffer.raw[:n]
+
+    def close(self) -> None:
+        if self._fw:
+            self._lib.twinfw_destroy(self._fw)
+            self._fw = None
+
+    def __enter__(self) -> "FirmwareLib":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def __del__(self) -> None:
+        if getattr(self, "_fw", None):
+            self.close()
+
+    def _check_open(self) -> None:
+        if not self._fw:
+            raise ValueError("FirmwareLib is closed")
+
+
+class FirmwareFrameDecoder:
+    """The firmware's C++ frame decoder on its own, to test it against the Python one."""
+
+    def __init__(self) -> None:
+        self._lib = load_library()
+        self._decoder = self._lib.twinfw_decoder_create()
+        if not self._decoder:
+            raise MemoryError("twinfw_decoder_create returned NULL")
+
+    def feed(self, data: bytes) -> list[tuple[int, int, bytes]]:
+        """Frames completed by ``data`` that passed COBS and CRC, as (type, seq, payload)."""
+        capacity = len(data) + 8  # a record is never longer than the encoded frame it came from
+        out = ctypes.create_string_buffer(capacity)
+        n = self._lib.twinfw_decoder_feed(self._decoder, bytes(data), len(data), out, capacity)
+        records, raw, i = [], out.raw[:n], 0
+        while i < n:
+            size = raw[i]
+            record = raw[i + 1 : i + 1 + size]
+            records.append((record[0], int.from_bytes(record[1:3], "little"), bytes(record[3:])))
+            i += 1 + size
+        return records
+
+    @property
+    def bad_frames(self) -> int:
+        return self._lib.twinfw_decoder_bad_frames(self._decoder)
+
+    def __del__(self) -> None:
+        if getattr(self, "_decoder", None):
+            self._lib.twinfw_decoder_destroy(self._decoder)
+            self._decoder = None
