@@ -1,0 +1,91 @@
+// Teensy 3.5 sketch of the tendon rig: a thin layer that samples the hardware, steps the
+// portable firmware core (src/core, copied in by `make -C firmware teensy-sketch`) and applies
+// its outputs. All logic — PID, modes, safety, protocol — lives in the core and is unit-tested
+// on the host and under QEMU; nothing here decides anything.
+//
+// Timing: an IntervalTimer flags a tick every 5 ms (200 Hz, so the core's 100 Hz control and
+// 40 Hz telemetry both fall on ticks); the tick itself runs in loop(), outside interrupt
+// context, together with USB and the HX711 polling.
+
+#include <Encoder.h>
+#include <IntervalTimer.h>
+
+#include "load_cells.h"
+#include "motors.h"
+#include "pins.h"
+#include "src/core/firmware.h"
+
+namespace {
+
+constexpr uint32_t kTickPeriodUs = 5000;
+
+// Named objects, not an array of temporaries: each Encoder hands `this` to its pin interrupts
+// in its constructor, so it must be built in place.
+Encoder encoder1(pins::kEncoderA[0], pins::kEncoderB[0]);
+Encoder encoder2(pins::kEncoderA[1], pins::kEncoderB[1]);
+Encoder encoder3(pins::kEncoderA[2], pins::kEncoderB[2]);
+Encoder encoder4(pins::kEncoderA[3], pins::kEncoderB[3]);
+Encoder* const encoders[4] = {&encoder1, &encoder2, &encoder3, &encoder4};
+IntervalTimer tickTimer;
+volatile bool tickDue = false;
+volatile uint32_t tickTimeUs = 0;
+
+twinfw::Firmware firmware;
+twinfw::Inputs inputs = {};
+LoadCells loadCells;
+Motors motors;
+
+void onTick() {
+  tickTimeUs = micros();
+  tickDue = true;
+}
+
+// Copies the flag and its timestamp out of the interrupt's reach.
+bool takeTick(uint32_t& nowUs) {
+  noInterrupts();
+  const bool due = tickDue;
+  nowUs = tickTimeUs;
+  tickDue = false;
+  interrupts();
+  return due;
+}
+
+void receiveFromHost() {
+  uint8_t buffer[64];
+  int available;
+  while ((available = Serial.available()) > 0) {
+    const size_t n = Serial.readBytes(reinterpret_cast<char*>(buffer),
+                                      available < 64 ? available : 64);
+    firmware.receive(buffer, n);
+  }
+}
+
+// Sends only what the USB buffer takes now; the rest waits in the core's queue.
+void sendToHost() {
+  uint8_t buffer[64];
+  const int room = Serial.availableForWrite();
+  if (room <= 0 || firmware.tx_pending() == 0) return;
+  const size_t n = firmware.take_tx(buffer, room < 64 ? room : 64);
+  Serial.write(buffer, n);
+}
+
+}  // namespace
+
+void setup() {
+  motors.begin();
+  loadCells.begin();
+  Serial.begin(115200);  // USB serial: the rate is ignored, it runs at USB speed
+  tickTimer.begin(onTick, kTickPeriodUs);
+}
+
+void loop() {
+  loadCells.poll(inputs);
+  receiveFromHost();
+  uint32_t nowUs;
+  if (takeTick(nowUs)) {
+    for (int i = 0; i < 4; ++i) inputs.encoder_counts[i] = encoders[i]->read();
+    motors.apply(firmware.tick(nowUs, inputs));
+    inputs.new_sample_mask = 0;
+  }
+  sendToHost();
+}
