@@ -46,7 +46,6 @@ class Firmware {
 
   State state() const { return safety_.state(); }
   uint16_t faults() const { return safety_.faults(); }
-  Mode mode() const { return controller_.mode(); }
   uint32_t rx_bad_frames() const { return rx_.bad_frames(); }
 
  private:

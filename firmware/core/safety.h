@@ -17,7 +17,6 @@ class Safety {
   State state() const { return state_; }
   uint16_t faults() const { return faults_; }
   float tension_limit_n() const { return tension_limit_n_; }
-  uint16_t watchdog_timeout_ms() const { return watchdog_timeout_ms_; }
 
   // Enters ENABLED, clears the fault flags and arms the watchdog at `now_us`.
   void enable(uint64_t now_us);

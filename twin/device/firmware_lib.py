@@ -116,6 +116,11 @@ def load_library() -> ctypes.CDLL:
     abi = lib.twinfw_abi_version()
     if abi != ABI_VERSION:
         raise FirmwareBuildError(f"{LIB_PATH} has ABI version {abi}, this binding needs {ABI_VERSION}")
+    protocol = lib.twinfw_protocol_version()
+    if protocol != codec.PROTOCOL_VERSION:
+        raise FirmwareBuildError(
+            f"{LIB_PATH} speaks protocol version {protocol}, twin.device.codec speaks {codec.PROTOCOL_VERSION}"
+        )
     return lib
 
 
@@ -232,6 +237,8 @@ class FirmwareFrameDecoder:
         capacity = len(data) + 8  # a record is never longer than the encoded frame it came from
         out = ctypes.create_string_buffer(capacity)
         n = self._lib.twinfw_decoder_feed(self._decoder, bytes(data), len(data), out, capacity)
+        if self._lib.twinfw_decoder_overflows(self._decoder):
+            raise RuntimeError(f"twinfw_decoder_feed dropped records with capacity {capacity} for {len(data)} bytes")
         records, raw, i = [], out.raw[:n], 0
         while i < n:
             size = raw[i]
