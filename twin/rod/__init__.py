@@ -11,6 +11,10 @@ Example:
 """
 
 from twin.rod.model import RodModel, TendonRoute
+from twin.rod.jacobian import TipJacobian, solve_with_jacobian, tip_jacobian
 from twin.rod.solver import ConvergenceError, LoadCase, Predictor, RodSolution, solve
 
-__all__ = ["ConvergenceError", "LoadCase", "Predictor", "RodModel", "RodSolution", "TendonRoute", "solve"]
+__all__ = [
+    "ConvergenceError", "LoadCase", "Predictor", "RodModel", "RodSolution", "TendonRoute", "TipJacobian",
+    "solve", "solve_with_jacobian", "tip_jacobian",
+]

@@ -102,6 +102,7 @@ class RodSolution:
         tendon_tensions_n: tension of each tendon along s (K, nt) (varies only with friction).
         base_moment_nm: the solved m(0), reusable as a warm start.
         converged, status, residual_nm, iterations, integrations, continuation_steps, solve_time_s.
+        load: the :class:`LoadCase` that was solved.
     """
 
     s_m: np.ndarray
@@ -120,6 +121,7 @@ class RodSolution:
     integrations: int
     continuation_steps: int
     solve_time_s: float
+    load: LoadCase
 
     @property
     def tip_position_m(self) -> np.ndarray:
@@ -146,18 +148,21 @@ class RodSolution:
         }
 
 
-def _run(model: RodModel, load: LoadCase, m0: np.ndarray, states, strains):
+def kernel_args(model: RodModel, load: LoadCase, states, strains) -> tuple:
+    """Positional arguments of :func:`kernel.integrate` after m0, for this model and load."""
     a = model.arrays
     tendons = a["tendons"].copy()
     tendons[:, kernel.T_TAU] = load.tensions_n
     tendons[:, kernel.T_SIGMA] = load.friction_direction
+    return (load.base_position_m, load.base_rotation, a["nodes"], a["intervals"], a["kse"], a["kbt"],
+            tendons, model.length_m, model.friction_coeff, load.tip_force_n, load.tip_moment_nm,
+            a["grav"], model.line_mass_kg_per_m, a["pm_s"], a["pm_m"], states, strains)
+
+
+def _run(model: RodModel, load: LoadCase, m0: np.ndarray, states, strains):
     tol = model.tolerance * model.moment_scale_nm
-    return kernel.shoot(
-        m0, load.base_position_m, load.base_rotation, a["nodes"], a["intervals"], a["kse"], a["kbt"],
-        tendons, model.length_m, model.friction_coeff, load.tip_force_n, load.tip_moment_nm, a["grav"],
-        model.line_mass_kg_per_m, a["pm_s"], a["pm_m"], states, strains, tol, model.max_iterations,
-        1e-7 * model.moment_scale_nm,
-    )
+    return kernel.shoot(m0, *kernel_args(model, load, states, strains), tol, model.max_iterations,
+                        1e-7 * model.moment_scale_nm)
 
 
 def _initial_guess(model: RodModel, load: LoadCase) -> np.ndarray:
@@ -293,6 +298,7 @@ def _package(model, load, states, strains, m0, converged, status, res, iters, ca
         integrations=calls,
         continuation_steps=steps,
         solve_time_s=elapsed,
+        load=load,
     )
 
 

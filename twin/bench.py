@@ -1,0 +1,47 @@
+"""``twin bench TARGET``: speed benchmarks that print figures (never timed tests).
+
+Each target is a function in the package it measures, returning a dict of figures.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import json
+import os
+
+from twin.cliargs import add_param_args, params_from_args
+
+# target → (module, function, goals printed beside the figures as (comparison, value))
+TARGETS = {
+    "predictor": ("twin.rod.bench", "bench_predictor",
+                  {"cold_s": ("<=", 10e-3), "warm_s": ("<=", 1e-3), "jacobian_s": ("<=", 3e-3),
+                   "tip_error_m": ("<=", 1e-6)}),
+}
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("bench", help="run a speed benchmark and print its figures (one core)")
+    p.add_argument("target", choices=sorted(TARGETS), help="what to measure")
+    p.add_argument("--json", action="store_true", help="print the figures as one JSON object")
+    add_param_args(p)
+    p.set_defaults(func=run_bench)
+
+
+def run_bench(args: argparse.Namespace) -> int:
+    # One core: keep numerical libraries from spreading work over threads.
+    for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMBA_NUM_THREADS"):
+        os.environ.setdefault(var, "1")
+    module, function, goals = TARGETS[args.target]
+    figures = getattr(importlib.import_module(module), function)(params_from_args(args))
+    if args.json:
+        print(json.dumps(figures))
+        return 0
+    for key, value in figures.items():
+        if key not in goals:
+            print(f"{key:16s} {value}")
+            continue
+        op, goal = goals[key]
+        met = value <= goal if op == "<=" else value >= goal
+        print(f"{key:16s} {value:.4g}   (goal {op} {goal:g}: {'met' if met else 'NOT met'})")
+    return 0

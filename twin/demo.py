@@ -1,0 +1,70 @@
+"""``twin demo``: predict the thesis's horizontal endoscope across a few configurations.
+
+The main job until the validation sweep exists (issue 2): solves a κ × φ fan with and without
+a 10 g tip mass and saves a plot of the shapes.
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+import numpy as np
+
+from twin.cliargs import add_param_args, params_from_args
+from twin.pose import HORIZONTAL
+from twin.rod.grid import GRAVITY_TIP_FORCE_N, pcc_tensions_n
+from twin.rod.model import RodModel
+from twin.rod.solver import solve
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("demo", help="prediction demo: shapes of the horizontal endoscope under load")
+    p.add_argument("--out", default="runs/demo", help="folder for the plot (default runs/demo)")
+    add_param_args(p)
+    p.set_defaults(func=run_demo)
+
+
+def run_demo(args: argparse.Namespace) -> int:
+    params = params_from_args(args)
+    model = RodModel.from_params(params)
+    g = params.environment.gravity_m_s2
+    rows = []
+    print(f"{'kappa 1/m':>9} {'phi deg':>8} {'mass g':>7} {'tip x mm':>9} {'tip y mm':>9} {'tip z mm':>9} {'ms':>6}")
+    for kappa in (0.0, 13.0, 26.2):
+        for phi in (0.0, 90.0, 180.0):
+            for mass in (0.0, 0.010):
+                sol = solve(model, pcc_tensions_n(kappa, phi, params), tip_force_n=GRAVITY_TIP_FORCE_N(mass, g),
+                            base_rotation=HORIZONTAL)
+                tip = sol.tip_position_m * 1e3
+                print(f"{kappa:9.1f} {phi:8.0f} {mass * 1e3:7.0f} {tip[0]:9.2f} {tip[1]:9.2f} {tip[2]:9.2f} "
+                      f"{sol.solve_time_s * 1e3:6.2f}")
+                rows.append((kappa, phi, mass, sol))
+    path = _plot(rows, Path(args.out))
+    print(f"shapes plotted to {path}")
+    return 0
+
+
+def _plot(rows, out: Path) -> Path:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    out.mkdir(parents=True, exist_ok=True)
+    fig, axes = plt.subplots(1, 2, figsize=(10, 4.5))
+    for kappa, phi, mass, sol in rows:
+        p = sol.positions_m * 1e3
+        style = "-" if mass == 0 else "--"
+        axes[0].plot(p[:, 0], p[:, 2], style, lw=1.2)
+        axes[1].plot(p[:, 1], p[:, 2], style, lw=1.2)
+    axes[0].set(xlabel="x (mm)", ylabel="z (mm)", title="side view (solid 0 g, dashed 10 g)")
+    axes[1].set(xlabel="y (mm)", ylabel="z (mm)", title="front view")
+    for ax in axes:
+        ax.set_aspect("equal")
+        ax.grid(alpha=0.3)
+    path = out / "shapes.png"
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
