@@ -14,7 +14,6 @@ from twin.params import ParameterError
 
 COMMAND_MODULES = [
     "twin.rod.commands",
-    "twin.sim.commands",
     "twin.bench",
     "twin.demo",
 ]
