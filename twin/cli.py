@@ -14,6 +14,7 @@ from twin.params import ParameterError
 
 COMMAND_MODULES = [
     "twin.rod.commands",
+    "twin.sim.commands",
     "twin.bench",
     "twin.demo",
 ]

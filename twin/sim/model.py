@@ -1,0 +1,375 @@
+"""MuJoCo model of the endoscope and its rig, generated from the parameter set with ``mujoco.MjSpec``.
+
+MuJoCo 4 has no cable element whose off-axis sites rotate with the rod, so the backbone is an
+explicit chain of rigid bodies with elastic joints (``../shared/notes/mujoco4.md``). The rod
+of length L is cut into N = ``sim.elements`` elements of length h = L/N; the compliance of
+element k is lumped in a joint at its middle, s = (k − ½) h, so the clamp holds the first
+half-element and the last body is a half-element ending at the tip. A pure end moment then
+bends every joint by M h / EI — the exact arc through the joints — and a tip force loads
+each joint with the exact shear force and moment at its station (the midpoint rule, exact
+for the linear moment of a cantilever up to the −1/(4N²) of its quadratic deflection).
+
+Each joint carries the six strains of a Cosserat rod (Rucker & Webster 2011, K_se and K_bt),
+with stiffness from the section over one element:
+
+    bend x, y (hinges):  EI / h         twist z (hinge): K_t / h  (E(Ixx+Iyy) or GJ, backbone.torsion)
+    shear x, y (slides): GA / h         axial z (slide): backbone.axial_stiffness_n / h
+
+and stiffness-proportional damping ``sim.damping_time_s`` × stiffness. Shear cannot be left
+out: with the thesis's G it is a quarter of a tip-loaded cantilever's deflection.
+
+Spacer discs sit at s = jL/D; each tendon runs through a site per disc (straight chords between
+discs, as the real line does) from a spool behind the clamp to the tip disc. The tendon is a
+pull-only spatial tendon: a dead-band spring, slack below its straight length (never pushing)
+and as stiff as the line above it (``effects.tendon_compliance_m_per_n``, or practically
+inextensible when that effect is off). Each spool is a slide joint along the clamp axis (position =
+tendon paid out) with three actuators in separate groups, one group enabled at a time by the
+plant: a DC motor (PWM mode, :mod:`twin.sim.motor`), an ideal tension source, and an ideal
+spool-position servo. The reference holder is a set of weld constraints holding each disc
+straight on the clamp, inactive until engaged. A massless body at the tip takes the hung mass.
+Gravity is along world −z; the clamp can take any orientation.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import mujoco
+import numpy as np
+
+from twin.params import Params
+from twin.pose import HORIZONTAL, matrix_to_quat, rot_x, rot_y
+from twin.sim.motor import MotorConstants
+
+__all__ = [
+    "ACTUATOR_GROUPS",
+    "STATION_JOINTS",
+    "Layout",
+    "build_model",
+    "build_spec",
+    "clamp_rotation",
+    "model_xml",
+    "tendon_stiffness_n_per_m",
+]
+
+# Where the spools sit behind the clamp (m). The real line turns over a load-cell pulley well
+# behind the base; only its direction at the base hole matters, and that is along the clamp axis.
+SPOOL_OFFSET_M = 0.05
+# Spool travel either way (m): beyond the ±7 mm the validation grid needs, short of the clamp.
+SPOOL_TRAVEL_M = 0.03
+# Mass of the spool carriage without motor (kg): light, so the ideal modes are fast to settle.
+SPOOL_CARRIAGE_MASS_KG = 1e-3
+# Compliance of an "inextensible" tendon (m/N): one encoder count (0.94 µm) per newton. The
+# discrete integrator treats the tendon spring implicitly, so any stiffness is stable.
+INEXTENSIBLE_COMPLIANCE_M_PER_N = 1e-6
+# Viscous friction of a spool's bearings and gearbox at the tendon (N·s/m): an assumption, small
+# against the motor's 300 N·s/m of back-EMF damping, so that a free spool comes to rest.
+SPOOL_DAMPING_N_S_PER_M = 1.0
+# Ideal spool-position servo (N/m): 3 N moves it 0.3 µm, a third of an encoder count.
+POSITION_GAIN_N_PER_M = 1e7
+# Largest tension the ideal tension source accepts (N): far above tension_limit_n.
+TENSION_SOURCE_MAX_N = 100.0
+# Actuator group per drive mode; the plant disables the other groups (mjOption.disableactuator).
+ACTUATOR_GROUPS = {"pwm": 0, "tension": 1, "length": 2}
+# The joints of a backbone station, in the order MuJoCo composes them: (name, type, axis,
+# strain). The slides come first, so shear and axial strain are measured in the proximal
+# body's frame rather than the element's mid-frame. Under the tendons' compression P this puts
+# a spurious shear force P·Δθ/2 on each station (Δθ its bend); splitting the bend around the
+# slides would remove it but needs a second body per station (MuJoCo allows six dofs per body)
+# and costs 1.8× the step time, for 0.4 mm (0.6% of L) at N = 10 on a pretensioned rod bent by
+# 1 N, shrinking as 1/N. The cross-check report shows it.
+STATION_JOINTS = (
+    ("sx", mujoco.mjtJoint.mjJNT_SLIDE, (1.0, 0.0, 0.0), "shear"),
+    ("sy", mujoco.mjtJoint.mjJNT_SLIDE, (0.0, 1.0, 0.0), "shear"),
+    ("az", mujoco.mjtJoint.mjJNT_SLIDE, (0.0, 0.0, 1.0), "axial"),
+    ("bx", mujoco.mjtJoint.mjJNT_HINGE, (1.0, 0.0, 0.0), "bend"),
+    ("by", mujoco.mjtJoint.mjJNT_HINGE, (0.0, 1.0, 0.0), "bend"),
+    ("tz", mujoco.mjtJoint.mjJNT_HINGE, (0.0, 0.0, 1.0), "twist"),
+)
+# Sites drawn as dots the size of the tendon (m), not MuJoCo's default 5 mm spheres.
+_SITE_SIZE = [0.0003, 0.0, 0.0]
+_RGBA_ROD = (0.85, 0.55, 0.35, 1.0)
+_RGBA_DISC = (0.75, 0.75, 0.78, 1.0)
+_RGBA_TENDON = (0.1, 0.3, 0.9, 1.0)
+
+
+def clamp_rotation(params: Params, base_rotation=HORIZONTAL) -> np.ndarray:
+    """The clamp's actual orientation (3×3): the nominal base rotation tilted by
+    ``effects.base_tilt_deg`` about world x, then world y."""
+    tilt_x, tilt_y = np.radians(params.effects.base_tilt_deg)
+    return rot_y(tilt_y) @ rot_x(tilt_x) @ np.asarray(base_rotation, dtype=float)
+
+
+@dataclasses.dataclass(frozen=True)
+class Layout:
+    """Geometry of the chain, derived from the parameters alone (no MuJoCo).
+
+    Attributes:
+        elements: N.
+        element_length_m: h = L / N.
+        disc_s_m: (D,) arc length of each disc (m); the last is the tip.
+        disc_body: (D,) index k (1..N) of the body carrying each disc.
+        site_s_m: (S,) arc lengths where each tendon has a site, base hole (0) excluded.
+        tendon_xy_m: (n, S + 1, 2) tendon offsets in the section at s = 0 and at each site.
+        rest_length_m: (n,) tendon length spool → tip in the straight pose: the tendon's length.
+    """
+
+    elements: int
+    element_length_m: float
+    disc_s_m: np.ndarray
+    disc_body: np.ndarray
+    site_s_m: np.ndarray
+    tendon_xy_m: np.ndarray
+    rest_length_m: np.ndarray
+
+    @classmethod
+    def from_params(cls, params: Params, *, elements: int | None = None,
+                    tendon_sites: str = "discs") -> "Layout":
+        """Args:
+            elements: override of ``sim.elements``.
+            tendon_sites: ``"discs"`` (the rig) or ``"elements"`` (also a site at every body
+                middle: nearly continuous routing, to measure what straight chords cost).
+        """
+        n = params.sim.elements if elements is None else int(elements)
+        if n < 1:
+            raise ValueError(f"elements = {n!r}: must be >= 1")
+        if tendon_sites not in ("discs", "elements"):
+            raise ValueError(f"tendon_sites = {tendon_sites!r}: expected 'discs' or 'elements'")
+        length = params.backbone.length_m
+        h = length / n
+        d = params.discs.count
+        disc_s = length * np.arange(1, d + 1) / d
+        disc_body = np.minimum(n, np.floor(disc_s / h + 0.5 + 1e-9)).astype(int)
+        sites = set(np.round(disc_s, 12))
+        if tendon_sites == "elements":
+            sites |= set(np.round(h * np.arange(1, n), 12))
+        site_s = np.array(sorted(sites))
+        s_all = np.concatenate([[0.0], site_s])
+        xy = tendon_offsets_m(params, s_all)
+        z = np.broadcast_to(s_all[None, :, None], (xy.shape[0], s_all.size, 1))
+        path = np.linalg.norm(np.diff(np.concatenate([xy, z], axis=2), axis=1), axis=2).sum(axis=1)
+        return cls(n, h, disc_s, disc_body, site_s, xy, SPOOL_OFFSET_M + path)
+
+    def body_of(self, s_m: float) -> int:
+        """Index k (1..N) of the body whose span holds arc length ``s_m``."""
+        return int(min(self.elements, math.floor(s_m / self.element_length_m + 0.5 + 1e-9)))
+
+    def body_origin_s_m(self, k: int) -> float:
+        """Arc length of body k's frame origin (its joint), (k − ½) h."""
+        return (k - 0.5) * self.element_length_m
+
+
+def tendon_offsets_m(params: Params, s_m) -> np.ndarray:
+    """Tendon positions in the cross-section (n, len(s), 2) at arc lengths ``s_m`` (m).
+
+    Straight: radius and angle constant; helical: the angle turns ``helix_turns`` over L;
+    converging: the radius goes linearly to ``tip_radius_m`` (as :class:`twin.rod.TendonRoute`).
+    """
+    t, length = params.tendons, params.backbone.length_m
+    s = np.asarray(s_m, dtype=float)[None, :]
+    alpha = np.radians(np.asarray(t.angles_deg))[:, None]
+    radius = np.full_like(s, t.radius_m)
+    if t.routing == "helical":
+        alpha = alpha + 2.0 * math.pi * t.helix_turns * s / length
+    elif t.routing == "converging":
+        radius = t.radius_m + (t.tip_radius_m - t.radius_m) * s / length
+    return np.stack([radius * np.cos(alpha), radius * np.sin(alpha)], axis=-1)
+
+
+def _segment_inertia(mass_kg: float, length_m: float, radius_m: float) -> list[float]:
+    """Principal inertia of a solid cylinder about its centre (kg·m²), axis along z."""
+    lateral = mass_kg * (3.0 * radius_m**2 + length_m**2) / 12.0
+    return [lateral, lateral, 0.5 * mass_kg * radius_m**2]
+
+
+def _disc_inertia(mass_kg: float, params: Params) -> np.ndarray:
+    d = params.discs
+    return np.array(_segment_inertia(mass_kg, d.thickness_m, d.outer_radius_m))
+
+
+def build_spec(params: Params, *, base_rotation=HORIZONTAL, elements: int | None = None,
+               tendon_sites: str = "discs") -> mujoco.MjSpec:
+    """The MjSpec of the endoscope, rig and holder.
+
+    Args:
+        params: the parameter set.
+        base_rotation: nominal clamp orientation (3×3, body → world); ``effects.base_tilt_deg``
+            is applied on top of it.
+        elements: number of elements N (default ``sim.elements``).
+        tendon_sites: see :meth:`Layout.from_params`.
+    """
+    layout = Layout.from_params(params, elements=elements, tendon_sites=tendon_sites)
+    sim = params.sim
+    n, h = layout.elements, layout.element_length_m
+    spec = mujoco.MjSpec()
+    spec.modelname = "endoscope"
+    spec.compiler.inertiafromgeom = mujoco.mjtInertiaFromGeom.mjINERTIAFROMGEOM_FALSE
+    opt = spec.option
+    opt.timestep = sim.timestep_s
+    opt.integrator = mujoco.mjtIntegrator.mjINT_DISCRETE
+    opt.solver = mujoco.mjtSolver.mjSOL_NEWTON
+    # A serial chain's mass matrix is dense whatever the format; dense is 15% faster here.
+    opt.jacobian = mujoco.mjtJacobian.mjJAC_DENSE
+    # The solve's relative tolerance: 1e-6 moves a settled tip by < 1e-8 m and saves 25% time.
+    opt.tolerance = 1e-6
+    opt.gravity = [0.0, 0.0, -params.environment.gravity_m_s2]
+    opt.disableflags |= mujoco.mjtDisableBit.mjDSBL_CONTACT
+    spec.stat.center = [0.03, 0.0, 0.0]
+    spec.stat.extent = 0.1
+
+    clamp = spec.worldbody.add_body(
+        name="clamp", quat=matrix_to_quat(clamp_rotation(params, base_rotation)).tolist())
+    clamp.add_geom(name="clamp", type=mujoco.mjtGeom.mjGEOM_CYLINDER, size=[params.discs.outer_radius_m,
+                   0.004, 0], pos=[0, 0, -0.004], rgba=[0.3, 0.3, 0.3, 1], contype=0, conaffinity=0)
+    stations = _add_backbone(spec, clamp, params, layout)
+    _add_discs(stations, params, layout)
+    tip = stations[n]
+    tip.add_site(name="tip", pos=[0, 0, h / 2], size=_SITE_SIZE)
+    load = tip.add_body(name="tip_load", pos=[0, 0, h / 2], mass=0.0, ipos=[0, 0, 0], inertia=[0, 0, 0])
+    load.explicitinertial = True
+    _add_tendons_and_spools(spec, clamp, stations, params, layout)
+    for j, k in enumerate(layout.disc_body, start=1):
+        weld = spec.add_equality(name=f"holder{j}", type=mujoco.mjtEq.mjEQ_WELD,
+                                 objtype=mujoco.mjtObj.mjOBJ_BODY, name1=f"b{k}", name2="clamp")
+        weld.active = False
+    return spec
+
+
+def _add_backbone(spec, clamp, params, layout) -> list:
+    """The chain of N bodies with their elastic joints; returns [clamp, body 1, …, body N]."""
+    b, sim = params.backbone, params.sim
+    n, h = layout.elements, layout.element_length_m
+    uniform = b.mass_kg * (1.0 - params.effects.disc_mass_fraction) / b.length_m
+    stiffness = {
+        "shear": b.shear_stiffness_n / h, "axial": b.axial_stiffness_n / h,
+        "bend": b.bending_stiffness_nm2 / h, "twist": b.torsional_stiffness_nm2 / h,
+    }
+    bodies = [clamp]
+    parent = clamp
+    for k in range(1, n + 1):
+        span = h / 2 if k == n else h
+        mass = uniform * span
+        body = parent.add_body(name=f"b{k}", pos=[0, 0, h / 2 if k == 1 else h], mass=mass,
+                               ipos=[0, 0, span / 2], inertia=_segment_inertia(mass, span, b.radius_m))
+        body.explicitinertial = True
+        for suffix, kind, axis, strain in STATION_JOINTS:
+            body.add_joint(name=f"b{k}_{suffix}", type=kind, axis=list(axis),
+                           stiffness=[stiffness[strain], 0, 0],
+                           damping=[sim.damping_time_s * stiffness[strain], 0, 0])
+        body.add_geom(type=mujoco.mjtGeom.mjGEOM_CAPSULE, fromto=[0, 0, 0, 0, 0, span],
+                      size=[b.radius_m, 0, 0], rgba=list(_RGBA_ROD), contype=0, conaffinity=0)
+        bodies.append(body)
+        parent = body
+    return bodies
+
+
+def _add_discs(stations, params, layout) -> None:
+    """Disc geoms, and the disc masses (``discs.lumped_mass_kg`` plus the lumped fraction
+    ``effects.disc_mass_fraction`` of the backbone) folded into the carrying body's inertia."""
+    d, b = params.discs, params.backbone
+    disc_mass = d.lumped_mass_kg + params.effects.disc_mass_fraction * b.mass_kg / d.count
+    for s, k in zip(layout.disc_s_m, layout.disc_body):
+        body = stations[k]
+        z = s - layout.body_origin_s_m(k)
+        # The tip disc's face is flush with the tip; the others are centred on their station.
+        zc = z - d.thickness_m / 2 if k == layout.elements and abs(s - b.length_m) < 1e-12 else z
+        body.add_geom(type=mujoco.mjtGeom.mjGEOM_CYLINDER, pos=[0, 0, zc],
+                      size=[d.outer_radius_m, d.thickness_m / 2, 0], rgba=list(_RGBA_DISC),
+                      contype=0, conaffinity=0)
+        if disc_mass > 0:
+            m0, c0 = body.mass, np.array(body.ipos)
+            i0 = np.array(body.inertia)
+            m1 = m0 + disc_mass
+            c1 = (m0 * c0 + disc_mass * np.array([0, 0, zc])) / m1
+            # Parallel-axis shifts along z only: lateral inertia grows, axial does not.
+            shift = np.array([1.0, 1.0, 0.0])
+            i1 = (i0 + m0 * (c1[2] - c0[2]) ** 2 * shift
+                  + _disc_inertia(disc_mass, params) + disc_mass * (c1[2] - zc) ** 2 * shift)
+            body.mass, body.ipos, body.inertia = m1, c1.tolist(), i1.tolist()
+
+
+def tendon_stiffness_n_per_m(params: Params) -> float:
+    """Stiffness of each tendon (N/m): 1 / ``effects.tendon_compliance_m_per_n``, or, with that
+    effect off, 1 / :data:`INEXTENSIBLE_COMPLIANCE_M_PER_N`."""
+    return 1.0 / max(params.effects.tendon_compliance_m_per_n, INEXTENSIBLE_COMPLIANCE_M_PER_N)
+
+
+def _add_tendons_and_spools(spec, clamp, stations, params, layout) -> None:
+    motor = MotorConstants.from_rig(params.rig)
+    for i in range(params.tendons.count):
+        x0, y0 = layout.tendon_xy_m[i, 0]
+        clamp.add_site(name=f"hole{i}", pos=[x0, y0, 0], size=_SITE_SIZE)
+        spool = clamp.add_body(name=f"spool{i}", pos=[x0, y0, -SPOOL_OFFSET_M],
+                               mass=SPOOL_CARRIAGE_MASS_KG, inertia=[1e-9, 1e-9, 1e-9])
+        spool.explicitinertial = True
+        # The carriage stands for a drum turning on its axle: its weight does not pull the line.
+        spool.gravcomp = 1.0
+        spool.add_joint(name=f"spool{i}", type=mujoco.mjtJoint.mjJNT_SLIDE, axis=[0, 0, 1],
+                        armature=motor.reflected_mass_kg, damping=[SPOOL_DAMPING_N_S_PER_M, 0, 0],
+                        limited=mujoco.mjtLimited.mjLIMITED_TRUE,
+                        range=[-SPOOL_TRAVEL_M, SPOOL_TRAVEL_M])
+        spool.add_site(name=f"spool{i}", size=_SITE_SIZE)
+        spool.add_geom(type=mujoco.mjtGeom.mjGEOM_SPHERE, size=[0.0015, 0, 0], rgba=[0.2, 0.2, 0.2, 1],
+                       contype=0, conaffinity=0)
+        tendon = spec.add_tendon(name=f"tendon{i}", width=params.tendons.diameter_m / 2,
+                                 rgba=list(_RGBA_TENDON))
+        # Pull-only elastic line: a spring that is slack below the straight length. A spring
+        # rather than a length limit, because a soft constraint's stretch under a given tension
+        # depends on the masses around it and so jumps when the spool switches drive mode.
+        tendon.stiffness = [tendon_stiffness_n_per_m(params), 0, 0]
+        tendon.springlength = [0.0, float(layout.rest_length_m[i])]
+        tendon.wrap_site(f"spool{i}")
+        tendon.wrap_site(f"hole{i}")
+        for j, s in enumerate(layout.site_s_m):
+            k = layout.body_of(s)
+            x, y = layout.tendon_xy_m[i, j + 1]
+            name = f"t{i}_s{j + 1}"
+            stations[k].add_site(name=name, pos=[x, y, s - layout.body_origin_s_m(k)], size=_SITE_SIZE)
+            tendon.wrap_site(name)
+    # Grouped by mode so that each mode's controls are one contiguous block of ctrl.
+    for add in (_add_motor, _add_tension_source, _add_position_servo):
+        for i in range(params.tendons.count):
+            add(spec, i, motor)
+
+
+_JOINT = mujoco.mjtTrn.mjTRN_JOINT
+
+
+def _add_motor(spec, i: int, motor: MotorConstants) -> None:
+    dc = spec.add_actuator(name=f"motor{i}", target=f"spool{i}", trntype=_JOINT,
+                           group=ACTUATOR_GROUPS["pwm"], gear=[motor.transmission_rad_per_m, 0, 0, 0, 0, 0])
+    dc.set_to_dcmotor(motorconst=[motor.torque_constant_nm_per_a] * 2, resistance=motor.resistance_ohm)
+    dc.ctrllimited = mujoco.mjtLimited.mjLIMITED_TRUE
+    dc.ctrlrange = [-motor.supply_voltage_v, motor.supply_voltage_v]
+
+
+def _add_tension_source(spec, i: int, motor: MotorConstants) -> None:
+    pull = spec.add_actuator(name=f"tension{i}", target=f"spool{i}", trntype=_JOINT,
+                             group=ACTUATOR_GROUPS["tension"], gear=[-1.0, 0, 0, 0, 0, 0])
+    pull.set_to_motor()
+    pull.ctrllimited = mujoco.mjtLimited.mjLIMITED_TRUE
+    pull.ctrlrange = [0.0, TENSION_SOURCE_MAX_N]
+
+
+def _add_position_servo(spec, i: int, motor: MotorConstants) -> None:
+    servo = spec.add_actuator(name=f"length{i}", target=f"spool{i}", trntype=_JOINT,
+                              group=ACTUATOR_GROUPS["length"], gear=[1.0, 0, 0, 0, 0, 0])
+    servo.set_to_position(kp=POSITION_GAIN_N_PER_M,
+                          kv=2.0 * math.sqrt(POSITION_GAIN_N_PER_M * SPOOL_CARRIAGE_MASS_KG))
+    servo.ctrllimited = mujoco.mjtLimited.mjLIMITED_TRUE
+    servo.ctrlrange = [-SPOOL_TRAVEL_M, SPOOL_TRAVEL_M]
+
+
+def build_model(params: Params, *, base_rotation=HORIZONTAL, elements: int | None = None,
+                tendon_sites: str = "discs") -> mujoco.MjModel:
+    """Compiled :func:`build_spec`."""
+    return build_spec(params, base_rotation=base_rotation, elements=elements,
+                      tendon_sites=tendon_sites).compile()
+
+
+def model_xml(params: Params, *, base_rotation=HORIZONTAL) -> str:
+    """MJCF text of the model (what ``models/endoscope.xml`` holds for the default parameters)."""
+    spec = build_spec(params, base_rotation=base_rotation)
+    spec.compile()
+    return spec.to_xml()

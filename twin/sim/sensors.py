@@ -1,0 +1,115 @@
+"""The rig's sensors as the twin produces them: load cells through HX711s, and the EM tracker.
+
+Both are sampled at their own rates by :class:`twin.sim.plant.Plant` and held between samples;
+each sample carries a running index and its simulation time so consumers can tell a new
+sample from a held one. Encoders need no sampling: the quadrature counter is read whenever
+asked (:func:`twin.sim.motor.encoder_counts`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+from twin.params import Params
+from twin.tracking import CapCalibration
+
+__all__ = ["HX711_RANGE_COUNTS", "LoadCellSample", "LoadCells", "Tracker", "TrackerSample"]
+
+# The HX711 outputs 24-bit two's complement: readings saturate at these codes.
+HX711_RANGE_COUNTS = (-(2**23), 2**23 - 1)
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class LoadCellSample:
+    """One 80 Hz reading of all load cells.
+
+    Attributes:
+        raw_counts: (n,) int64 HX711 codes, one per tendon.
+        index: 0 for the first sample, +1 for each new one.
+        time_s: simulation time the sample was taken (s).
+    """
+
+    raw_counts: np.ndarray
+    index: int
+    time_s: float
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class TrackerSample:
+    """One 40 Hz frame of the two 5-DOF probes, in the world (tracker) frame.
+
+    Attributes:
+        positions_m: (2, 3) probe A then probe B positions (m).
+        axes: (2, 3) unit probe axes.
+        index: 0 for the first frame, +1 for each new one.
+        time_s: simulation time of the frame (s).
+    """
+
+    positions_m: np.ndarray
+    axes: np.ndarray
+    index: int
+    time_s: float
+
+
+class LoadCells:
+    """Tension → raw HX711 counts: ``offset + gain · ((1 + e_g) T + e_o + noise)``.
+
+    ``sensors.loadcell_gain_counts_per_n`` and ``sensors.loadcell_offset_counts`` are what a
+    host calibration (:mod:`twin.calibration`) recovers; ``effects.tension_gain_error`` and
+    ``effects.tension_offset_error_n`` are a load cell that reads differently from what its
+    calibration would say — a drifted zero or a cell loaded off its axis; the noise is Gaussian,
+    ``sensors.loadcell_noise_n`` RMS, drawn from the plant's seeded generator.
+    """
+
+    def __init__(self, params: Params, rng: np.random.Generator):
+        s, e = params.sensors, params.effects
+        self._gain = s.loadcell_gain_counts_per_n
+        self._offset = np.asarray(s.loadcell_offset_counts, dtype=float)
+        self._gain_error = np.asarray(e.tension_gain_error, dtype=float)
+        self._offset_error = np.asarray(e.tension_offset_error_n, dtype=float)
+        self._noise = s.loadcell_noise_n
+        self._rng = rng
+
+    def read(self, tensions_n) -> np.ndarray:
+        """Raw counts (int64, clipped to the 24-bit range) for true tensions (N)."""
+        t = np.asarray(tensions_n, dtype=float)
+        noise = self._rng.normal(0.0, self._noise, t.shape) if self._noise > 0 else 0.0
+        sensed = (1.0 + self._gain_error) * t + self._offset_error + noise
+        counts = np.rint(self._offset + self._gain * sensed)
+        return np.clip(counts, *HX711_RANGE_COUNTS).astype(np.int64)
+
+
+class Tracker:
+    """Tip pose → the two probe readings, with ``effects.tracker_offset_m`` and noise.
+
+    The probes sit in a cap whose origin is the tip plus ``effects.tracker_offset_m`` (in the
+    tip frame: a cap mounted off the tip); their layout in the cap is
+    :class:`twin.tracking.CapCalibration`'s, so the fusion there inverts this exactly when
+    the offset is zero. Position noise is ``sensors.tracker_noise_m`` RMS per axis; each axis is
+    turned by a small random rotation of ``sensors.tracker_noise_rad`` RMS per component.
+    """
+
+    def __init__(self, params: Params, rng: np.random.Generator, cap: CapCalibration | None = None):
+        cap = cap or CapCalibration()
+        offset = np.asarray(params.effects.tracker_offset_m, dtype=float)
+        self._positions = np.array([cap.position_a_m, cap.position_b_m]) + offset
+        self._axes = np.array([cap.axis_a, cap.axis_b])
+        self._noise_m = params.sensors.tracker_noise_m
+        self._noise_rad = params.sensors.tracker_noise_rad
+        self._rng = rng
+
+    def read(self, tip_position_m, tip_rotation) -> tuple[np.ndarray, np.ndarray]:
+        """(positions (2, 3) m, unit axes (2, 3)) in the world frame for a tip pose."""
+        rot = np.asarray(tip_rotation, dtype=float)
+        positions = np.asarray(tip_position_m, dtype=float) + self._positions @ rot.T
+        axes = self._axes @ rot.T
+        if self._noise_m > 0:
+            positions = positions + self._rng.normal(0.0, self._noise_m, positions.shape)
+        if self._noise_rad > 0:
+            # Small-angle rotation of each axis: a + w × a, then renormalised.
+            w = self._rng.normal(0.0, self._noise_rad, axes.shape)
+            axes = axes + np.cross(w, axes)
+            axes /= np.linalg.norm(axes, axis=1, keepdims=True)
+        return positions, axes
