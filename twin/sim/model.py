@@ -233,6 +233,9 @@ def build_spec(params: Params, *, base_rotation=HORIZONTAL, elements: int | None
         weld = spec.add_equality(name=f"holder{j}", type=mujoco.mjtEq.mjEQ_WELD,
                                  objtype=mujoco.mjtObj.mjOBJ_BODY, name1=f"b{k}", name2="clamp")
         weld.active = False
+        # A holder is rigid: as stiff a weld as the step resolves, not MuJoCo's default 20 ms.
+        weld.solref[:2] = [2 * params.sim.timestep_s, 1.0]
+        weld.solimp[:3] = [0.99, 0.999, 0.001]
     return spec
 
 

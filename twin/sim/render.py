@@ -1,8 +1,8 @@
 """Headless pictures of the twin for reports (EGL or OSMesa; GLFW needs a display).
 
-MuJoCo picks its OpenGL backend from ``MUJOCO_GL`` when ``mujoco`` is first imported, so set it
-before that import (``MUJOCO_GL=egl`` or ``osmesa``); :func:`render_png` raises
-:class:`RenderError` naming what to install or set when no backend works.
+MuJoCo picks its OpenGL backend from ``MUJOCO_GL`` when ``mujoco`` is first imported; without a
+display :mod:`twin.sim` defaults it to ``egl`` (set ``MUJOCO_GL=osmesa`` yourself for OSMesa).
+:func:`render_png` raises :class:`RenderError` naming what to install or set when no backend works.
 """
 
 from __future__ import annotations

@@ -1,0 +1,171 @@
+"""The plant API the device layer wraps: modes, sensors and their rates, determinism, effects."""
+
+import json
+
+import numpy as np
+import pytest
+
+from twin.cli import main
+from twin.params import load_params
+from twin.pose import HORIZONTAL
+from twin.sim import Plant
+
+FAST = ["sim.elements=10"]
+
+
+def _plant(*overrides, seed=0, **kw):
+    return Plant(load_params(overrides=FAST + list(overrides)), seed=seed, **kw)
+
+
+def test_sensors_sample_at_their_rates_and_hold_between():
+    plant = _plant()
+    plant.step(1.0)
+    assert plant.loadcell_sample().index == 80
+    assert plant.tracker_probes().index == 40
+    held = plant.loadcell_sample()
+    plant.step(0.005)
+    assert plant.loadcell_sample() is held
+    plant.step(0.01)
+    assert plant.loadcell_sample().index == 81
+    # Taken at the first physics step at or after its due time.
+    assert 81 / 80 <= plant.loadcell_sample().time_s < 81 / 80 + plant.timestep_s
+
+
+def test_a_seed_reproduces_a_run_and_another_seed_does_not():
+    runs = []
+    for seed in (7, 7, 8):
+        plant = _plant(seed=seed)
+        plant.set_tensions([2.0, 1.35, 1.35, 1.35])
+        plant.step(0.3)
+        runs.append((plant.loadcell_raw_counts(), plant.tracker_probes().positions_m, plant.tip_pose()[0]))
+    assert np.array_equal(runs[0][0], runs[1][0]) and np.array_equal(runs[0][1], runs[1][1])
+    assert not np.array_equal(runs[0][0], runs[2][0])
+    assert np.array_equal(runs[0][2], runs[2][2])  # noise only touches the sensors
+
+
+def test_tension_mode_holds_the_tensions_and_the_load_cells_report_them():
+    params = load_params(overrides=FAST + ["sensors.loadcell_noise_n=0.0"])
+    plant = Plant(params)
+    tensions = np.array([2.5, 1.35, 1.0, 1.35])
+    plant.set_tensions(tensions)
+    assert plant.settle().settled
+    assert np.allclose(plant.true_tensions_n(), tensions, atol=1e-4)
+    plant.step(0.02)
+    s = params.sensors
+    expected = np.rint(np.asarray(s.loadcell_offset_counts) + s.loadcell_gain_counts_per_n * plant.true_tensions_n())
+    assert np.array_equal(plant.loadcell_raw_counts(), expected)
+
+
+def test_length_mode_places_the_spools_and_the_encoders_count_them():
+    plant = _plant()
+    lengths = np.array([-0.003, 0.0, 0.003, 0.0])
+    plant.set_tendon_lengths(lengths)
+    assert plant.settle().settled
+    assert np.allclose(plant.spool_positions_m(), lengths, atol=1e-6)
+    expected = lengths / plant.params.rig.tendon_m_per_count
+    assert np.all(np.abs(plant.encoder_counts() - expected) <= 2)
+    assert plant.true_tensions_n()[0] > 0.1          # pulled in: bends the rod, taut
+    assert plant.tip_pose()[0][2] < -0.01            # horizontal base, tendon 0 below: bends down
+
+
+def test_switching_from_tension_to_length_mode_keeps_the_tensions():
+    plant = _plant()
+    plant.set_tensions([2.35, 1.35, 1.35, 1.35])
+    plant.settle()
+    plant.set_tendon_lengths(plant.spool_positions_m())
+    plant.settle()
+    assert np.allclose(plant.true_tensions_n(), [2.35, 1.35, 1.35, 1.35], atol=0.05)
+
+
+def test_pwm_pays_out_for_positive_duty_and_pulls_for_negative():
+    plant = _plant()
+    plant.set_tensions([1.35] * 4)
+    plant.settle()
+    start = plant.encoder_counts()
+    plant.set_motor_pwm([-0.05, 0.01, 0.0, 0.0])
+    plant.step(0.2)
+    change = plant.encoder_counts() - start
+    assert change[0] < -100 and change[1] > 0
+    assert plant.true_tensions_n()[0] > 1.35
+
+
+def test_tip_mass_can_be_hung_and_removed():
+    plant = _plant()
+    plant.set_tensions([1.35] * 4)
+    plant.settle()
+    z0 = plant.tip_pose()[0][2]
+    plant.set_tip_mass_kg(0.01)
+    plant.settle()
+    assert plant.tip_pose()[0][2] < z0 - 0.002
+    plant.set_tip_mass_kg(0.0)
+    plant.settle()
+    assert plant.tip_pose()[0][2] == pytest.approx(z0, abs=1e-5)
+
+
+def test_holder_keeps_the_rod_straight_while_pretensioning():
+    plant = _plant()
+    plant.engage_holder()
+    plant.set_tensions([1.35] * 4)
+    plant.settle()
+    held = plant.tip_pose()[0]
+    plant.release_holder()
+    plant.settle()
+    assert abs(held[2]) < 0.2 * abs(plant.tip_pose()[0][2])
+
+
+def test_friction_makes_loading_and_unloading_differ():
+    def tip_after(path):
+        plant = _plant("effects.tendon_friction_coeff=0.3")
+        for t in path:
+            plant.set_tensions([t, 1.35, 1.35, 1.35])
+            plant.settle(tol_m=1e-5)
+        return plant.tip_pose()[0], plant.true_tensions_n()[0]
+
+    loaded, t_load = tip_after([1.35, 2.5])
+    unloaded, t_unload = tip_after([1.35, 3.5, 2.5])
+    assert t_load == pytest.approx(2.5, abs=1e-3) and t_unload == pytest.approx(2.5, abs=1e-3)
+    # Pulled in, the tip sees less than the spool; paid out, more: it bends further.
+    assert unloaded[2] < loaded[2] - 1e-3
+
+
+def test_sensor_effects_change_only_what_the_sensor_reports():
+    base = _plant("sensors.loadcell_noise_n=0.0", "sensors.tracker_noise_m=0.0", "sensors.tracker_noise_rad=0.0")
+    off = _plant("sensors.loadcell_noise_n=0.0", "sensors.tracker_noise_m=0.0", "sensors.tracker_noise_rad=0.0",
+                 "effects.tension_gain_error=[0.1,0,0,0]", "effects.tracker_offset_m=[0,0,0.002]")
+    for plant in (base, off):
+        plant.set_tensions([2.0, 1.35, 1.35, 1.35])
+        plant.settle()
+        plant.step(0.03)
+    gain = base.params.sensors.loadcell_gain_counts_per_n
+    assert np.array_equal(base.tip_pose()[0], off.tip_pose()[0])
+    assert (off.loadcell_raw_counts() - base.loadcell_raw_counts())[0] == pytest.approx(0.1 * 2.0 * gain, abs=2)
+    shift = off.tracker_probes().positions_m - base.tracker_probes().positions_m
+    assert np.allclose(np.linalg.norm(shift, axis=1), 0.002, atol=1e-9)
+
+
+def test_base_tilt_and_tip_load_error_move_the_tip():
+    tips = []
+    for extra in ([], ["effects.base_tilt_deg=[0,2]"], ["effects.tip_load_error_fraction=0.2"]):
+        plant = _plant(*extra)
+        plant.set_tensions([1.35] * 4)
+        plant.set_tip_mass_kg(0.01)
+        plant.settle()
+        tips.append(plant.tip_pose()[0])
+    assert np.linalg.norm(tips[1] - tips[0]) > 1e-3
+    assert tips[2][2] < tips[0][2] - 5e-4
+
+
+def test_twin_sim_command_prints_the_settled_state(capsys):
+    code = main(["sim", "--tensions", "2.35,1.35,1.35,1.35", "--tip-mass-kg", "0.005", "--set", "sim.elements=10",
+                 "--json"])
+    out = json.loads(capsys.readouterr().out)
+    assert code == 0
+    for key in ("tip_position_m", "tip_rotation", "tendon_lengths_m", "tensions_n", "encoder_counts", "settle_time_s"):
+        assert key in out
+    assert out["tensions_n"][0] == pytest.approx(2.35, abs=0.03)
+
+
+def test_twin_sim_reports_a_state_that_did_not_settle(capsys):
+    code = main(["sim", "--lengths=-0.003,0,0.003,0", "--timeout-s", "0.02", "--set", "sim.elements=10"])
+    assert code == 1
+    assert "did not settle" in capsys.readouterr().err
