@@ -1,0 +1,38 @@
+"""Stiffness characterisation: the fit recovers known moduli from synthetic sag data."""
+
+import numpy as np
+import pytest
+
+from twin import load_params
+from twin.experiments.stiffness import STIFFNESS_MASSES_KG, fit_stiffness, plot_error_surface
+
+from conftest import synthetic_rows
+
+
+def stiffness_cases():
+    return [(rep * 3 + i, 0.0, 0.0, m, [0.0] * 4, [0.0] * 4)
+            for rep in range(2) for i, m in enumerate(STIFFNESS_MASSES_KG)]
+
+
+def test_fit_recovers_moduli_within_their_intervals(make_dataset, tmp_path):
+    true = load_params(overrides={"backbone.youngs_modulus_pa": 6.5e6, "backbone.shear_modulus_pa": 8e4})
+    data = make_dataset(synthetic_rows(true, stiffness_cases(), noise_m=2e-4, seed=1), experiment="stiffness")
+    result = fit_stiffness(data, load_params(), surface_points=4)
+    ci = result.fit.confidence_interval(3.0)
+    assert ci[0, 0] < 6.5e6 < ci[0, 1]
+    assert ci[1, 0] < 8e4 < ci[1, 1]
+    assert result.youngs_modulus_pa == pytest.approx(6.5e6, rel=0.1)
+    assert result.fit.correlation.shape == (2, 2) and abs(result.fit.correlation[0, 1]) <= 1
+    assert result.fit.params.source("backbone.youngs_modulus_pa") == "fitted"
+    assert result.summed_error_m.shape == (4, 4) and np.isfinite(result.summed_error_m).all()
+    plot_error_surface(result, tmp_path / "surface.png")
+    assert (tmp_path / "surface.png").stat().st_size > 1000
+
+
+def test_noise_free_fit_is_exact(make_dataset):
+    true = load_params(overrides={"backbone.youngs_modulus_pa": 9e6, "backbone.shear_modulus_pa": 2e5})
+    data = make_dataset(synthetic_rows(true, stiffness_cases()), experiment="stiffness")
+    result = fit_stiffness(data, load_params(), surface_points=0)
+    assert result.youngs_modulus_pa == pytest.approx(9e6, rel=1e-4)
+    assert result.shear_modulus_pa == pytest.approx(2e5, rel=1e-3)
+    assert result.fit.rms_m < 1e-8

@@ -1,0 +1,1 @@
+"""The thesis's experimental programme on any device: datasets, protocols, analyses, reports."""

@@ -1,0 +1,187 @@
+"""Least-squares identification of parameters from a dataset, with uncertainties.
+
+Shared by the stiffness characterisation (:mod:`twin.experiments.stiffness`) and the
+discrepancy workflow (:mod:`twin.discrepancy`): the residuals are the predicted minus measured
+tracker positions (m) of every row, the parameters any entries of the parameter set (list-valued
+keys by index), optionally fitted in log space (positive moduli spanning decades).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import Sequence
+
+import numpy as np
+from scipy.optimize import least_squares
+
+from twin.experiments.dataset import Dataset
+from twin.experiments.prediction import predict_rows
+from twin.params import Params
+
+__all__ = ["FitParameter", "ParameterFit", "fit_parameters", "apply_values"]
+
+# Penalty (m per axis) for a row whose prediction fails during a fit: large against any
+# plausible error, so the optimiser steers away from parameters the model cannot solve.
+_FAILED_ROW_PENALTY_M = 0.05
+
+
+@dataclasses.dataclass(frozen=True)
+class FitParameter:
+    """One fitted scalar: ``key`` (``section.name``) and, for list-valued keys, its ``index``.
+
+    Attributes:
+        log: fit log(value) (for positive quantities spanning decades).
+        scale: typical size, for conditioning and the finite-difference step.
+    """
+
+    key: str
+    index: int | None = None
+    log: bool = False
+    scale: float = 1.0
+
+    @property
+    def label(self) -> str:
+        return self.key if self.index is None else f"{self.key}[{self.index}]"
+
+
+@dataclasses.dataclass(frozen=True)
+class ParameterFit:
+    """The outcome of :func:`fit_parameters`.
+
+    Attributes:
+        parameters: what was fitted.
+        values: fitted values (in the parameter's own unit).
+        std_errors: standard errors from σ²(JᵀJ)⁻¹ (same units; for log parameters the delta method).
+        correlation: (p, p) correlation matrix of the estimates.
+        rms_m: RMS of the 3-D tip error |p̂ − p*| over the rows at the optimum (m).
+        residual_sigma_m: the per-axis residual standard deviation σ (m).
+        converged: the optimiser met its tolerance; ``message`` says why it stopped.
+        failed_rows: rows whose prediction failed at the optimum.
+        evaluations: model evaluations spent.
+        params: the parameter set with the fitted values written in (source ``fitted``).
+    """
+
+    parameters: tuple[FitParameter, ...]
+    values: np.ndarray
+    std_errors: np.ndarray
+    correlation: np.ndarray
+    rms_m: float
+    residual_sigma_m: float
+    converged: bool
+    message: str
+    failed_rows: int
+    evaluations: int
+    params: Params
+
+    def confidence_interval(self, level_sigma: float = 1.96) -> np.ndarray:
+        """(p, 2) intervals value ± level_sigma · std_error (default ≈ 95%)."""
+        return np.stack([self.values - level_sigma * self.std_errors, self.values + level_sigma * self.std_errors], 1)
+
+    def table(self) -> list[dict]:
+        ci = self.confidence_interval()
+        return [{"parameter": p.label, "value": float(v), "std_error": float(s), "ci95_low": float(c[0]),
+                 "ci95_high": float(c[1])} for p, v, s, c in zip(self.parameters, self.values, self.std_errors, ci)]
+
+
+def apply_values(params: Params, parameters: Sequence[FitParameter], values, source: str) -> Params:
+    """``params`` with each fitted scalar written into its key (list keys at their index)."""
+    changes: dict[str, object] = {}
+    for p, v in zip(parameters, values):
+        if p.index is None:
+            changes[p.key] = float(v)
+        else:
+            current = list(changes.get(p.key, params.get(p.key)))
+            current[p.index] = float(v)
+            changes[p.key] = current
+    return params.replace(changes, source=source)
+
+
+def _current(params: Params, p: FitParameter) -> float:
+    value = params.get(p.key)
+    return float(value if p.index is None else value[p.index])
+
+
+def fit_parameters(dataset: Dataset, params: Params, parameters: Sequence[FitParameter], *,
+                   x0: Sequence[float] | None = None, source: str = "fitted", max_evaluations: int = 200,
+                   rows: np.ndarray | None = None) -> ParameterFit:
+    """Fit ``parameters`` so the model's tip predictions best match the measured tips.
+
+    Args:
+        dataset: the measurements (its base rotation and loads are used).
+        params: the parameter set to start from (other values stay as they are).
+        parameters: what to fit.
+        x0: starting values (default: the current values in ``params``).
+        source: provenance written for the fitted keys.
+        max_evaluations: cap on model evaluations (each predicts every row).
+        rows: boolean mask of the rows to fit on (default all).
+
+    Raises:
+        ValueError: nothing to fit, or the starting point cannot be predicted at all.
+    """
+    parameters = tuple(parameters)
+    if not parameters:
+        raise ValueError("fit_parameters: no parameters to fit")
+    data = dataset if rows is None else dataset.subset(rows)
+    start = np.array([_current(params, p) for p in parameters] if x0 is None else x0, dtype=float)
+    for p, v in zip(parameters, start):
+        if p.log and v <= 0:
+            raise ValueError(f"{p.label} = {v!r}: a log-fitted parameter must start > 0")
+    scales = np.array([1.0 if p.log else p.scale for p in parameters])
+
+    def to_values(z):
+        return np.array([math.exp(zi) if p.log else zi * s for p, zi, s in zip(parameters, z, scales)])
+
+    z0 = np.array([math.log(v) if p.log else v / s for p, v, s in zip(parameters, start, scales)])
+    base_rotation = data.base_rotation
+    tensions, masses, lengths, measured = data.tensions_n, data["tip_mass_kg"], data.lengths_m, data.tip_positions_m
+    evaluations = 0
+    failed = [0]
+
+    def residuals(z):
+        nonlocal evaluations
+        evaluations += 1
+        try:
+            trial = apply_values(params, parameters, to_values(z), source)
+        except ValueError:
+            return np.full(measured.size, _FAILED_ROW_PENALTY_M)
+        tip, ok, _, _ = predict_rows(trial, base_rotation, tensions, masses, lengths)
+        err = tip - measured
+        err[~ok] = _FAILED_ROW_PENALTY_M
+        failed[0] = int(np.count_nonzero(~ok))
+        return err.ravel()
+
+    residuals(z0)
+    if failed[0] == len(measured):
+        raise ValueError("fit_parameters: no row can be predicted at the starting parameters")
+    result = least_squares(residuals, z0, method="trf", x_scale="jac", diff_step=1e-4,
+                           max_nfev=max_evaluations, xtol=1e-10, ftol=1e-12, gtol=1e-10)
+    r = residuals(result.x)
+    values = to_values(result.x)
+    jac = result.jac
+    dof = max(1, r.size - len(parameters))
+    sigma2 = float(r @ r) / dof
+    try:
+        cov_z = sigma2 * np.linalg.inv(jac.T @ jac)
+    except np.linalg.LinAlgError:
+        cov_z = np.full((len(parameters), len(parameters)), np.inf)
+    # Delta method: d value / d z is value for log parameters, the scale otherwise.
+    dvdz = np.array([v if p.log else s for p, v, s in zip(parameters, values, scales)])
+    cov = cov_z * np.outer(dvdz, dvdz)
+    std = np.sqrt(np.clip(np.diag(cov), 0, None))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        corr = cov / np.outer(std, std)
+    err3 = r.reshape(-1, 3)
+    return ParameterFit(
+        parameters=parameters,
+        values=values,
+        std_errors=std,
+        correlation=corr,
+        rms_m=float(np.sqrt(np.mean(np.sum(err3**2, axis=1)))),
+        residual_sigma_m=math.sqrt(sigma2),
+        converged=bool(result.status > 0),
+        message=str(result.message),
+        failed_rows=failed[0],
+        evaluations=evaluations,
+        params=apply_values(params, parameters, values, source),
+    )
