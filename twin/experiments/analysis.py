@@ -1,0 +1,130 @@
+"""Validation-sweep analysis (thesis §8.3, §9.2): errors per configuration, axis, plane and load.
+
+Everything here works on a dataset and its :class:`~twin.experiments.prediction.Predictions`;
+:func:`plot_validation` draws the thesis's Figs. 17–22 (error magnitude and per-axis error over
+the bending plane, grouped by curvature, one panel per tip mass; front views with error circles).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+import numpy as np
+
+from twin.experiments.dataset import Dataset
+from twin.experiments.prediction import Predictions, predict_dataset
+from twin.params import Params
+
+__all__ = ["ValidationResult", "analyse_validation", "plot_validation"]
+
+
+@dataclasses.dataclass(frozen=True)
+class ValidationResult:
+    """Per-row predictions and the summaries of a validation dataset."""
+
+    dataset: Dataset
+    predictions: Predictions
+
+    @property
+    def error_mm(self) -> np.ndarray:
+        return self.predictions.error_norm_m * 1e3
+
+    def summary(self) -> dict:
+        """Median, RMS, worst error (mm), per-axis RMS (mm), failures, rows."""
+        ok = self.predictions.converged
+        e = self.error_mm[ok]
+        axes = self.predictions.errors_m[ok] * 1e3
+        return {
+            "rows": len(self.dataset),
+            "failed_predictions": self.predictions.failures,
+            "median_error_mm": float(np.median(e)) if e.size else float("nan"),
+            "rms_error_mm": float(np.sqrt(np.mean(e**2))) if e.size else float("nan"),
+            "worst_error_mm": float(np.max(e)) if e.size else float("nan"),
+            "worst_config": int(self.dataset["config"][ok][np.argmax(e)]) if e.size else None,
+            "rms_x_mm": float(np.sqrt(np.mean(axes[:, 0] ** 2))) if e.size else float("nan"),
+            "rms_y_mm": float(np.sqrt(np.mean(axes[:, 1] ** 2))) if e.size else float("nan"),
+            "rms_z_mm": float(np.sqrt(np.mean(axes[:, 2] ** 2))) if e.size else float("nan"),
+            "mean_z_mm": float(np.mean(axes[:, 2])) if e.size else float("nan"),
+        }
+
+    def by_group(self, column: str) -> list[dict]:
+        """RMS and worst error (mm) and failures for each value of ``column`` (e.g. tip_mass_kg)."""
+        out = []
+        values = self.dataset[column]
+        for v in np.unique(values):
+            mask = values == v
+            ok = mask & self.predictions.converged
+            e = self.error_mm[ok]
+            out.append({column: float(v), "rows": int(mask.sum()), "failed": int((mask & ~self.predictions.converged).sum()),
+                        "rms_error_mm": float(np.sqrt(np.mean(e**2))) if e.size else float("nan"),
+                        "worst_error_mm": float(e.max()) if e.size else float("nan")})
+        return out
+
+    def rows_table(self) -> list[dict]:
+        """One dict per row: the configuration and its errors (mm)."""
+        d, p = self.dataset, self.predictions
+        err = p.errors_m * 1e3
+        return [{"config": int(d["config"][i]), "kappa_cmd_per_m": float(d["kappa_cmd_per_m"][i]),
+                 "phi_cmd_deg": float(d["phi_cmd_deg"][i]), "tip_mass_kg": float(d["tip_mass_kg"][i]),
+                 "converged": bool(p.converged[i]), "error_mm": float(self.error_mm[i]),
+                 "error_x_mm": float(err[i, 0]), "error_y_mm": float(err[i, 1]), "error_z_mm": float(err[i, 2])}
+                for i in range(len(d))]
+
+
+def analyse_validation(dataset: Dataset, params: Params | None = None, *, progress: bool = False) -> ValidationResult:
+    """Predict every row (measured tensions, known loads) and keep the errors."""
+    return ValidationResult(dataset, predict_dataset(dataset, params, progress=progress))
+
+
+def plot_validation(result: ValidationResult, folder: str | Path) -> dict[str, Path]:
+    """Write the thesis-style figures into ``folder``; returns name → path."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    d, p = result.dataset, result.predictions
+    masses = np.unique(d["tip_mass_kg"])
+    kappas = np.unique(d["kappa_cmd_per_m"])
+    err = p.errors_m * 1e3
+    quantities = {"error_magnitude": (result.error_mm, "|e_p| (mm)"), "error_x": (err[:, 0], "e_x (mm)"),
+                  "error_y": (err[:, 1], "e_y (mm)"), "error_z": (err[:, 2], "e_z (mm)")}
+    paths: dict[str, Path] = {}
+    for name, (values, label) in quantities.items():
+        fig, axes = plt.subplots(1, len(masses), figsize=(4.2 * len(masses), 3.6), sharey=True, squeeze=False)
+        for ax, mass in zip(axes[0], masses):
+            for kappa in kappas:
+                sel = (d["tip_mass_kg"] == mass) & (d["kappa_cmd_per_m"] == kappa)
+                order = np.argsort(d["phi_cmd_deg"][sel])
+                phi = d["phi_cmd_deg"][sel][order]
+                ok = p.converged[sel][order]
+                ax.plot(phi[ok], values[sel][order][ok], "o-", ms=3, lw=1, label=f"κ={kappa:g}")
+            ax.set(title=f"tip mass {mass * 1e3:g} g", xlabel="bending plane φ (deg)")
+            ax.grid(alpha=0.3)
+        axes[0][0].set_ylabel(label)
+        axes[0][-1].legend(fontsize=7, title="1/m", title_fontsize=7)
+        fig.tight_layout()
+        paths[name] = folder / f"{name}.png"
+        fig.savefig(paths[name], dpi=100)
+        plt.close(fig)
+    # Front views (yz plane) with error circles, thesis Figs. 21-22; failed predictions in red.
+    fig, axes = plt.subplots(1, len(masses), figsize=(4.2 * len(masses), 4.2), squeeze=False)
+    scale = 1.0 / max(1e-9, np.nanmax(result.error_mm[p.converged])) if p.converged.any() else 1.0
+    for ax, mass in zip(axes[0], masses):
+        sel = d["tip_mass_kg"] == mass
+        tips = d.tip_positions_m[sel] * 1e3
+        ok = p.converged[sel]
+        ax.scatter(tips[ok, 1], tips[ok, 2], s=6, c="k")
+        ax.scatter(tips[~ok, 1], tips[~ok, 2], s=14, c="red", label="no prediction")
+        for (_, y, z), e in zip(tips[ok], result.error_mm[sel][ok]):
+            ax.add_patch(plt.Circle((y, z), 6.0 * e * scale, fill=False, lw=0.8, color="tab:blue"))
+        ax.set(title=f"front view, {mass * 1e3:g} g", xlabel="y (mm)", ylabel="z (mm)", aspect="equal")
+        ax.grid(alpha=0.3)
+    fig.tight_layout()
+    paths["front_view"] = folder / "front_view.png"
+    fig.savefig(paths["front_view"], dpi=100)
+    plt.close(fig)
+    return paths

@@ -1,0 +1,59 @@
+"""Markdown reports for runs: tables and figures a lab would rather look at than read."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Mapping, Sequence
+
+from twin.experiments.analysis import ValidationResult, plot_validation
+
+__all__ = ["markdown_table", "write_validation_report"]
+
+
+def markdown_table(rows: Sequence[Mapping], columns: Sequence[str] | None = None, *, digits: int = 3) -> str:
+    """A Markdown table of dict rows (floats rounded to ``digits`` significant figures)."""
+    if not rows:
+        return "_(no rows)_\n"
+    columns = list(columns or rows[0].keys())
+
+    def fmt(v):
+        if isinstance(v, float):
+            return f"{v:.{digits}g}"
+        return str(v)
+
+    lines = ["| " + " | ".join(columns) + " |", "|" + "---|" * len(columns)]
+    lines += ["| " + " | ".join(fmt(r.get(c, "")) for c in columns) + " |" for r in rows]
+    return "\n".join(lines) + "\n"
+
+
+def write_validation_report(result: ValidationResult, folder: str | Path, *, title: str = "Validation sweep",
+                            picture: Path | None = None, facts: Mapping[str, object] | None = None) -> Path:
+    """Write ``report.md``, ``summary.json``, ``errors.csv``-like table and the figures into ``folder``."""
+    folder = Path(folder)
+    figures = plot_validation(result, folder / "figures")
+    summary = result.summary()
+    summary.update(facts or {})
+    (folder / "summary.json").write_text(json.dumps(summary, indent=1))
+    meta = result.dataset.metadata
+    lines = [f"# {title}", ""]
+    lines += [f"Device `{meta.get('device')}`, {summary['rows']} static measurements, experiment "
+              f"`{meta.get('experiment')}`, recorded {meta.get('created')}.", ""]
+    if picture is not None and Path(picture).exists():
+        lines += [f"![the endoscope]({Path(picture).relative_to(folder)})", ""]
+    lines += ["## Summary", "", markdown_table([{k: v for k, v in summary.items()}]), ""]
+    lines += ["Errors are |p̂ − p*| between the Cosserat prediction (from the measured tensions and the "
+              "known loads) and the measured tip, base frame. Failed predictions are counted, never "
+              "plotted as answers.", ""]
+    lines += ["## By tip mass", "", markdown_table(result.by_group("tip_mass_kg")), ""]
+    lines += ["## By curvature", "", markdown_table(result.by_group("kappa_cmd_per_m")), ""]
+    lines += ["## By bending plane", "", markdown_table(result.by_group("phi_cmd_deg")), ""]
+    lines += ["## Figures", ""]
+    for name, path in figures.items():
+        lines += [f"### {name.replace('_', ' ')}", "", f"![{name}]({path.relative_to(folder)})", ""]
+    worst = sorted(result.rows_table(), key=lambda r: -r["error_mm"] if r["converged"] else float("-inf"))[:15]
+    lines += ["## Worst configurations", "", markdown_table(worst), ""]
+    lines += ["## All configurations", "", markdown_table(result.rows_table()), ""]
+    path = folder / "report.md"
+    path.write_text("\n".join(lines))
+    return path
