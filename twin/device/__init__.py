@@ -1,1 +1,31 @@
-"""Devices behind one interface: the rig over serial, its emulation, and the protocol between them."""
+"""Devices behind one interface: the rig over serial, its emulation, and the protocol between them.
+
+Open a device by URL — ``sim://`` (the MuJoCo twin behind the real firmware, in simulated
+time) or ``serial:///dev/ttyACM0`` (the rig, wall-clock time) — and use the same
+:class:`Device` calls on either; :attr:`Device.clock` says how time advances.
+"""
+
+from twin.device.device import MODE_NAMES, Device
+from twin.device.errors import CommandRejected, DeviceDisconnected, DeviceError, DeviceTimeout, ProtocolVersionError
+from twin.device.fixture import Fixture, OperatorFixture, SimFixture
+from twin.device.telemetry import DeviceInfo, Telemetry
+from twin.device.tracker import TipTracker
+from twin.device.url import SCHEMES, open_device
+
+__all__ = [
+    "MODE_NAMES",
+    "SCHEMES",
+    "CommandRejected",
+    "Device",
+    "DeviceDisconnected",
+    "DeviceError",
+    "DeviceInfo",
+    "DeviceTimeout",
+    "Fixture",
+    "OperatorFixture",
+    "ProtocolVersionError",
+    "SimFixture",
+    "Telemetry",
+    "TipTracker",
+    "open_device",
+]

@@ -1,0 +1,433 @@
+"""The device interface: one protocol client for the rig and its twin.
+
+Everything above the hardware (experiments, controllers, the Gymnasium env) talks to a
+:class:`Device`; :func:`twin.device.open_device` picks the backend from a URL. The client
+speaks the binary protocol of ``firmware/PROTOCOL.md`` through a
+:class:`twin.device.transport.Transport`, and the two backends differ only in their clock
+(:attr:`Device.clock`):
+
+``"simulated"`` (``sim://``)
+    The emulated board runs in this process. Time stands still between calls and advances only
+    while the host waits — :meth:`Device.wait`, :meth:`Device.wait_next`, or a command awaiting
+    its answer (answered at once, so no time passes) — as fast as the computer allows, 5 ms
+    board tick by 5 ms tick. Durations and timeouts are simulated seconds; a run is repeated
+    exactly for the same seed and calls.
+``"wall"`` (``serial://``)
+    The board runs on its own. Telemetry arrives in a background thread at 40 Hz whether or not
+    the host waits; durations and timeouts are wall-clock seconds; keepalive PINGs are sent
+    from a thread whenever the host is quiet, so the watchdog trips only if this process stops.
+
+Example:
+    >>> with open_device("sim://?seed=3") as dev:
+    ...     dev.tare()
+    ...     dev.enable()
+    ...     dev.set_lengths([-0.002, 0.0, 0.002, 0.0])
+    ...     dev.wait(1.0)
+    ...     dev.latest().tendon_lengths_m
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+from typing import TYPE_CHECKING, Iterable, Sequence
+
+import numpy as np
+
+from twin.device import codec
+from twin.device.errors import CommandRejected, DeviceDisconnected, DeviceError, DeviceTimeout, ProtocolVersionError
+from twin.device.inbox import Inbox
+from twin.device.telemetry import DeviceInfo, Telemetry
+from twin.device.transport import Transport
+
+if TYPE_CHECKING:
+    from twin.calibration import Calibration
+    from twin.device.fixture import Fixture
+    from twin.device.tracker import TipTracker
+
+__all__ = ["MODE_NAMES", "Device"]
+
+# Names of the control modes in this API → the protocol's modes.
+MODE_NAMES = {"lengths": codec.Mode.LENGTHS, "pairs": codec.Mode.PAIRS, "tensions": codec.Mode.TENSION}
+
+
+def _mode(mode: str | codec.Mode) -> codec.Mode:
+    if isinstance(mode, codec.Mode):
+        return mode
+    if mode not in MODE_NAMES:
+        raise ValueError(f"mode = {mode!r}: must be one of {', '.join(map(repr, MODE_NAMES))}")
+    return MODE_NAMES[mode]
+
+
+def _vector(name: str, values: Iterable[float], count: int) -> tuple[float, ...]:
+    array = np.asarray(values, dtype=float)
+    if array.shape != (count,) or not np.all(np.isfinite(array)):
+        raise ValueError(f"{name} = {values!r}: expected {count} finite numbers")
+    return tuple(array.tolist())
+
+
+def _mask(name: str, channels: bool | Iterable[int]) -> int:
+    if channels is True:
+        return (1 << codec.CHANNELS) - 1
+    if channels is False:
+        return 0
+    mask = 0
+    for channel in channels:
+        if not (isinstance(channel, (int, np.integer)) and 0 <= channel < codec.CHANNELS):
+            raise ValueError(f"{name} = {channels!r}: channels are 0..{codec.CHANNELS - 1}")
+        mask |= 1 << int(channel)
+    return mask
+
+
+class Device:
+    """A board behind the protocol: the rig's Teensy, or its emulation.
+
+    Usually made by :func:`twin.device.open_device`. Commands block until the board's ACK and
+    raise :class:`CommandRejected` on a NACK; waits raise :class:`DeviceDisconnected` once the
+    board is gone, while the samples received before stay readable (:meth:`latest`,
+    :meth:`drain`).
+
+    Args:
+        transport: bytes and clock of the backend.
+        fixture: operator and fixture actions (tip mass, holder, calibration masses).
+        tracker: the EM tracker's fused tip poses, or None when no tracker is configured.
+        command_timeout_s: longest wait for a command's answer (device clock, s).
+        keepalive_s: longest silence before the host sends a PING (device clock, s); keep it
+            well under the watchdog timeout (0.25 s by default). None sends no keepalives, so
+            the watchdog trips while the host is quiet.
+        queue_size: samples kept for :meth:`drain`.
+
+    Attributes:
+        fixture: the :class:`twin.device.fixture.Fixture` (None if the backend has none).
+        tracker: the :class:`twin.device.tracker.TipTracker`, or None.
+    """
+
+    def __init__(
+        self,
+        transport: Transport,
+        *,
+        fixture: Fixture | None = None,
+        tracker: TipTracker | None = None,
+        command_timeout_s: float = 0.5,
+        keepalive_s: float | None = 0.1,
+        queue_size: int = 4096,
+    ):
+        if not (math.isfinite(command_timeout_s) and command_timeout_s > 0):
+            raise ValueError(f"command_timeout_s = {command_timeout_s!r}: must be finite and > 0")
+        if keepalive_s is not None and not (math.isfinite(keepalive_s) and keepalive_s > 0):
+            raise ValueError(f"keepalive_s = {keepalive_s!r}: must be finite and > 0, or None")
+        self._transport = transport
+        self.fixture = fixture
+        self.tracker = tracker
+        self._command_timeout_s = command_timeout_s
+        self._keepalive_s = keepalive_s
+        self._inbox = Inbox(transport.time_s, queue_size=queue_size)
+        self._send_lock = threading.Lock()
+        self._seq = 0
+        self._info: DeviceInfo | None = None
+
+    # ------------------------------------------------------------------ identity
+    @property
+    def url(self) -> str:
+        return self._transport.url
+
+    @property
+    def transport(self) -> Transport:
+        """The backend's transport; on ``sim://`` its ``board.plant`` is the twin's ground truth."""
+        return self._transport
+
+    @property
+    def clock(self) -> str:
+        """``"simulated"`` (``sim://``: time passes only in waits) or ``"wall"`` (``serial://``)."""
+        return self._transport.clock
+
+    @property
+    def connected(self) -> bool:
+        """True after :meth:`connect` until :meth:`close` or the board going away."""
+        return self._info is not None and self._inbox.error is None
+
+    @property
+    def info(self) -> DeviceInfo:
+        """What the handshake reported (versions, rates, tendon m per count)."""
+        if self._info is None:
+            raise DeviceError(f"{self.url}: not connected (call connect())")
+        return self._info
+
+    # ------------------------------------------------------------------ connection
+    def connect(self, *, timeout_s: float = 2.0) -> DeviceInfo:
+        """Open the link, check the protocol version (HELLO) and wait for the first sample.
+
+        Args:
+            timeout_s: how long the port may take to appear and the board to answer (s).
+
+        Raises:
+            DeviceError: the port cannot be opened.
+            DeviceTimeout: no HELLO_REPLY or no telemetry in time.
+            ProtocolVersionError: the board speaks another protocol version.
+        """
+        if self._info is not None:
+            return self._info
+        self._inbox.restart()
+        self._transport.open(self._inbox, timeout_s=timeout_s)
+        try:
+            info = self._handshake(timeout_s)
+        except BaseException:
+            self._transport.close()
+            raise
+        self._transport.keep_alive(self._keepalive_s, self._ping)
+        self._info = info
+        return info
+
+    def reconnect(self, *, timeout_s: float = 5.0) -> DeviceInfo:
+        """Close the link and connect again, waiting up to ``timeout_s`` for the port to come
+        back (a board unplugged and plugged in again).
+
+        Reconnecting is never automatic: a board that comes back has restarted (disabled,
+        tares and calibration lost), so the caller must decide how to go on. Samples queued
+        before stay in :meth:`drain`.
+        """
+        self._shutdown()
+        return self.connect(timeout_s=timeout_s)
+
+    def close(self) -> None:
+        """Disable the motors (if the board is still there), stop the threads, close the link."""
+        if self.connected:
+            try:
+                self.disable()
+            except DeviceError:
+                # The board went away while closing; its watchdog stops the motors anyway.
+                pass
+        self._shutdown()
+        if self.tracker is not None:
+            self.tracker.close()
+
+    def __enter__(self) -> "Device":
+        self.connect()
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    # ------------------------------------------------------------------ commands
+    def ping(self) -> None:
+        """A PING answered by an ACK: checks the link and feeds the watchdog."""
+        self._command(codec.Ping())
+
+    def enable(self) -> None:
+        """Enter ENABLED (clearing latched faults); the rig holds its current lengths or
+        tensions until setpoints arrive."""
+        self._command(codec.Enable())
+
+    def disable(self) -> None:
+        """Enter DISABLED: all motors coast. Latched fault flags stay readable."""
+        self._command(codec.Disable())
+
+    def tare(self, *, loadcells: bool | Iterable[int] = True, lengths: bool | Iterable[int] = True) -> None:
+        """Zero load cells (tension reads 0 N now) and/or tendon lengths (length reads 0 m now).
+
+        Args:
+            loadcells: True for all, False for none, or channel indices 0..3.
+            lengths: likewise for the tendon length origins.
+
+        Raises:
+            CommandRejected: while enabled, or a load cell to tare is stale.
+        """
+        self._command(codec.Tare(_mask("loadcells", loadcells), _mask("lengths", lengths)))
+
+    def set_mode(self, mode: str | codec.Mode) -> None:
+        """Switch control mode: ``"lengths"``, ``"pairs"`` or ``"tensions"``. The new mode
+        starts from the current measurement (bumpless)."""
+        self._command(codec.SetMode(_mode(mode)))
+
+    def set_gains(
+        self, mode: str | codec.Mode, *, kp: float, ki: float, kd: float, output_limit: float = 1.0
+    ) -> None:
+        """PID gains of one mode, for all four motors.
+
+        Args:
+            mode: ``"lengths"``, ``"pairs"`` or ``"tensions"``.
+            kp: duty per m (length modes) or per N (tensions), >= 0.
+            ki: duty per (m·s) or (N·s), >= 0.
+            kd: duty·s per m or per N, >= 0.
+            output_limit: bound on |duty| and on the integral term, in (0, 1].
+        """
+        self._command(codec.SetGains(_mode(mode), float(kp), float(ki), float(kd), float(output_limit)))
+
+    def set_calibration(
+        self,
+        calibration: Calibration | None = None,
+        *,
+        gain_counts_per_n: Sequence[float] | None = None,
+        offset_counts: Sequence[float] | None = None,
+    ) -> None:
+        """Give the board the load-cell calibration ``raw = offset_counts + gain_counts_per_n · N``.
+
+        Pass a :class:`twin.calibration.Calibration`, or both arrays. Needed before tension mode.
+
+        Raises:
+            ValueError: neither or both forms given, or values not finite / a zero gain.
+            CommandRejected: while enabled.
+        """
+        if calibration is not None:
+            if gain_counts_per_n is not None or offset_counts is not None:
+                raise ValueError("set_calibration: pass a Calibration or the arrays, not both")
+            gain_counts_per_n, offset_counts = calibration.gain_counts_per_n, calibration.offset_counts
+        elif gain_counts_per_n is None or offset_counts is None:
+            raise ValueError(
+                f"gain_counts_per_n = {gain_counts_per_n!r}, offset_counts = {offset_counts!r}: "
+                "pass a Calibration, or both arrays"
+            )
+        gains = _vector("gain_counts_per_n", gain_counts_per_n, codec.CHANNELS)
+        if 0.0 in gains:
+            raise ValueError(f"gain_counts_per_n = {gains!r}: must be non-zero")
+        self._command(
+            codec.SetCalibration(
+                tuple(1.0 / g for g in gains), _vector("offset_counts", offset_counts, codec.CHANNELS)
+            )
+        )
+
+    def set_limits(self, *, tension_limit_n: float = 6.0, watchdog_timeout_s: float = 0.25) -> None:
+        """Per-channel tension limit (N, in (0, 50]) and watchdog timeout (s, 0.02…10)."""
+        if not 0.02 <= watchdog_timeout_s <= 10.0:
+            raise ValueError(f"watchdog_timeout_s = {watchdog_timeout_s!r}: must be in 0.02..10")
+        self._command(codec.SetLimits(float(tension_limit_n), round(watchdog_timeout_s * 1e3)))
+
+    def set_lengths(self, lengths_m: Sequence[float]) -> None:
+        """Setpoints of ``"lengths"`` mode: 4 relative tendon lengths (m, positive = paid out)."""
+        self._command(codec.SetSetpoints.lengths(_vector("lengths_m", lengths_m, codec.CHANNELS)))
+
+    def set_pairs(self, pairs_m: Sequence[float]) -> None:
+        """Setpoints of ``"pairs"`` mode: d₁₃ and d₂₄ (m); tendon 1 goes to c₁₃ + d₁₃ and
+        tendon 3 to c₁₃ − d₁₃, c the pair's mean length when the mode was entered."""
+        self._command(codec.SetSetpoints.pairs(_vector("pairs_m", pairs_m, codec.CHANNELS // 2)))
+
+    def set_tensions(self, tensions_n: Sequence[float]) -> None:
+        """Setpoints of ``"tensions"`` mode: 4 tendon tensions (N, 0…limit)."""
+        self._command(codec.SetSetpoints.tensions(_vector("tensions_n", tensions_n, codec.CHANNELS)))
+
+    # ------------------------------------------------------------------ telemetry and time
+    def latest(self) -> Telemetry:
+        """The most recent sample (kept after the board went away)."""
+        if self._inbox.latest is None:
+            raise DeviceError(f"{self.url}: no telemetry yet (call connect())")
+        return self._inbox.latest
+
+    def wait_next(self, timeout_s: float = 1.0) -> Telemetry:
+        """Wait for the next sample after this call (40 Hz) and return it.
+
+        Raises:
+            DeviceTimeout: none within ``timeout_s`` (device clock).
+            DeviceDisconnected: the board went away.
+        """
+        self._check_connected()
+        count = self._inbox.sample_count
+        if not self._wait_for(lambda: self._inbox.sample_count > count, timeout_s):
+            raise DeviceTimeout(f"{self.url}: no telemetry within {timeout_s} s ({self.clock} clock)")
+        return self._inbox.latest
+
+    def wait(self, duration_s: float) -> None:
+        """Let ``duration_s`` pass: simulated seconds on ``sim://`` (the twin runs meanwhile),
+        wall-clock seconds on ``serial://``.
+
+        Raises:
+            DeviceDisconnected: the board went away meanwhile.
+        """
+        if not (math.isfinite(duration_s) and duration_s >= 0):
+            raise ValueError(f"duration_s = {duration_s!r}: must be finite and >= 0")
+        self._check_connected()
+        self._wait_for(lambda: False, duration_s)
+
+    @property
+    def time_s(self) -> float:
+        """Device time now (s since the board started): exact on ``sim://``; on ``serial://``
+        the latest sample's time plus the wall time since it arrived."""
+        latest = self.latest()
+        return latest.time_s + (self._transport.time_s() - latest.received_s)
+
+    def drain(self) -> list[Telemetry]:
+        """Every sample received since the last drain, oldest first (up to ``queue_size``);
+        works after the board went away."""
+        return self._inbox.drain()
+
+    @property
+    def lost_samples(self) -> int:
+        """Samples missing from the board's sequence (lost on the link)."""
+        return self._inbox.lost_samples
+
+    @property
+    def dropped_samples(self) -> int:
+        """Samples pushed out of the drain queue because nobody drained it."""
+        return self._inbox.dropped_samples
+
+    @property
+    def bad_frames(self) -> int:
+        """Frames this host dropped for framing or CRC errors (this connection)."""
+        return self._inbox.decoder.bad_frames
+
+    @property
+    def bad_messages(self) -> int:
+        """Intact frames this host could not use: unknown type or wrong length (this connection)."""
+        return self._inbox.decoder.bad_messages
+
+    # ------------------------------------------------------------------ internals
+    def _handshake(self, timeout_s: float) -> DeviceInfo:
+        # A leading delimiter ends whatever partial frame a previous host left on the line.
+        self._transport.write(b"\x00")
+        count = self._inbox.hello_count
+        self._send(codec.Hello())
+        if not self._wait_for(lambda: self._inbox.hello_count > count, timeout_s):
+            raise DeviceTimeout(
+                f"{self.url}: no HELLO_REPLY within {timeout_s} s; is the twin firmware running on it?"
+            )
+        reply = self._inbox.hello_reply
+        if reply.protocol_version != codec.PROTOCOL_VERSION:
+            raise ProtocolVersionError(self.url, reply.protocol_version)
+        # Samples queued before the reply may be stale (old bytes on the line); wait for one after.
+        samples = self._inbox.sample_count
+        if not self._wait_for(lambda: self._inbox.sample_count > samples, timeout_s):
+            raise DeviceTimeout(f"{self.url}: handshake done but no telemetry within {timeout_s} s")
+        return DeviceInfo.from_reply(reply, url=self.url, clock=self.clock)
+
+    def _shutdown(self) -> None:
+        self._transport.close()
+        self._info = None
+
+    def _check_connected(self) -> None:
+        if self._inbox.error is not None:
+            raise DeviceDisconnected(str(self._inbox.error)) from self._inbox.error
+        if self._info is None:
+            raise DeviceError(f"{self.url}: not connected (call connect())")
+
+    def _send(self, message: codec.Message, *, expect_answer: bool = False) -> int:
+        with self._send_lock:
+            self._seq = (self._seq + 1) & 0xFFFF
+            seq = self._seq
+            if expect_answer:
+                self._inbox.expect(seq)
+            self._transport.write(codec.encode_frame(message, seq))
+        return seq
+
+    def _ping(self) -> None:
+        self._send(codec.Ping())
+
+    def _command(self, message: codec.Message) -> None:
+        self._check_connected()
+        seq = self._send(message, expect_answer=True)
+        try:
+            answered = self._wait_for(lambda: self._inbox.answered(seq), self._command_timeout_s)
+        finally:
+            reply = self._inbox.take_answer(seq)
+        name = codec.MsgType(message.TYPE).name
+        if not answered:
+            raise DeviceTimeout(
+                f"{self.url}: no answer to {name} (seq {seq}) within {self._command_timeout_s} s ({self.clock} clock)"
+            )
+        if isinstance(reply, codec.Nack):
+            raise CommandRejected(self.url, message, seq, reply.error)
+
+    def _wait_for(self, predicate, timeout_s: float) -> bool:
+        inbox = self._inbox
+        done = self._transport.wait_until(lambda: inbox.error is not None or predicate(), timeout_s)
+        if inbox.error is not None:
+            raise DeviceDisconnected(str(inbox.error)) from inbox.error
+        return done

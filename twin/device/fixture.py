@@ -1,0 +1,150 @@
+"""Operator and fixture actions the experiments need, behind one small interface.
+
+Some steps of the thesis's protocols are done by hand on the rig: hanging a mass at the tip,
+clamping the reference holder around the discs, hanging calibration masses on the tendons over
+the load-cell pulleys. :class:`Fixture` names them; ``device.fixture`` provides them for the
+device's backend. Every action returns once the load or clamp is in place and still:
+
+* :class:`SimFixture` (``sim://``) acts on the twin's plant at once, then lets the twin run
+  for ``settle_s`` of simulated time.
+* :class:`OperatorFixture` (``serial://``) asks the operator on the console and returns when
+  they press Enter.
+
+Channel indices are 0..3 as everywhere in the API; messages to the operator say tendon 1..4.
+"""
+
+from __future__ import annotations
+
+import abc
+import math
+from typing import Callable, Iterable
+
+import numpy as np
+
+from twin.device.board import EmulatedBoard
+
+__all__ = ["Fixture", "OperatorFixture", "SimFixture"]
+
+
+def _check_mass(name: str, value: float) -> float:
+    if not (math.isfinite(value) and value >= 0):
+        raise ValueError(f"{name} = {value!r}: must be finite and >= 0")
+    return float(value)
+
+
+def _channels(channels: Iterable[int], count: int) -> tuple[int, ...]:
+    channels = tuple(channels)
+    if not channels or any(not (isinstance(c, (int, np.integer)) and 0 <= c < count) for c in channels):
+        raise ValueError(f"channels = {channels!r}: expected one or more of 0..{count - 1}")
+    return tuple(int(c) for c in channels)
+
+
+class Fixture(abc.ABC):
+    """What the operator or the fixture does to the rig during an experiment."""
+
+    @abc.abstractmethod
+    def hang_tip_mass(self, mass_kg: float) -> None:
+        """Hang ``mass_kg`` (kg) at the tip; 0 removes it."""
+
+    @abc.abstractmethod
+    def engage_holder(self) -> None:
+        """Clamp the reference holder: the discs are held straight (for pretensioning and tares)."""
+
+    @abc.abstractmethod
+    def release_holder(self) -> None:
+        """Remove the reference holder."""
+
+    @abc.abstractmethod
+    def hang_calibration_mass(self, mass_g: float, channels: Iterable[int]) -> None:
+        """Hang ``mass_g`` (g; 0 = nothing) on the tendon over the load cell of each channel.
+
+        The signature is the ``hang_mass`` protocol of :func:`twin.calibration.run_calibration`.
+        """
+
+    @abc.abstractmethod
+    def remove_calibration_masses(self) -> None:
+        """Take every calibration mass off; the motors drive the tendons again."""
+
+
+class SimFixture(Fixture):
+    """Fixture actions on the emulated board's plant.
+
+    Calibration masses: the plant models no mass hanging over a pulley, so the board pulls each
+    tendon at the spool with the mass's weight (m·g with the twin's gravity) by ideal tension
+    sources, and the load cells read that tension; meanwhile the firmware's motor outputs are
+    ignored (see :meth:`EmulatedBoard.hold_tensions`) until :meth:`remove_calibration_masses`.
+
+    Args:
+        board: the emulated board.
+        settle: lets simulated time pass (s), e.g. ``device.wait``.
+        settle_s: simulated time each action is given to come to rest (s).
+    """
+
+    def __init__(self, board: EmulatedBoard, settle: Callable[[float], None], *, settle_s: float = 0.5):
+        self._board = board
+        self._settle = settle
+        self.settle_s = settle_s
+        self._calibration_g = np.zeros(board.plant.tendon_count)
+
+    def hang_tip_mass(self, mass_kg: float) -> None:
+        self._board.plant.set_tip_mass_kg(_check_mass("mass_kg", mass_kg))
+        self._settle(self.settle_s)
+
+    def engage_holder(self) -> None:
+        self._board.plant.engage_holder()
+        self._settle(self.settle_s)
+
+    def release_holder(self) -> None:
+        self._board.plant.release_holder()
+        self._settle(self.settle_s)
+
+    def hang_calibration_mass(self, mass_g: float, channels: Iterable[int]) -> None:
+        mass_g = _check_mass("mass_g", mass_g)
+        self._calibration_g[list(_channels(channels, len(self._calibration_g)))] = mass_g
+        gravity = self._board.plant.params.environment.gravity_m_s2
+        self._board.hold_tensions(self._calibration_g * 1e-3 * gravity)
+        self._settle(self.settle_s)
+
+    def remove_calibration_masses(self) -> None:
+        self._calibration_g[:] = 0.0
+        self._board.release_tensions()
+        self._settle(self.settle_s)
+
+
+class OperatorFixture(Fixture):
+    """Fixture actions asked of the operator at the rig.
+
+    Args:
+        prompt: shows a request and returns when the operator confirms it; :func:`input` by
+            default (press Enter). Tests pass a recorder.
+        channels: load cells on the rig.
+    """
+
+    def __init__(self, prompt: Callable[[str], object] = input, *, channels: int = 4):
+        self._prompt = prompt
+        self._count = channels
+
+    def hang_tip_mass(self, mass_kg: float) -> None:
+        mass_kg = _check_mass("mass_kg", mass_kg)
+        request = f"Hang {mass_kg * 1e3:g} g at the tip" if mass_kg > 0 else "Remove any mass from the tip"
+        self._ask(request + ", let it hang still")
+
+    def engage_holder(self) -> None:
+        self._ask("Clamp the reference holder around the discs")
+
+    def release_holder(self) -> None:
+        self._ask("Open and remove the reference holder")
+
+    def hang_calibration_mass(self, mass_g: float, channels: Iterable[int]) -> None:
+        mass_g = _check_mass("mass_g", mass_g)
+        tendons = ", ".join(str(c + 1) for c in _channels(channels, self._count))
+        if mass_g > 0:
+            self._ask(f"Hang {mass_g:g} g on tendon(s) {tendons} over the load-cell pulley, let it hang still")
+        else:
+            self._ask(f"Take any mass off tendon(s) {tendons}")
+
+    def remove_calibration_masses(self) -> None:
+        self._ask("Take all calibration masses off the tendons")
+
+    def _ask(self, request: str) -> None:
+        self._prompt(f"{request}, then press Enter: ")

@@ -1,0 +1,175 @@
+"""The emulated board behind a pseudo-terminal, in wall-clock time: a rig without the rig.
+
+:class:`PtyBoard` runs an :class:`twin.device.board.EmulatedBoard` (the real firmware core and
+the MuJoCo plant) in a background thread, one 5 ms tick per 5 ms of wall-clock time, and
+exposes one end of an ``os.openpty()`` pair in raw mode. ``serial://<port>`` on that end goes
+through the real serial driver, protocol and PID. Host bytes are handed to the firmware as
+they arrive (commands are answered at once, as on the Teensy); board bytes are written after
+each tick and each command.
+
+:meth:`PtyBoard.unplug` makes the board disappear as an unplugged USB cable does (the host's
+port fails), and :meth:`PtyBoard.plug` brings it back powered up afresh on the same plant. A
+new pseudo-terminal may get another name, so pass ``link_path`` for a stable name (a symbolic
+link re-pointed on each plug, like udev's ``/dev/serial/by-id`` links) to reconnect to.
+"""
+
+from __future__ import annotations
+
+import os
+import select
+import threading
+import time
+import tty
+from pathlib import Path
+
+from twin.device.board import TICK_S, EmulatedBoard
+from twin.params import Params
+from twin.pose import HORIZONTAL
+
+__all__ = ["PtyBoard"]
+
+# Behind by more than this, the board stops catching up with the wall clock and skips ahead
+# (counted in ``overruns``): a board that ran late for a moment must not then run fast.
+_MAX_LAG_S = 0.1
+
+
+class PtyBoard:
+    """An emulated board on a pseudo-terminal.
+
+    Args:
+        params: parameter set of the plant (default ``models/endoscope.toml``).
+        seed: seed of the plant's sensor noise.
+        base_rotation: clamp orientation (default horizontal).
+        link_path: optional path of a symbolic link to the current port.
+
+    Attributes:
+        board: the :class:`EmulatedBoard` (its ``plant`` is the twin behind the port).
+        ticks: board ticks run so far.
+        overruns: times the board fell more than 0.1 s behind the wall clock and skipped ahead.
+        tx_dropped_bytes: bytes not written because nobody read the port and its buffer was full.
+    """
+
+    def __init__(
+        self,
+        params: Params | None = None,
+        *,
+        seed: int = 0,
+        base_rotation=HORIZONTAL,
+        link_path: str | os.PathLike | None = None,
+    ):
+        self.board = EmulatedBoard(params, seed=seed, base_rotation=base_rotation)
+        self.link_path = Path(link_path) if link_path is not None else None
+        self.ticks = 0
+        self.overruns = 0
+        self.tx_dropped_bytes = 0
+        self._fds: tuple[int, int] | None = None
+        self._device_path = ""
+        self._thread: threading.Thread | None = None
+        self._stop = threading.Event()
+        self._powered_before = False
+
+    @property
+    def port(self) -> str:
+        """The path a host opens: ``link_path`` if given, else the pseudo-terminal itself."""
+        return str(self.link_path) if self.link_path is not None else self._device_path
+
+    @property
+    def url(self) -> str:
+        return f"serial://{self.port}"
+
+    @property
+    def plugged(self) -> bool:
+        return self._thread is not None
+
+    def plug(self) -> str:
+        """Open a pseudo-terminal and start the board; returns the port.
+
+        After an :meth:`unplug` the firmware powers up afresh (disabled, no handshake); the
+        plant keeps its state.
+        """
+        if self.plugged:
+            return self.port
+        if self._powered_before:
+            self.board.power_cycle()
+        self._powered_before = True
+        master, slave = os.openpty()
+        # The slave end is the host's; raw mode there, or the line discipline echoes and
+        # mangles bytes before the host's driver has set the port up.
+        tty.setraw(slave)
+        os.set_blocking(master, False)
+        # Holding the slave open keeps the master readable between hosts (no EIO when a host
+        # closes its end).
+        self._fds = (master, slave)
+        self._device_path = os.ttyname(slave)
+        if self.link_path is not None:
+            temporary = self.link_path.with_name(self.link_path.name + ".new")
+            temporary.unlink(missing_ok=True)
+            temporary.symlink_to(self._device_path)
+            temporary.replace(self.link_path)
+        self._stop.clear()
+        self._thread = threading.Thread(target=self._run, name=f"PtyBoard {self._device_path}", daemon=True)
+        self._thread.start()
+        return self.port
+
+    def unplug(self) -> None:
+        """Stop the board and close the pseudo-terminal: the host's port fails as when a USB
+        cable is pulled. The link (if any) is removed."""
+        if not self.plugged:
+            return
+        self._stop.set()
+        self._thread.join()
+        self._thread = None
+        for fd in self._fds:
+            os.close(fd)
+        self._fds = None
+        if self.link_path is not None:
+            self.link_path.unlink(missing_ok=True)
+
+    def close(self) -> None:
+        """Unplug and free the firmware."""
+        self.unplug()
+        self.board.close()
+
+    def __enter__(self) -> "PtyBoard":
+        self.plug()
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def _run(self) -> None:
+        master = self._fds[0]
+        next_tick_s = time.monotonic()
+        while not self._stop.is_set():
+            ready, _, _ = select.select([master], [], [], max(0.0, next_tick_s - time.monotonic()))
+            if ready:
+                self.board.receive(self._read(master))
+                self._write(master, self.board.take_tx())
+            now_s = time.monotonic()
+            if now_s < next_tick_s:
+                continue
+            self.board.tick()
+            self._write(master, self.board.take_tx())
+            self.board.advance()
+            self.ticks += 1
+            next_tick_s += TICK_S
+            if now_s - next_tick_s > _MAX_LAG_S:
+                next_tick_s = now_s
+                self.overruns += 1
+
+    @staticmethod
+    def _read(master: int) -> bytes:
+        try:
+            return os.read(master, 4096)
+        except BlockingIOError:
+            return b""
+
+    def _write(self, master: int, data: bytes) -> None:
+        while data:
+            try:
+                written = os.write(master, data)
+            except BlockingIOError:
+                # Nobody reads the port: drop, as a USB serial device does without a host.
+                self.tx_dropped_bytes += len(data)
+                return
+            data = data[written:]

@@ -1,0 +1,123 @@
+"""What a device reports, in host units: telemetry samples and the board's identity.
+
+:class:`Telemetry` is the host's view of one 40 Hz TELEMETRY frame (arrays, SI units, enums);
+:class:`DeviceInfo` is what the handshake told the host. Both are produced by
+:class:`twin.device.Device` whatever the backend.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+from twin.device import codec
+
+__all__ = ["DeviceInfo", "Telemetry"]
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class Telemetry:
+    """One telemetry sample.
+
+    Attributes:
+        time_s: device time of the sample (s since the board's first tick): simulated time on
+            ``sim://``, the board's clock on ``serial://``.
+        seq: the board's sample counter; a gap means samples were lost on the way.
+        encoder_counts: (4,) int64 raw quadrature counts (no origin applied).
+        tendon_lengths_m: (4,) relative tendon lengths (m, from the last tare; positive = paid out).
+        raw_counts: (4,) int64 latest HX711 readings (counts).
+        tensions_n: (4,) calibrated tensions (N).
+        targets: (4,) per-motor targets: m in the length modes, N in tension mode.
+        motor_commands: (4,) duty per motor in [-1, 1]; positive pays tendon out.
+        drives: per motor :class:`codec.Drive` (coast, drive, brake).
+        state: :class:`codec.State` (disabled, enabled, fault).
+        mode: :class:`codec.Mode` (lengths, pairs, tension).
+        fault_flags: :class:`codec.Fault` flags (watchdog and tension limit latch until enable).
+        stale_mask: bit i set while load cell i is stale.
+        rx_bad_frames: frames the board dropped for framing or CRC errors, since power-up.
+        tx_dropped_frames: frames the board could not send (its queue was full), since power-up.
+        received_s: when the host had the sample, in the transport's clock (simulated seconds
+            on ``sim://``, :func:`time.monotonic` seconds on ``serial://``).
+    """
+
+    time_s: float
+    seq: int
+    encoder_counts: np.ndarray
+    tendon_lengths_m: np.ndarray
+    raw_counts: np.ndarray
+    tensions_n: np.ndarray
+    targets: np.ndarray
+    motor_commands: np.ndarray
+    drives: tuple[codec.Drive, ...]
+    state: codec.State
+    mode: codec.Mode
+    fault_flags: codec.Fault
+    stale_mask: int
+    rx_bad_frames: int
+    tx_dropped_frames: int
+    received_s: float
+
+    @classmethod
+    def from_message(cls, message: codec.Telemetry, received_s: float) -> "Telemetry":
+        """The host view of a decoded TELEMETRY message received at ``received_s``."""
+        return cls(
+            time_s=message.time_us / 1e6,
+            seq=message.sample_seq,
+            encoder_counts=np.array(message.encoder_counts, dtype=np.int64),
+            tendon_lengths_m=np.array(message.lengths_m, dtype=float),
+            raw_counts=np.array(message.raw_counts, dtype=np.int64),
+            tensions_n=np.array(message.tensions_n, dtype=float),
+            targets=np.array(message.targets, dtype=float),
+            motor_commands=np.array(message.duty, dtype=float),
+            drives=message.drives(),
+            state=codec.State(message.state),
+            mode=codec.Mode(message.mode),
+            fault_flags=codec.Fault(message.fault_flags),
+            stale_mask=message.stale_mask,
+            rx_bad_frames=message.rx_bad_frames,
+            tx_dropped_frames=message.tx_dropped_frames,
+            received_s=received_s,
+        )
+
+    @property
+    def enabled(self) -> bool:
+        return self.state is codec.State.ENABLED
+
+
+@dataclasses.dataclass(frozen=True)
+class DeviceInfo:
+    """The board as the handshake described it.
+
+    Attributes:
+        url: the device URL.
+        clock: ``"simulated"`` or ``"wall"`` (see :attr:`twin.device.Device.clock`).
+        protocol_version: the board's protocol version (equal to the host's once connected).
+        firmware_version: (major, minor, patch).
+        channels: motors / load cells (4).
+        control_period_s: PID period (s), 0.01.
+        telemetry_period_s: telemetry period (s), 0.025.
+        tendon_m_per_count: tendon length per encoder count (m).
+    """
+
+    url: str
+    clock: str
+    protocol_version: int
+    firmware_version: tuple[int, int, int]
+    channels: int
+    control_period_s: float
+    telemetry_period_s: float
+    tendon_m_per_count: float
+
+    @classmethod
+    def from_reply(cls, reply: codec.HelloReply, *, url: str, clock: str) -> "DeviceInfo":
+        return cls(
+            url=url,
+            clock=clock,
+            protocol_version=reply.protocol_version,
+            firmware_version=tuple(reply.firmware_version),
+            channels=reply.channels,
+            control_period_s=reply.control_period_us / 1e6,
+            telemetry_period_s=reply.telemetry_period_us / 1e6,
+            tendon_m_per_count=reply.tendon_m_per_count,
+        )

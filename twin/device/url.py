@@ -1,0 +1,128 @@
+"""Device URLs → devices: ``sim://`` (the twin) and ``serial://`` (the rig, or an emulated board
+on a pseudo-terminal).
+
+``sim://[?seed=N][&pose=horizontal|up]``
+    The emulated board (:class:`twin.device.board.EmulatedBoard`) in simulated time.
+``serial://<path>[?igtl=host:port]``
+    A board on a serial port: ``serial:///dev/ttyACM0``, or the pseudo-terminal printed by
+    ``twin emulate``. ``igtl`` names the OpenIGTLink server of the EM tracker (PLUS); without
+    it ``device.tracker`` is None.
+"""
+
+from __future__ import annotations
+
+import urllib.parse
+from typing import Callable
+
+from twin.device.board import EmulatedBoard
+from twin.device.device import Device
+from twin.device.fixture import OperatorFixture, SimFixture
+from twin.device.serial_transport import SerialTransport
+from twin.device.sim_transport import SimTransport
+from twin.device.tracker import TipTracker, sim_probe_source
+from twin.params import Params, load_params
+from twin.pose import base_rotation_from
+from twin.tracking import FusionSettings, OpenIGTLinkSource
+
+__all__ = ["SCHEMES", "open_device"]
+
+SCHEMES = ("sim", "serial")
+_QUERY_KEYS = {"sim": ("seed", "pose"), "serial": ("igtl",)}
+
+
+def _query(url: str, scheme: str, query: str) -> dict[str, str]:
+    pairs = urllib.parse.parse_qsl(query, keep_blank_values=True, strict_parsing=bool(query))
+    options = dict(pairs)
+    unknown = sorted(set(options) - set(_QUERY_KEYS[scheme]))
+    if unknown or len(options) != len(pairs):
+        raise ValueError(
+            f"device URL {url!r}: options {', '.join(unknown) or 'repeated'} not understood; "
+            f"{scheme}:// takes {', '.join(_QUERY_KEYS[scheme])}"
+        )
+    return options
+
+
+def open_device(
+    url: str,
+    *,
+    params: Params | None = None,
+    seed: int | None = None,
+    prompt: Callable[[str], object] = input,
+    command_timeout_s: float = 0.5,
+    keepalive_s: float | None = 0.1,
+    queue_size: int = 4096,
+) -> Device:
+    """A :class:`Device` for ``url``, not yet connected (use ``with`` or call ``connect()``).
+
+    Args:
+        url: ``sim://…`` or ``serial://…`` (see the module docstring).
+        params: parameter set of the twin (``sim://``) and of the tracker fusion noise
+            (default ``models/endoscope.toml``).
+        seed: sensor-noise seed of the twin; the URL's ``seed`` is used if this is None, and
+            0 if neither is given.
+        prompt: how the operator is asked for fixture actions on ``serial://``.
+        command_timeout_s, keepalive_s, queue_size: see :class:`Device`.
+
+    Raises:
+        ValueError: an unknown scheme or option, a bad option value, or a seed given twice
+            with different values.
+    """
+    parts = urllib.parse.urlsplit(url)
+    if parts.scheme not in SCHEMES:
+        raise ValueError(f"device URL {url!r}: scheme {parts.scheme!r} unknown; use one of "
+                         + ", ".join(f"{s}://" for s in SCHEMES))
+    options = _query(url, parts.scheme, parts.query)
+    params = params if params is not None else load_params()
+    settings = FusionSettings.from_params(params)
+    device_args = dict(command_timeout_s=command_timeout_s, keepalive_s=keepalive_s, queue_size=queue_size)
+
+    if parts.scheme == "sim":
+        if parts.netloc or parts.path not in ("", "/"):
+            raise ValueError(f"device URL {url!r}: sim:// takes options only, e.g. sim://?seed=3&pose=up")
+        board = EmulatedBoard(params, seed=_seed(url, options, seed),
+                              base_rotation=_pose(url, options.get("pose", "horizontal")))
+        device = Device(
+            SimTransport(board, url=url),
+            tracker=TipTracker(lambda: sim_probe_source(board.plant), settings=settings),
+            **device_args,
+        )
+        # The fixture settles through the device so the firmware keeps ticking meanwhile.
+        device.fixture = SimFixture(board, settle=device.wait)
+        return device
+
+    path = parts.netloc + parts.path
+    if not path:
+        raise ValueError(f"device URL {url!r}: no port; e.g. serial:///dev/ttyACM0")
+    if seed is not None:
+        raise ValueError(f"seed = {seed!r}: only sim:// devices take a seed, not {url!r}")
+    tracker = None
+    if "igtl" in options:
+        host, port = _host_port(url, options["igtl"])
+        tracker = TipTracker(lambda: OpenIGTLinkSource(host, port), settings=settings)
+    return Device(SerialTransport(path, url=url), fixture=OperatorFixture(prompt), tracker=tracker, **device_args)
+
+
+def _seed(url: str, options: dict[str, str], seed: int | None) -> int:
+    if "seed" not in options:
+        return 0 if seed is None else seed
+    try:
+        from_url = int(options["seed"])
+    except ValueError:
+        raise ValueError(f"device URL {url!r}: seed = {options['seed']!r} is not a whole number") from None
+    if seed is not None and seed != from_url:
+        raise ValueError(f"seed = {seed!r} contradicts the URL {url!r}")
+    return from_url
+
+
+def _pose(url: str, pose: str):
+    try:
+        return base_rotation_from(pose=pose)
+    except ValueError as exc:
+        raise ValueError(f"device URL {url!r}: pose = {pose!r}: {exc}") from None
+
+
+def _host_port(url: str, value: str) -> tuple[str, int]:
+    host, _, port = value.rpartition(":")
+    if not host or not port.isdigit() or not 0 < int(port) < 65536:
+        raise ValueError(f"device URL {url!r}: igtl = {value!r}: expected host:port, e.g. 127.0.0.1:18944")
+    return host, int(port)
