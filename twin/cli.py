@@ -15,6 +15,7 @@ from twin.params import ParameterError
 COMMAND_MODULES = [
     "twin.rod.commands",
     "twin.sim.commands",
+    "twin.device.commands",
     "twin.bench",
     "twin.demo",
 ]

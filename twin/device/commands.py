@@ -1,0 +1,43 @@
+"""``twin emulate``: the emulated board on a pseudo-terminal, for work without the rig."""
+
+from __future__ import annotations
+
+import argparse
+import time
+
+from twin.cliargs import add_param_args, add_pose_args, params_from_args, rotation_from_args
+
+__all__ = ["register"]
+
+
+def register(subparsers) -> None:
+    p = subparsers.add_parser(
+        "emulate",
+        help="run the emulated board (firmware core + MuJoCo twin) on a pseudo-terminal until Ctrl-C",
+    )
+    p.add_argument("--seed", type=int, default=0, help="sensor-noise seed of the twin")
+    p.add_argument("--link", metavar="PATH", default=None,
+                   help="also make PATH a symbolic link to the port (stable across replugs)")
+    add_pose_args(p)
+    add_param_args(p)
+    p.set_defaults(func=run_emulate)
+
+
+def run_emulate(args: argparse.Namespace) -> int:
+    """Start the board, print its port and device URL, run in real time until Ctrl-C."""
+    from twin.device.board import TICK_S
+    from twin.device.pty_board import PtyBoard
+
+    board = PtyBoard(params_from_args(args), seed=args.seed, base_rotation=rotation_from_args(args),
+                     link_path=args.link)
+    with board:
+        print(f"port: {board.port}", flush=True)
+        print(f"url:  {board.url}", flush=True)
+        try:
+            while True:
+                time.sleep(1.0)
+        except KeyboardInterrupt:
+            pass
+        print(f"stopped after {board.ticks} ticks ({board.ticks * TICK_S:.1f} s of board time), "
+              f"{board.overruns} overruns, {board.tx_dropped_bytes} bytes dropped", flush=True)
+    return 0
