@@ -17,6 +17,8 @@ TARGETS = {
     "predictor": ("twin.rod.bench", "bench_predictor",
                   {"cold_s": ("<=", 10e-3), "warm_s": ("<=", 1e-3), "jacobian_s": ("<=", 3e-3),
                    "tip_error_m": ("<=", 1e-6)}),
+    "device": ("twin.device.bench", "bench_device",
+               {"telemetry_rate_hz": (">=", 39.0), "latency_p95_ms": ("<=", 30.0)}),
 }
 
 
