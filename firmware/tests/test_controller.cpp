@@ -85,6 +85,9 @@ void closed_loops_on_the_bench() {
   }
   {
     bench::Bench b;
+    // A tendon pulled against the holder is stiff: braided line (~30 um/N over its run) in series
+    // with the axially stiff backbone (EA/L ~ 37 kN/m); the tension gains are tuned for that.
+    b.stiffness_n_per_m = 2.0e4f;
     CHECK(b.start(Mode::kTension));
     b.send(msg::SetSetpoints{2, {1.5f, 0.5f, 1.0f, 1.2f}});
     b.run_fed(3.0);
