@@ -17,13 +17,14 @@ speaks the binary protocol of ``firmware/PROTOCOL.md`` through a
     the host waits; durations and timeouts are wall-clock seconds; keepalive PINGs are sent
     from a thread whenever the host is quiet, so the watchdog trips only if this process stops.
 
-Example:
-    >>> with open_device("sim://?seed=3") as dev:
-    ...     dev.tare()
-    ...     dev.enable()
-    ...     dev.set_lengths([-0.002, 0.0, 0.002, 0.0])
-    ...     dev.wait(1.0)
-    ...     dev.latest().tendon_lengths_m
+Example::
+
+    with open_device("sim://?seed=3") as dev:   # or "serial:///dev/ttyACM0"
+        dev.tare()
+        dev.enable()
+        dev.set_lengths([-0.002, 0.0, 0.002, 0.0])
+        dev.wait(1.0)
+        lengths_m = dev.latest().tendon_lengths_m
 """
 
 from __future__ import annotations
@@ -382,9 +383,9 @@ class Device:
         reply = self._inbox.hello_reply
         if reply.protocol_version != codec.PROTOCOL_VERSION:
             raise ProtocolVersionError(self.url, reply.protocol_version)
-        # Samples queued before the reply may be stale (old bytes on the line); wait for one after.
-        samples = self._inbox.sample_count
-        if not self._wait_for(lambda: self._inbox.sample_count > samples, timeout_s):
+        # Samples that came before the reply may be stale (old bytes on the line); wait for one after.
+        inbox = self._inbox
+        if not self._wait_for(lambda: inbox.sample_count > inbox.samples_before_hello_reply, timeout_s):
             raise DeviceTimeout(f"{self.url}: handshake done but no telemetry within {timeout_s} s")
         return DeviceInfo.from_reply(reply, url=self.url, clock=self.clock)
 

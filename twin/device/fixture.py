@@ -126,8 +126,10 @@ class OperatorFixture(Fixture):
 
     def hang_tip_mass(self, mass_kg: float) -> None:
         mass_kg = _check_mass("mass_kg", mass_kg)
-        request = f"Hang {mass_kg * 1e3:g} g at the tip" if mass_kg > 0 else "Remove any mass from the tip"
-        self._ask(request + ", let it hang still")
+        if mass_kg > 0:
+            self._ask(f"Hang {mass_kg * 1e3:g} g at the tip, let it hang still")
+        else:
+            self._ask("Remove any mass from the tip")
 
     def engage_holder(self) -> None:
         self._ask("Clamp the reference holder around the discs")

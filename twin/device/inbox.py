@@ -43,6 +43,7 @@ class Inbox:
         self.lost_samples = 0
         self.hello_reply: codec.HelloReply | None = None
         self.hello_count = 0
+        self.samples_before_hello_reply = 0
         self.error: DeviceDisconnected | None = None
 
     # ------------------------------------------------------------------ transport side
@@ -112,6 +113,7 @@ class Inbox:
         elif isinstance(message, codec.HelloReply):
             self.hello_reply = message
             self.hello_count += 1
+            self.samples_before_hello_reply = self.sample_count
         else:
             # A host → board message coming back (an echoing line): count it as garbage.
             self.decoder.bad_messages += 1
