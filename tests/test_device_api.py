@@ -1,0 +1,181 @@
+"""The device interface on ``sim://``: URLs, commands and refusals, time, fixtures, tracker, and
+``twin emulate``."""
+
+from __future__ import annotations
+
+import signal
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from twin.calibration import run_calibration
+from twin.device import CommandRejected, DeviceError, OperatorFixture, open_device
+from twin.device.codec import Mode, NackError, State
+from twin.params import load_params
+
+
+@pytest.mark.parametrize("url, message", [
+    ("tcp://localhost:1", r"scheme 'tcp' unknown; use one of sim://, serial://"),
+    ("sim://?seed=x", r"seed = 'x' is not a whole number"),
+    ("sim://?pose=sideways", r"pose = 'sideways'"),
+    ("sim://?speed=2", r"options speed not understood; sim:// takes seed, pose"),
+    ("sim://board", r"sim:// takes options only"),
+    ("serial://", r"no port"),
+    ("serial:///dev/ttyACM0?igtl=nowhere", r"igtl = 'nowhere': expected host:port"),
+])
+def test_bad_urls_are_refused_naming_the_value(url, message):
+    with pytest.raises(ValueError, match=message):
+        open_device(url)
+
+
+def test_seed_in_the_url_and_the_argument_must_agree():
+    with pytest.raises(ValueError, match=r"seed = 4 contradicts the URL 'sim://\?seed=3'"):
+        open_device("sim://?seed=3", seed=4)
+    with pytest.raises(ValueError, match="only sim:// devices take a seed"):
+        open_device("serial:///dev/ttyACM0", seed=1)
+
+
+def test_a_missing_serial_port_is_a_device_error():
+    device = open_device("serial:///dev/twin-no-such-port")
+    with pytest.raises(DeviceError, match=r"cannot open /dev/twin-no-such-port"):
+        device.connect(timeout_s=0.2)
+
+
+def test_simulated_time_passes_only_while_the_host_waits():
+    with open_device("sim://") as device:
+        assert device.clock == "simulated" and device.info.clock == "simulated"
+        start = device.time_s
+        device.tare()
+        device.enable()
+        assert device.time_s == start  # answered at once: commands take no simulated time
+        device.wait(0.5)
+        assert device.time_s == pytest.approx(start + 0.5, abs=1e-9)
+        before = device.latest()
+        after = device.wait_next()
+        assert after.seq == before.seq + 1 and after.time_s == pytest.approx(before.time_s + 0.025)
+        assert device.info.tendon_m_per_count == pytest.approx(load_params().rig.tendon_m_per_count, rel=1e-6)
+
+
+def test_refused_commands_raise_naming_the_command_and_the_reason():
+    with open_device("sim://") as device:
+        with pytest.raises(CommandRejected, match=r"SET_SETPOINTS .*NOT_ENABLED \(setpoints are accepted only") as info:
+            device.set_lengths([0.001, 0.0, 0.0, 0.0])
+        assert info.value.error is NackError.NOT_ENABLED
+        with pytest.raises(CommandRejected, match="NOT_CALIBRATED"):
+            device.set_mode("tensions")
+        device.enable()
+        with pytest.raises(CommandRejected, match="WRONG_MODE"):
+            device.set_tensions([1.0] * 4)
+        with pytest.raises(CommandRejected, match="NOT_WHILE_ENABLED"):
+            device.tare()
+        with pytest.raises(ValueError, match=r"lengths_m = .*: expected 4 finite numbers"):
+            device.set_lengths([0.0, np.nan, 0.0, 0.0])
+        with pytest.raises(ValueError, match="mode = 'length'"):
+            device.set_mode("length")
+        with pytest.raises(ValueError, match=r"loadcells = \[4\]: channels are 0..3"):
+            device.tare(loadcells=[4])
+
+
+def test_pairs_mode_moves_the_antagonistic_tendons_oppositely():
+    with open_device("sim://?seed=1") as device:
+        device.tare()
+        device.set_gains("pairs", kp=60.0, ki=100.0, kd=0.0)
+        device.set_mode("pairs")
+        device.enable()
+        device.set_pairs([0.0, 0.001])
+        device.wait(1.0)
+        sample = device.latest()
+        assert sample.mode is Mode.PAIRS
+        np.testing.assert_allclose(sample.targets[[1, 3]] - sample.targets[[3, 1]], [0.002, -0.002], atol=1e-7)
+        np.testing.assert_allclose(sample.tendon_lengths_m, sample.targets, atol=1e-4)
+
+
+def test_calibration_masses_on_the_twin_give_back_its_load_cells():
+    params = load_params()
+    with open_device("sim://?seed=2", params=params) as device:
+        run = run_calibration(lambda: device.wait_next().raw_counts, device.fixture.hang_calibration_mass,
+                              masses_g=(0.0, 50.0, 100.0, 200.0), samples_per_mass=4, gravity_m_s2=9.81)
+        device.fixture.remove_calibration_masses()
+        assert device.transport.board.held_tensions_n is None
+        sensors = params.sensors
+        np.testing.assert_allclose(run.calibration.gain_counts_per_n, sensors.loadcell_gain_counts_per_n, rtol=0.02)
+        np.testing.assert_allclose(run.calibration.offset_counts, sensors.loadcell_offset_counts, atol=300)
+
+        # The board takes the fitted calibration: a hung mass then reads as its weight.
+        device.set_calibration(run.calibration)
+        device.fixture.hang_calibration_mass(100.0, range(4))
+        tensions_n = np.mean([device.wait_next().tensions_n for _ in range(8)], axis=0)
+        np.testing.assert_allclose(tensions_n, 0.1 * params.environment.gravity_m_s2, atol=0.01)
+        device.fixture.remove_calibration_masses()
+        device.set_mode("tensions")  # no longer refused as NOT_CALIBRATED
+        assert device.wait_next().mode is Mode.TENSION
+
+
+def test_sim_fixture_acts_on_the_twin():
+    with open_device("sim://?seed=4") as device:
+        plant = device.transport.board.plant
+        tip_free = device.tracker.read().pose.position_m
+        device.fixture.hang_tip_mass(0.05)
+        assert plant.tip_mass_kg == 0.05
+        tip_loaded = device.tracker.read().pose.position_m
+        assert tip_loaded[2] < tip_free[2] - 0.005  # the mass pulls the tip down
+        device.fixture.engage_holder()
+        assert plant.holder_engaged
+        device.fixture.release_holder()
+        assert not plant.holder_engaged
+        with pytest.raises(ValueError, match=r"mass_kg = -1.0: must be finite and >= 0"):
+            device.fixture.hang_tip_mass(-1.0)
+
+
+def test_sim_tracker_fuses_the_twins_probes_into_its_tip_pose():
+    with open_device("sim://?seed=5&pose=up") as device:
+        device.wait(0.1)
+        result = device.tracker.read()
+        position, rotation = device.transport.board.plant.tip_pose()
+        assert result.ok, result.reason
+        np.testing.assert_allclose(result.pose.position_m, position, atol=1e-3)
+        np.testing.assert_allclose(result.pose.rotation, rotation, atol=0.01)
+
+
+def test_operator_fixture_asks_and_waits_for_the_operator():
+    asked = []
+    fixture = OperatorFixture(asked.append)
+    fixture.hang_tip_mass(0.02)
+    fixture.hang_tip_mass(0.0)
+    fixture.hang_calibration_mass(50.0, (0, 2))
+    fixture.hang_calibration_mass(0.0, [3])
+    fixture.engage_holder()
+    assert asked == [
+        "Hang 20 g at the tip, let it hang still, then press Enter: ",
+        "Remove any mass from the tip, then press Enter: ",
+        "Hang 50 g on tendon(s) 1, 3 over the load-cell pulley, let it hang still, then press Enter: ",
+        "Take any mass off tendon(s) 4, then press Enter: ",
+        "Clamp the reference holder around the discs, then press Enter: ",
+    ]
+    with pytest.raises(ValueError, match=r"channels = \(4,\)"):
+        fixture.hang_calibration_mass(10.0, (4,))
+
+
+def test_serial_devices_have_an_operator_fixture_and_a_tracker_only_when_configured():
+    assert isinstance(open_device("serial:///dev/ttyACM0").fixture, OperatorFixture)
+    assert open_device("serial:///dev/ttyACM0").tracker is None
+    assert open_device("serial:///dev/ttyACM0?igtl=127.0.0.1:18944").tracker is not None
+
+
+def test_twin_emulate_prints_a_port_that_the_driver_connects_to():
+    process = subprocess.Popen([sys.executable, "-m", "twin.cli", "emulate", "--seed", "1"],
+                               stdout=subprocess.PIPE, text=True)
+    try:
+        port = process.stdout.readline().split(":", 1)[1].strip()
+        url = process.stdout.readline().split(":", 1)[1].strip()
+        assert url == f"serial://{port}"
+        with open_device(url) as device:
+            assert device.info.protocol_version == 1
+            assert device.wait_next().state is State.DISABLED
+    finally:
+        process.send_signal(signal.SIGINT)
+        out, _ = process.communicate(timeout=10)
+    assert process.returncode == 0
+    assert out.startswith("stopped after")
