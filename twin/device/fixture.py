@@ -17,11 +17,12 @@ from __future__ import annotations
 
 import abc
 import math
-from typing import Callable, Iterable
+from typing import TYPE_CHECKING, Callable, Iterable
 
 import numpy as np
 
-from twin.device.board import EmulatedBoard
+if TYPE_CHECKING:
+    from twin.device.board import EmulatedBoard
 
 __all__ = ["Fixture", "OperatorFixture", "SimFixture"]
 

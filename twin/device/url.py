@@ -14,11 +14,9 @@ from __future__ import annotations
 import urllib.parse
 from typing import Callable
 
-from twin.device.board import EmulatedBoard
 from twin.device.device import Device
 from twin.device.fixture import OperatorFixture, SimFixture
 from twin.device.serial_transport import SerialTransport
-from twin.device.sim_transport import SimTransport
 from twin.device.tracker import TipTracker, sim_probe_source
 from twin.params import Params, load_params
 from twin.pose import base_rotation_from
@@ -79,6 +77,10 @@ def open_device(
     if parts.scheme == "sim":
         if parts.netloc or parts.path not in ("", "/"):
             raise ValueError(f"device URL {url!r}: sim:// takes options only, e.g. sim://?seed=3&pose=up")
+        # Imported here: a host on the rig needs neither MuJoCo nor the firmware build.
+        from twin.device.board import EmulatedBoard
+        from twin.device.sim_transport import SimTransport
+
         board = EmulatedBoard(params, seed=_seed(url, options, seed),
                               base_rotation=_pose(url, options.get("pose", "horizontal")))
         device = Device(
