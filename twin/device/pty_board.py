@@ -11,6 +11,10 @@ each tick and each command.
 port fails), and :meth:`PtyBoard.plug` brings it back powered up afresh on the same plant. A
 new pseudo-terminal may get another name, so pass ``link_path`` for a stable name (a symbolic
 link re-pointed on each plug, like udev's ``/dev/serial/by-id`` links) to reconnect to.
+
+Limits: a host on the port gets the rig's operator prompts for fixture actions and no tracker
+(the emulator publishes no OpenIGTLink stream); code in the same process may read
+``board.plant`` as ground truth, bearing in mind the board's thread is stepping it.
 """
 
 from __future__ import annotations
