@@ -8,14 +8,15 @@ namespace {
 constexpr size_t kPairs = kChannels / 2;
 
 // Defaults, to be tuned on the rig. Lengths: the motor makes the plant an integrator of
-// ~0.096 m/s of tendon per unit duty; kp = 300 /m (1 mm of error gives 0.3 duty) and
-// ki = 1500 /(m·s) put the closed-loop poles at about −6 and −22 /s, and the integral is there
+// ~0.5 m/s of tendon per unit duty (1321 rpm is the gearbox output speed, on a 3.25 mm spool);
+// kp = 60 /m (1 mm of error gives 0.06 duty) and ki = 100 /(m s) track a 2 mm step to ~20 um
+// within a second on the twin without exciting the stiff tendon, and the integral is there
 // for friction. Tension: through a practically inextensible tendon the stalled motor is a force
 // source, ~154 N of tension at full duty (24 V / 7.33 ohm x 0.153 N m/A over r = 3.25 mm), so
 // the loop gain is kp x 154 N: kp = 0.003 /N keeps it at 0.46, ki = 0.3 /(N s) removes the error
 // in ~0.2 s, and the 0.2 duty clamp bounds a runaway at ~30 N. (0.2 /N gave 30x that gain and
 // tripped the tension limit within one control period on the twin.)
-constexpr PidGains kDefaultLengthGains{300.0f, 1500.0f, 0.0f, 1.0f};
+constexpr PidGains kDefaultLengthGains{60.0f, 100.0f, 0.0f, 1.0f};
 constexpr PidGains kDefaultTensionGains{0.003f, 0.3f, 0.0f, 0.2f};
 
 float clamp_range(float x, float lo, float hi) { return x < lo ? lo : (x > hi ? hi : x); }

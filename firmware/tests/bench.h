@@ -25,8 +25,9 @@ struct Replies {
 
 class Bench {
  public:
-  // Tendon speed at full duty (m/s): ~96 mm/s for the rig's motor and spool.
-  static constexpr float kTendonSpeedMPerS = 0.096f;
+  // Tendon speed at full duty (m/s): 1321 rpm at the gearbox output on a 3.25 mm spool
+  // (0.45 m/s), somewhat more unloaded: the twin's motor model gives ~0.51 m/s.
+  static constexpr float kTendonSpeedMPerS = 0.51f;
   static constexpr int32_t kRawOffset = 8200;
   static constexpr float kRawPerN = 45000.0f;
 
