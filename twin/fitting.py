@@ -143,7 +143,7 @@ def fit_parameters(dataset: Dataset, params: Params, parameters: Sequence[FitPar
         evaluations += 1
         try:
             trial = apply_values(params, parameters, to_values(z), source)
-        except ValueError:
+        except (ValueError, OverflowError):  # out of range, or a log parameter stepped past exp's range
             return np.full(measured.size, _FAILED_ROW_PENALTY_M)
         tip, ok, _, _ = predict_rows(trial, base_rotation, tensions, masses, lengths)
         err = tip - measured
