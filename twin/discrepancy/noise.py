@@ -1,0 +1,105 @@
+"""How large the residuals of a perfect model would be: the measurement noise of a dataset.
+
+Two estimates, the first that applies:
+
+``repeats``
+    Configurations measured more than once (same κ, φ and tip mass): the pooled scatter of the
+    residuals within each configuration, per axis. Residuals rather than raw positions, so a
+    repeat that settled under slightly different tensions is not counted as noise.
+``prior``
+    The stated tracker noise ``sensors.tracker_noise_m`` per axis, plus the load-cell noise
+    ``sensors.loadcell_noise_n`` carried through the model to the tip (each channel's
+    sensitivity by a finite difference, every row), added in quadrature.
+
+Neither sees systematic errors that repeat with the configuration; those are what the
+discrepancy workflow is looking for.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+from twin.experiments.dataset import Dataset
+from twin.experiments.prediction import predict_rows
+from twin.params import Params
+
+__all__ = ["NoiseEstimate", "estimate_noise", "configuration_keys"]
+
+# Fewest configurations with repeats that make a pooled estimate worth more than the prior.
+_MIN_REPEATED_CONFIGS = 5
+# Tension step of the sensitivity difference (N): well above rounding, well inside linearity.
+_TENSION_STEP_N = 0.05
+
+
+@dataclasses.dataclass(frozen=True)
+class NoiseEstimate:
+    """Per-axis noise of the measured tip positions.
+
+    Attributes:
+        sigma_m: (3,) standard deviation per axis (m).
+        source: ``repeats`` or ``prior``.
+        detail: how it was obtained, one sentence.
+    """
+
+    sigma_m: np.ndarray
+    source: str
+    detail: str
+
+    @property
+    def rms_3d_m(self) -> float:
+        """Expected RMS of |p̂ − p*| for a perfect model (m)."""
+        return float(np.sqrt(np.sum(self.sigma_m**2)))
+
+    def to_dict(self) -> dict:
+        return {"sigma_m": self.sigma_m.tolist(), "rms_3d_m": self.rms_3d_m, "source": self.source,
+                "detail": self.detail}
+
+
+def configuration_keys(dataset: Dataset) -> np.ndarray:
+    """(rows,) integer label per configuration: rows with equal κ, φ and tip mass share one."""
+    table = np.stack([dataset["kappa_cmd_per_m"], dataset["phi_cmd_deg"], dataset["tip_mass_kg"]], axis=1)
+    _, labels = np.unique(np.round(table, 9), axis=0, return_inverse=True)
+    return labels.reshape(-1)
+
+
+def estimate_noise(dataset: Dataset, params: Params, errors_m: np.ndarray, converged: np.ndarray) -> NoiseEstimate:
+    """Estimate the noise from repeated configurations if there are enough, else from the prior.
+
+    Args:
+        dataset: the measurements.
+        params: the parameter set (its sensor noise is the prior; its model carries load-cell noise).
+        errors_m: (rows, 3) predicted − measured (m).
+        converged: (rows,) which predictions exist.
+    """
+    labels = configuration_keys(dataset)
+    ok = np.asarray(converged, dtype=bool)
+    sums, dof, groups = np.zeros(3), 0, 0
+    for label in np.unique(labels[ok]):
+        members = errors_m[(labels == label) & ok]
+        if len(members) > 1:
+            sums += np.sum((members - members.mean(axis=0)) ** 2, axis=0)
+            dof += len(members) - 1
+            groups += 1
+    if groups >= _MIN_REPEATED_CONFIGS:
+        return NoiseEstimate(np.sqrt(sums / dof), "repeats",
+                             f"pooled residual scatter within {groups} repeated configurations ({dof} degrees of freedom)")
+    sigma_t = params.sensors.tracker_noise_m
+    sigma_l = params.sensors.loadcell_noise_n
+    variance = np.full(3, sigma_t**2)
+    if sigma_l > 0 and ok.any():
+        data = dataset.subset(ok)
+        args = (data["tip_mass_kg"], data.lengths_m)
+        tip0, ok0, _, _ = predict_rows(params, data.base_rotation, data.tensions_n, *args)
+        carried = np.zeros((len(data), 3))
+        for channel in range(data.tensions_n.shape[1]):
+            bumped = data.tensions_n.copy()
+            bumped[:, channel] += _TENSION_STEP_N
+            tip1, ok1, _, _ = predict_rows(params, data.base_rotation, bumped, *args)
+            step = np.where((ok0 & ok1)[:, None], tip1 - tip0, 0.0)
+            carried += (step * sigma_l / _TENSION_STEP_N) ** 2
+        variance = variance + carried.mean(axis=0)
+    return NoiseEstimate(np.sqrt(variance), "prior",
+                         f"tracker noise {sigma_t * 1e3:.3g} mm per axis (sensors.tracker_noise_m) and load-cell "
+                         f"noise {sigma_l:.3g} N (sensors.loadcell_noise_n) carried through the model")

@@ -1,0 +1,212 @@
+"""Find: where the model and a dataset disagree, and whether that disagreement has structure.
+
+The residuals e = p̂ − p* (predicted minus measured tracker position, base frame, m) are broken
+down by axis, configuration, bending plane φ, curvature κ and tip load, and set against the
+measurement noise (:mod:`twin.discrepancy.noise`).
+
+Is there structured disagreement beyond noise? Two numbers answer it:
+
+* **F-test of a low-order structured fit.** Each axis's residual is regressed on a few smooth
+  functions of the configuration — 1, κ, κ², m, κ cos φ, κ sin φ, κ cos 2φ, κ sin 2φ, κ m cos φ,
+  κ m sin φ (every physical effect in :data:`twin.effects.EFFECTS` moves the tip smoothly with
+  these) — and F = ((RSS₀ − RSS₁)/p) / (RSS₁/(N − p)) compares it with "zero-mean noise".
+  It needs no noise estimate (the structured fit's leftovers calibrate it). Structure is
+  declared when p < :data:`STRUCTURE_ALPHA`.
+* **χ² against the noise estimate**: Σ (e/σ)² over all axes, with its per-degree value; ≈ 1
+  when the model is right and the noise estimate is honest.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+from scipy import stats
+
+from twin.discrepancy.noise import NoiseEstimate, estimate_noise
+from twin.experiments.dataset import Dataset
+from twin.experiments.prediction import Predictions, predict_dataset
+from twin.params import Params
+
+__all__ = ["STRUCTURE_ALPHA", "StructureTest", "ResidualMap", "find_discrepancy", "structure_test",
+           "thesis_signature"]
+
+STRUCTURE_ALPHA = 1e-3
+AXES = ("x", "y", "z")
+
+
+@dataclasses.dataclass(frozen=True)
+class StructureTest:
+    """The verdict on structured disagreement.
+
+    Attributes:
+        f_statistic, p_value, dof: F-test of the structured fit against zero-mean noise; dof = (p, N − p).
+        structured_rms_m: RMS per row (3-D) of the structured part of the residuals (m).
+        chi2_per_dof, chi2_p_value: Σ (e/σ)² / N against the noise estimate, and its upper-tail p.
+        beyond_noise: structure found (p_value < :data:`STRUCTURE_ALPHA`).
+    """
+
+    f_statistic: float
+    p_value: float
+    dof: tuple[int, int]
+    structured_rms_m: float
+    chi2_per_dof: float
+    chi2_p_value: float
+    beyond_noise: bool
+
+    def statement(self, noise: NoiseEstimate, rms_m: float) -> str:
+        """One sentence for a person: is there structured disagreement beyond noise?"""
+        verdict = "Structured disagreement beyond noise" if self.beyond_noise else "No structured disagreement beyond noise"
+        return (f"{verdict}: residual RMS {rms_m * 1e3:.3g} mm against {noise.rms_3d_m * 1e3:.3g} mm of noise "
+                f"({noise.source}); a smooth function of (κ, φ, load) explains {self.structured_rms_m * 1e3:.3g} mm "
+                f"of it, F({self.dof[0]}, {self.dof[1]}) = {self.f_statistic:.3g}, p = {self.p_value:.2g} "
+                f"(threshold {STRUCTURE_ALPHA:g}); χ²/dof = {self.chi2_per_dof:.3g} against the noise estimate.")
+
+    def to_dict(self) -> dict:
+        return dataclasses.asdict(self)
+
+
+def _basis(kappa, phi_deg, mass_kg) -> np.ndarray:
+    """(rows, 10) smooth functions of the configuration, each of order one on the thesis grid."""
+    k = np.asarray(kappa, dtype=float) / 26.2
+    m = np.asarray(mass_kg, dtype=float) / 0.01
+    phi = np.radians(phi_deg)
+    return np.stack([np.ones_like(k), k, k**2, m, k * np.cos(phi), k * np.sin(phi), k * np.cos(2 * phi),
+                     k * np.sin(2 * phi), k * m * np.cos(phi), k * m * np.sin(phi)], axis=1)
+
+
+def structure_test(errors_m: np.ndarray, kappa, phi_deg, mass_kg, noise: NoiseEstimate) -> StructureTest:
+    """Fit the residuals of converged rows with :func:`_basis` per axis and test it (see module doc)."""
+    basis = _basis(kappa, phi_deg, mass_kg)
+    rank = int(np.linalg.matrix_rank(basis))
+    n = errors_m.shape[0]
+    fitted = np.zeros_like(errors_m)
+    for axis in range(3):
+        coef, *_ = np.linalg.lstsq(basis, errors_m[:, axis], rcond=None)
+        fitted[:, axis] = basis @ coef
+    rss0 = float(np.sum(errors_m**2))
+    rss1 = float(np.sum((errors_m - fitted) ** 2))
+    p, dof = 3 * rank, 3 * n - 3 * rank
+    if dof <= 0 or rss1 <= 0:
+        f_stat, p_value = (float("inf"), 0.0) if rss0 > 0 else (0.0, 1.0)
+    else:
+        f_stat = ((rss0 - rss1) / p) / (rss1 / dof)
+        p_value = float(stats.f.sf(f_stat, p, dof))
+    chi2 = float(np.sum((errors_m / noise.sigma_m) ** 2))
+    return StructureTest(
+        f_statistic=float(f_stat), p_value=p_value, dof=(p, dof),
+        structured_rms_m=float(np.sqrt(np.mean(np.sum(fitted**2, axis=1)))),
+        chi2_per_dof=chi2 / (3 * n), chi2_p_value=float(stats.chi2.sf(chi2, 3 * n)),
+        beyond_noise=bool(p_value < STRUCTURE_ALPHA),
+    )
+
+
+def thesis_signature(errors_m: np.ndarray, phi_deg) -> dict:
+    """The thesis §9.2 pattern in a set of residuals (rows, 3), base frame with gravity along −z.
+
+    Returns:
+        ``mean_z_m`` and ``positive_z_fraction`` (thesis: z errors always positive) and
+        ``corr_y_minus_sin_phi``, the correlation of e_y with −sin φ (thesis: "an inverted sine";
+        φ = 90° bends towards +y in this frame).
+    """
+    e = np.asarray(errors_m, dtype=float)
+    s = -np.sin(np.radians(phi_deg))
+    corr = float(np.corrcoef(e[:, 1], s)[0, 1]) if np.std(e[:, 1]) > 0 and np.std(s) > 0 else 0.0
+    return {"mean_z_m": float(np.mean(e[:, 2])), "positive_z_fraction": float(np.mean(e[:, 2] > 0)),
+            "corr_y_minus_sin_phi": corr}
+
+
+@dataclasses.dataclass(frozen=True)
+class ResidualMap:
+    """Residuals of one parameter set against a dataset, and the verdict.
+
+    Attributes:
+        dataset: the rows analysed.
+        predictions: the model's predictions of them.
+        noise: the noise estimate.
+        structure: the structure test.
+    """
+
+    dataset: Dataset
+    predictions: Predictions
+    noise: NoiseEstimate
+    structure: StructureTest
+
+    @property
+    def converged(self) -> np.ndarray:
+        return self.predictions.converged
+
+    @property
+    def errors_m(self) -> np.ndarray:
+        """(converged rows, 3) p̂ − p* (m)."""
+        return self.predictions.errors_m[self.converged]
+
+    def rms_m(self) -> float:
+        """RMS of |p̂ − p*| over converged rows (m)."""
+        return self.predictions.rms_m()
+
+    def axis_rms_m(self) -> np.ndarray:
+        """(3,) RMS per axis (m)."""
+        return np.sqrt(np.mean(self.errors_m**2, axis=0))
+
+    @property
+    def statement(self) -> str:
+        return self.structure.statement(self.noise, self.rms_m())
+
+    def by(self, column: str) -> list[dict]:
+        """Per value of ``column`` (``phi_cmd_deg``, ``kappa_cmd_per_m``, ``tip_mass_kg``): rows, failures,
+        RMS of |e| and mean error per axis (mm)."""
+        values = self.dataset[column]
+        out = []
+        for v in np.unique(values):
+            rows = values == v
+            ok = rows & self.converged
+            e = self.predictions.errors_m[ok] * 1e3
+            entry = {column: float(v), "rows": int(rows.sum()), "failed": int((rows & ~self.converged).sum()),
+                     "rms_mm": float(np.sqrt(np.mean(np.sum(e**2, axis=1)))) if e.size else float("nan")}
+            for i, axis in enumerate(AXES):
+                entry[f"mean_{axis}_mm"] = float(e[:, i].mean()) if e.size else float("nan")
+            out.append(entry)
+        return out
+
+    def by_axis(self) -> list[dict]:
+        """Per axis: RMS, mean and the noise σ (mm)."""
+        e = self.errors_m * 1e3
+        return [{"axis": axis, "rms_mm": float(np.sqrt(np.mean(e[:, i] ** 2))), "mean_mm": float(e[:, i].mean()),
+                 "noise_mm": float(self.noise.sigma_m[i] * 1e3)} for i, axis in enumerate(AXES)]
+
+    def by_configuration(self) -> list[dict]:
+        """One entry per row: configuration, |e| and e per axis (mm)."""
+        d, err = self.dataset, self.predictions.errors_m * 1e3
+        return [{"config": int(d["config"][i]), "kappa_cmd_per_m": float(d["kappa_cmd_per_m"][i]),
+                 "phi_cmd_deg": float(d["phi_cmd_deg"][i]), "tip_mass_kg": float(d["tip_mass_kg"][i]),
+                 "converged": bool(self.converged[i]), "error_mm": float(np.linalg.norm(err[i])),
+                 "error_x_mm": float(err[i, 0]), "error_y_mm": float(err[i, 1]), "error_z_mm": float(err[i, 2])}
+                for i in range(len(d))]
+
+    def signature(self) -> dict:
+        """:func:`thesis_signature` of the converged rows."""
+        return thesis_signature(self.errors_m, self.dataset["phi_cmd_deg"][self.converged])
+
+    def to_dict(self) -> dict:
+        return {"rows": len(self.dataset), "failed_predictions": self.predictions.failures, "rms_m": self.rms_m(),
+                "axis_rms_m": self.axis_rms_m().tolist(), "noise": self.noise.to_dict(),
+                "structure": self.structure.to_dict(), "beyond_noise": self.structure.beyond_noise,
+                "statement": self.statement, "signature": self.signature()}
+
+
+def find_discrepancy(dataset: Dataset, params: Params | None = None, *, progress: bool = False) -> ResidualMap:
+    """Predict every row with ``params`` (default the dataset's), estimate the noise and test for structure.
+
+    Raises:
+        ValueError: no row can be predicted (nothing to analyse).
+    """
+    params = params or dataset.params
+    predictions = predict_dataset(dataset, params, progress=progress)
+    ok = predictions.converged
+    if not ok.any():
+        raise ValueError(f"find_discrepancy: none of the {len(dataset)} rows can be predicted with these parameters")
+    noise = estimate_noise(dataset, params, predictions.errors_m, ok)
+    structure = structure_test(predictions.errors_m[ok], dataset["kappa_cmd_per_m"][ok], dataset["phi_cmd_deg"][ok],
+                               dataset["tip_mass_kg"][ok], noise)
+    return ResidualMap(dataset, predictions, noise, structure)

@@ -1,0 +1,94 @@
+"""Validation-sweep datasets with a hidden effect, made with the predictor (fast, known truth).
+
+The proof of the discrepancy workflow needs data in which an effect is hidden: the endoscope
+and rig behave as the *true* parameter set says, while the dataset's metadata records the
+*nominal* set the model believes. Each row is a validation-grid configuration (thesis §8.3):
+
+* the tendons carry the tensions that bend the nominal, weightless model to (κ, φ) on top of a
+  pretension drawn from the thesis's 1.2–1.5 N (the reference holder is never exact);
+* the true endoscope (its stiffness, weight, disc mass and capstan friction, with each tendon's
+  sliding direction from its encoder length, :func:`twin.effects.friction_direction`) is solved
+  under the true tip load and the true, possibly tilted, clamp;
+* the sensors report as :mod:`twin.sim.sensors` does: load cells (1 + g) τ + o plus noise,
+  encoders quantised to one count, the tracker at its offset from the tip plus noise.
+
+The prediction side (:mod:`twin.experiments.prediction`) undoes exactly this measurement model
+when it is given the true parameters, so a perfect fit leaves only noise.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Iterable
+
+import numpy as np
+
+from twin import effects
+from twin.experiments.dataset import Dataset, write_dataset
+from twin.params import Params
+from twin.pcc import tendon_length_changes_m, validation_grid
+from twin.pose import HORIZONTAL
+from twin.rod import Predictor, RodModel
+from twin.rod.grid import pcc_tensions_n
+
+__all__ = ["PRETENSION_RANGE_N", "synthetic_validation_dataset"]
+
+PRETENSION_RANGE_N = (1.2, 1.5)  # thesis §8.3: set by hand in the reference holder
+
+
+def synthetic_validation_dataset(folder: str | Path, nominal: Params, truth: Params, *,
+                                 grid: Iterable[tuple[int, float, float, float]] | None = None,
+                                 repeats: int = 1, seed: int = 0, tracker_noise_m: float | None = None,
+                                 loadcell_noise_n: float | None = None, base_rotation=HORIZONTAL) -> Dataset:
+    """Write a validation dataset measured on the ``truth`` endoscope, labelled with ``nominal``.
+
+    Args:
+        folder: where to write the dataset (created).
+        nominal: the parameter set the model believes (recorded in the metadata).
+        truth: the parameter set the data obey (its effects are the hidden ones).
+        grid: (config, κ 1/m, φ deg, tip mass kg) tuples; default the 216 of thesis §8.3.
+        repeats: measurements per configuration (fresh pretension and noise each).
+        seed: random seed of pretensions and noise.
+        tracker_noise_m: tracker noise per axis (m); default ``truth.sensors.tracker_noise_m``.
+        loadcell_noise_n: load-cell noise (N); default ``truth.sensors.loadcell_noise_n``.
+        base_rotation: nominal clamp orientation (3×3, body → world).
+
+    Returns:
+        The dataset as read back. Configurations the true model cannot solve are left out (none
+        on the thesis grid with lab-sized effects).
+    """
+    rng = np.random.default_rng(seed)
+    tracker_sigma = truth.sensors.tracker_noise_m if tracker_noise_m is None else tracker_noise_m
+    loadcell_sigma = truth.sensors.loadcell_noise_n if loadcell_noise_n is None else loadcell_noise_n
+    predictor = Predictor(RodModel.from_params(truth))
+    clamp = effects.clamp_rotation(truth, base_rotation)
+    gain = 1.0 + np.asarray(truth.effects.tension_gain_error)
+    offset = np.asarray(truth.effects.tension_offset_error_n)
+    count_m = truth.rig.tendon_m_per_count
+    cases = list(validation_grid() if grid is None else grid)
+    stride = max(int(c[0]) for c in cases) + 1  # repeats get their own configuration numbers
+    rows = []
+    for repeat in range(repeats):
+        for config, kappa, phi, mass in cases:
+            pretension = rng.uniform(*PRETENSION_RANGE_N, size=truth.tendons.count)
+            tensions = pcc_tensions_n(kappa, phi, nominal, pretension_n=0.0) + pretension
+            # Encoders count whole steps, which also settles the sign of the tendons that do
+            # not move (cos(φ − α) = 0 up to rounding): they stay as the holder pulled them.
+            lengths = np.round(tendon_length_changes_m(kappa, phi, nominal) / count_m) * count_m + 0.0
+            sol = predictor.solve(tensions, tip_force_n=effects.tip_force_n(truth, mass), base_rotation=clamp,
+                                  friction_direction=effects.friction_direction(lengths), raise_on_failure=False)
+            if not sol.converged:
+                predictor.reset()
+                continue
+            tip = effects.tracked_point_m(truth, sol.tip_position_m, sol.tip_rotation)
+            tip = tip + rng.normal(0.0, tracker_sigma, 3)
+            reported = gain * tensions + offset + rng.normal(0.0, loadcell_sigma, tensions.size)
+            row = {"config": repeat * stride + config, "repeat": repeat, "kappa_cmd_per_m": kappa,
+                   "phi_cmd_deg": phi, "tip_mass_kg": mass, "tip_x_m": tip[0], "tip_y_m": tip[1], "tip_z_m": tip[2]}
+            for i in range(tensions.size):
+                row[f"tension_{i + 1}_n"] = reported[i]
+                row[f"length_{i + 1}_m"] = lengths[i]
+            rows.append(row)
+    return write_dataset(folder, rows, experiment="validation", device="synthetic://predictor", params=nominal,
+                         base_rotation=base_rotation,
+                         notes=f"synthetic: predictor with hidden effects, seed {seed}, {repeats} repeat(s)")
