@@ -1,45 +1,101 @@
-"""The twin against known answers: the arc of a pure end moment, the Timoshenko cantilever,
-a released tendon, and convergence with the number of elements."""
+"""The twin against known answers: the arc of a pure end moment and of tendon tension, the
+Euler-Bernoulli and Timoshenko cantilevers, the axial shortening under the tendons, a released
+tendon, and convergence with the number of elements."""
 
 import numpy as np
 import pytest
 
 from twin.params import load_params
 from twin.pose import HORIZONTAL, UP
+from twin.rod.grid import pcc_tensions_n
 from twin.sim import Plant
 
+# The thesis's fitted shear modulus, which needs the shear slides.
+THESIS_G = ["backbone.shear_modulus_pa=4.7586e4", "sim.shear_joints=true"]
 
-def _cantilever_deflection_m(elements: int, tip_mass_kg: float = 0.001) -> tuple[float, float]:
-    """(twin, Euler-Bernoulli + Timoshenko shear) tip deflection of the nearly weightless
-    horizontal rod (0.1 mg: its own sag is 4e-5 of the tip load's)."""
-    params = load_params(overrides=[f"sim.elements={elements}", "backbone.mass_kg=1e-7"])
+
+def _cantilever_deflection_m(elements: int, *overrides: str, tip_mass_kg: float = 0.001) -> tuple[float, float, float]:
+    """(twin, theory, bending share of theory): tip deflection of the nearly weightless horizontal
+    rod (0.1 mg: its own sag is 4e-5 of the tip load's). Theory is Euler-Bernoulli, plus the
+    Timoshenko shear term when the twin has shear joints."""
+    params = load_params(overrides=[f"sim.elements={elements}", "backbone.mass_kg=1e-7", *overrides])
     plant = Plant(params, base_rotation=HORIZONTAL)
     plant.set_tensions(np.zeros(4))  # tendons free: the spools follow without pulling
     plant.set_tip_mass_kg(tip_mass_kg)
     assert plant.settle(tol_m=1e-8, timeout_s=3.0).settled
     b = params.backbone
     force = tip_mass_kg * params.environment.gravity_m_s2
-    expected = force * (b.length_m**3 / (3 * b.bending_stiffness_nm2) + b.length_m / b.shear_stiffness_n)
-    return -plant.tip_pose()[0][2], expected
+    bending = b.length_m**3 / (3 * b.bending_stiffness_nm2)
+    shear = b.length_m / b.shear_stiffness_n if params.sim.shear_joints else 0.0
+    return -plant.tip_pose()[0][2], force * (bending + shear), bending / (bending + shear)
 
 
-def test_small_tip_load_matches_timoshenko_within_half_a_percent():
-    twin, expected = _cantilever_deflection_m(10)
+def test_small_tip_load_matches_euler_bernoulli_within_half_a_percent():
+    twin, expected, _ = _cantilever_deflection_m(10)
     assert twin == pytest.approx(expected, rel=5e-3)
 
 
-def test_cantilever_converges_with_the_number_of_elements_as_the_midpoint_rule():
-    errors = {}
+def test_with_the_thesis_shear_modulus_a_tip_load_matches_timoshenko_within_half_a_percent():
+    twin, expected, bending_share = _cantilever_deflection_m(10, *THESIS_G)
+    assert bending_share < 0.8  # shear is a real part of this answer
+    assert twin == pytest.approx(expected, rel=5e-3)
+
+
+@pytest.mark.parametrize("overrides", [(), THESIS_G], ids=["default", "thesis G"])
+def test_cantilever_converges_with_the_number_of_elements_as_the_midpoint_rule(overrides):
+    errors, share = {}, None
     for n in (10, 20, 30):
-        twin, expected = _cantilever_deflection_m(n)
+        twin, expected, share = _cantilever_deflection_m(n, *overrides)
         errors[n] = twin / expected - 1
     assert abs(errors[10]) > abs(errors[20]) > abs(errors[30])
     # Lumped bending misses 1/(4N^2) of the bending part of the deflection; what is left at
     # large N is the geometric nonlinearity small-deflection theory leaves out.
-    b = load_params().backbone
-    bending = b.length_m**2 / (3 * b.bending_stiffness_nm2)
-    bending_share = bending / (bending + 1 / b.shear_stiffness_n)
-    assert errors[10] - errors[30] == pytest.approx(-bending_share / 4 * (1 / 100 - 1 / 900), rel=0.15)
+    assert errors[10] - errors[30] == pytest.approx(-share / 4 * (1 / 100 - 1 / 900), rel=0.15)
+
+
+def _tendon_arc_error_m(elements: int, kappa_per_m: float, phi_deg: float) -> float:
+    """Distance (m) of the weightless twin's tip from the arc that the PCC tensions make."""
+    params = load_params(overrides=[f"sim.elements={elements}", "environment.gravity_m_s2=0.0",
+                                    "sim.axial_joints=false"])
+    plant = Plant(params, base_rotation=UP)
+    plant.set_tensions(pcc_tensions_n(kappa_per_m, phi_deg, params))
+    assert plant.settle(tol_m=1e-8).settled
+    theta, phi = kappa_per_m * params.backbone.length_m, np.radians(phi_deg)
+    arc = np.array([(1 - np.cos(theta)) * np.cos(phi), (1 - np.cos(theta)) * np.sin(phi), np.sin(theta)]) / kappa_per_m
+    return float(np.linalg.norm(plant.tip_pose()[0] - arc))
+
+
+@pytest.mark.parametrize("phi_deg", [0.0, 45.0])
+def test_continuous_tendons_bend_the_rod_into_the_arc_converging_as_the_midpoint_rule(phi_deg):
+    # Out of the tendons' planes (45 deg) two hinges share each bend; the twin alternates their
+    # order so the unresisted twist of two rotations in a row cancels instead of adding up.
+    errors = [_tendon_arc_error_m(n, 26.2, phi_deg) for n in (10, 20)]
+    length = load_params().backbone.length_m
+    assert errors[0] < 3e-3 * length
+    assert errors[1] == pytest.approx(errors[0] / 4, rel=0.2)
+
+
+def test_continuous_pretension_leaves_the_rod_alone_and_disc_chords_bend_it():
+    def sag_m(routing: str, tension_n: float) -> float:
+        params = load_params(overrides=[f'sim.tendon_routing="{routing}"', "sim.axial_joints=false"])
+        plant = Plant(params, base_rotation=HORIZONTAL)
+        plant.set_tensions(np.full(4, tension_n))
+        assert plant.settle(tol_m=1e-8).settled
+        return -plant.tip_pose()[0][2]
+
+    assert sag_m("continuous", 3.0) == pytest.approx(sag_m("continuous", 0.0), abs=1e-6)
+    # Each chord across a bent joint lies towards the centre of curvature of the sag.
+    assert sag_m("discs", 3.0) > sag_m("discs", 0.0) + 1e-4
+
+
+def test_the_tendons_shorten_the_backbone_by_their_compression():
+    params = load_params(overrides=["environment.gravity_m_s2=0.0"])
+    plant = Plant(params, base_rotation=UP)
+    plant.set_tensions(np.full(4, 2.0))
+    assert plant.settle(tol_m=1e-9).settled
+    b = params.backbone
+    shortening = b.length_m - plant.tip_pose()[0][2]
+    assert shortening == pytest.approx(4 * 2.0 * b.length_m / b.axial_stiffness_n, rel=1e-3)
 
 
 def test_pure_end_moment_bends_the_rod_into_the_ideal_arc():

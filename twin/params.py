@@ -199,6 +199,9 @@ class SimSettings:
     elements: int = _f(_positive)
     timestep_s: float = _f(_positive)
     damping_time_s: float = _f(_nonnegative)
+    shear_joints: bool = _f()
+    axial_joints: bool = _f()
+    tendon_routing: str = _f(_choice("continuous", "discs"))
 
 
 @dataclasses.dataclass(frozen=True)
@@ -323,6 +326,10 @@ def _coerce(key: str, value: Any, annotation: Any) -> Any:
         if not isinstance(value, (list, tuple)):
             raise ParameterError(f"{key} = {value!r}: must be a list of numbers")
         return tuple(_coerce(key, v, float) for v in value)
+    if annotation is bool:
+        if not isinstance(value, bool):
+            raise ParameterError(f"{key} = {value!r}: must be true or false")
+        return value
     if annotation is str:
         if not isinstance(value, str):
             raise ParameterError(f"{key} = {value!r}: must be a string")

@@ -33,12 +33,15 @@ from __future__ import annotations
 import mujoco
 import numpy as np
 
-__all__ = ["PRESLIDING_M", "TendonFriction"]
+__all__ = ["FRICTION_MAX_STEP_S", "PRESLIDING_M", "TendonFriction"]
 
 # Tendon travel over which the friction turns from one direction to the other (m): the
 # presliding (Dahl) displacement of a braided line in a printed hole, an assumption of a few
 # hundredths of a millimetre, well above an encoder count (0.94 µm).
 PRESLIDING_M = 2e-5
+# Longest physics step (s) the explicit friction update is stable at: measured, a spool pulled in
+# tension mode settles at 1 ms and chatters (±0.03 N of spool tension) at 2.5 ms.
+FRICTION_MAX_STEP_S = 1e-3
 
 
 class TendonFriction:
@@ -46,7 +49,8 @@ class TendonFriction:
 
     MuJoCo's tendon carries one tension T₀ along its whole path — the spool's. With friction
     coefficient μ the tension in segment k (spool = 0) is T_k = T₀ exp(−σ μ Σ_{m≤k} θ_m), where
-    θ_m is the angle the tendon turns at site m (the base hole and each disc) and σ ∈ [−1, 1]
+    θ_m is the angle the tendon turns at site m (the base hole and each disc, or each joint
+    with continuous routing) and σ ∈ [−1, 1]
     the state of a Dahl model of the sliding direction: σ → +1 while the spool pulls tendon
     in, → −1 while it pays out, over :data:`PRESLIDING_M` of travel, and it holds when the
     tendon stops, so a static state remembers how it was reached. The difference between the
@@ -54,18 +58,22 @@ class TendonFriction:
     moment about the body's centre of mass) through ``xfrc_applied``; the forces include the
     friction on the disc, so momentum balances.
 
-    Call :meth:`apply` before every step; it costs a few tens of µs of Python, which is why the
-    plant only steps one step at a time when friction is on.
+    Call :meth:`apply` before every step of at most :data:`FRICTION_MAX_STEP_S`; it costs a few
+    tens of µs of Python, which is why the plant only steps one step at a time when friction is on.
     """
 
-    def __init__(self, model: mujoco.MjModel, coeff: float, spool_dofs: np.ndarray):
+    def __init__(self, model: mujoco.MjModel, coeff: float, spool_dofs: np.ndarray, sites: np.ndarray):
+        """Args:
+            model: the compiled twin.
+            coeff: μ per radian of wrap.
+            spool_dofs: (n,) dof index of each spool.
+            sites: (n, S) site ids along each tendon's path, spool first, tip last.
+        """
         self.coeff = float(coeff)
-        n = model.ntendon
-        adr, num = model.tendon_adr, model.tendon_num
-        self._sites = np.array([model.wrap_objid[adr[i]:adr[i] + num[i]] for i in range(n)])
+        self._sites = np.asarray(sites)
         self._bodies = model.site_bodyid[self._sites]
         self._spool_dofs = np.asarray(spool_dofs)
-        self.state = np.zeros(n)
+        self.state = np.zeros(len(self._sites))
 
     def reset(self) -> None:
         self.state[:] = 0.0

@@ -9,20 +9,25 @@ bends every joint by M h / EI — the exact arc through the joints — and a tip
 each joint with the exact shear force and moment at its station (the midpoint rule, exact
 for the linear moment of a cantilever up to the −1/(4N²) of its quadratic deflection).
 
-Each joint carries the six strains of a Cosserat rod (Rucker & Webster 2011, K_se and K_bt),
-with stiffness from the section over one element:
+Each station has hinges for bending about x and y and for twist, and, when the parameters ask
+for them, slides for the shear (``sim.shear_joints``) and axial (``sim.axial_joints``) strains
+of a Cosserat rod (Rucker & Webster 2011, K_se and K_bt), with stiffness from the section over
+one element:
 
     bend x, y (hinges):  EI / h         twist z (hinge): K_t / h  (E(Ixx+Iyy) or GJ, backbone.torsion)
     shear x, y (slides): GA / h         axial z (slide): backbone.axial_stiffness_n / h
 
-and stiffness-proportional damping ``sim.damping_time_s`` × stiffness. Shear cannot be left
-out: with the thesis's G it is a quarter of a tip-loaded cantilever's deflection.
+and stiffness-proportional damping ``sim.damping_time_s`` × stiffness. With an isotropic G the
+shear is ~0.5% of a tip-loaded cantilever's deflection and the hinges alone are the fast default;
+the thesis's G makes it a quarter, and then the shear slides are needed.
 
-Spacer discs sit at s = jL/D; each tendon runs through a site per disc (straight chords between
-discs, as the real line does) from a spool behind the clamp to the tip disc. The tendon is a
-pull-only spatial tendon: a dead-band spring, slack below its straight length (never pushing)
-and as stiff as the line above it (``effects.tendon_compliance_m_per_n``, or practically
-inextensible when that effect is off). Each spool is a slide joint along the clamp axis (position =
+Spacer discs sit at s = jL/D. Each tendon runs from a spool behind the clamp to the tip disc,
+routed as ``sim.tendon_routing`` says (:data:`TENDON_SITES`): continuously, as the predictor
+routes it (a fixed tendon whose length is linear in the joint bends), or through a site per
+disc in straight chords, as the real line does. Either way it is pull-only: a dead-band
+spring, slack below its straight length (never pushing) and as stiff as the line above it
+(``effects.tendon_compliance_m_per_n``, or practically inextensible when that effect is off).
+Each spool is a slide joint along the clamp axis (position =
 tendon paid out) with three actuators in separate groups, one group enabled at a time by the
 plant: a DC motor (PWM mode, :mod:`twin.sim.motor`), an ideal tension source, and an ideal
 spool-position servo. The reference holder is a set of weld constraints holding each disc
@@ -45,11 +50,13 @@ from twin.sim.motor import MotorConstants
 __all__ = [
     "ACTUATOR_GROUPS",
     "STATION_JOINTS",
+    "TENDON_SITES",
     "Layout",
     "build_model",
     "build_spec",
     "clamp_rotation",
     "model_xml",
+    "station_joints",
     "tendon_stiffness_n_per_m",
 ]
 
@@ -72,13 +79,14 @@ POSITION_GAIN_N_PER_M = 1e7
 TENSION_SOURCE_MAX_N = 100.0
 # Actuator group per drive mode; the plant disables the other groups (mjOption.disableactuator).
 ACTUATOR_GROUPS = {"pwm": 0, "tension": 1, "length": 2}
-# The joints of a backbone station, in the order MuJoCo composes them: (name, type, axis,
-# strain). The slides come first, so shear and axial strain are measured in the proximal
-# body's frame rather than the element's mid-frame. Under the tendons' compression P this puts
-# a spurious shear force P·Δθ/2 on each station (Δθ its bend); splitting the bend around the
-# slides would remove it but needs a second body per station (MuJoCo allows six dofs per body)
-# and costs 1.8× the step time, for 0.4 mm (0.6% of L) at N = 10 on a pretensioned rod bent by
-# 1 N, shrinking as 1/N. The cross-check report shows it.
+# Every joint a backbone station can have, in the order MuJoCo composes them: (name, type, axis,
+# strain). ``sim.shear_joints`` and ``sim.axial_joints`` choose whether the slides are there
+# (:func:`station_joints`); the three hinges always are. The slides come first, so shear and
+# axial strain are measured in the proximal body's frame rather than the element's mid-frame.
+# A spatial tendon ("discs" routing) compressing the rod by P then puts a spurious shear force
+# P·Δθ/2 on the shear slides of a station bent by Δθ; splitting the bend around the slides would
+# remove it but needs a second body per station (MuJoCo allows six dofs per body) and costs 1.8×
+# the step time. The continuous tendon acts on the hinges and axial slides only, so it has none.
 STATION_JOINTS = (
     ("sx", mujoco.mjtJoint.mjJNT_SLIDE, (1.0, 0.0, 0.0), "shear"),
     ("sy", mujoco.mjtJoint.mjJNT_SLIDE, (0.0, 1.0, 0.0), "shear"),
@@ -87,6 +95,25 @@ STATION_JOINTS = (
     ("by", mujoco.mjtJoint.mjJNT_HINGE, (0.0, 1.0, 0.0), "bend"),
     ("tz", mujoco.mjtJoint.mjJNT_HINGE, (0.0, 0.0, 1.0), "twist"),
 )
+# Tendon routings (``sim.tendon_routing``, or the ``tendon_sites`` override):
+#   "continuous"  the predictor's routing. A continuously routed tendon at r = (x, y) in the section
+#                 grows as |v + u × r + r'| along s (Rucker & Webster 2011; twin.rod.kernel): without
+#                 twist and shear, 1 + ε + u_x·y − u_y·x, linear in the bending strains. So the
+#                 tendon is a fixed tendon over the joints with coefficients y and −x on each
+#                 station's bend hinges, 1 on its axial slide, −1 on the spool: it pulls every joint
+#                 with the arm r exactly, and equal tensions leave the rod alone. Sites in every joint's plane, at the offset, and at the tip trace its path
+#                 (path lengths, friction, drawing) but carry no force. A spatial tendon through those
+#                 sites was measured as well: a straight line between body-fixed points reaches only
+#                 the arm r·(1 − Δθ²/2) at a joint bent by Δθ (0.63 mm at the tip at N = 10 and
+#                 κ = 26.2 1/m) and was a third slower at N = 20. The linear length leaves out what is
+#                 second order in it: the tendons' stiffening of twist (T·r² per unit twist) and, with
+#                 shear slides, of shear (the tensions add to GA).
+#   "discs"       a spatial tendon through a site per disc: straight chords between discs, as the
+#                 rig's line. A chord across a bent joint lies off the offset towards the centre of
+#                 curvature, so the pretension of all four tendons bends the rod further.
+#   "elements"    "discs" with a site at every body's middle as well: chords one element long (a
+#                 cause study of the cross-check, to show the chord effect shrink with the chord).
+TENDON_SITES = ("continuous", "discs", "elements")
 # Sites drawn as dots the size of the tendon (m), not MuJoCo's default 5 mm spheres.
 _SITE_SIZE = [0.0003, 0.0, 0.0]
 _RGBA_ROD = (0.85, 0.55, 0.35, 1.0)
@@ -111,6 +138,8 @@ class Layout:
         disc_s_m: (D,) arc length of each disc (m); the last is the tip.
         disc_body: (D,) index k (1..N) of the body carrying each disc.
         site_s_m: (S,) arc lengths where each tendon has a site, base hole (0) excluded.
+        site_body: (S,) index k (0 = clamp, 1..N) of the body carrying each site.
+        routing: one of :data:`TENDON_SITES`.
         tendon_xy_m: (n, S + 1, 2) tendon offsets in the section at s = 0 and at each site.
         rest_length_m: (n,) tendon length spool → tip in the straight pose: the tendon's length.
     """
@@ -122,42 +151,52 @@ class Layout:
     site_s_m: np.ndarray
     tendon_xy_m: np.ndarray
     rest_length_m: np.ndarray
+    site_body: np.ndarray
+    routing: str
 
     @classmethod
     def from_params(cls, params: Params, *, elements: int | None = None,
-                    tendon_sites: str = "discs") -> "Layout":
+                    tendon_sites: str | None = None) -> "Layout":
         """Args:
             elements: override of ``sim.elements``.
-            tendon_sites: ``"discs"`` (the rig) or ``"elements"`` (also a site at every body
-                middle: nearly continuous routing, to measure what straight chords cost).
+            tendon_sites: override of ``sim.tendon_routing``, one of :data:`TENDON_SITES`:
+                ``"continuous"``, ``"discs"`` or ``"elements"``.
         """
         n = params.sim.elements if elements is None else int(elements)
         if n < 1:
             raise ValueError(f"elements = {n!r}: must be >= 1")
-        if tendon_sites not in ("discs", "elements"):
-            raise ValueError(f"tendon_sites = {tendon_sites!r}: expected 'discs' or 'elements'")
+        routing = params.sim.tendon_routing if tendon_sites is None else tendon_sites
+        if routing not in TENDON_SITES:
+            raise ValueError(f"tendon_sites = {routing!r}: expected one of {', '.join(TENDON_SITES)}")
         length = params.backbone.length_m
         h = length / n
         d = params.discs.count
         disc_s = length * np.arange(1, d + 1) / d
         disc_body = np.minimum(n, np.floor(disc_s / h + 0.5 + 1e-9)).astype(int)
-        sites = set(np.round(disc_s, 12))
-        if tendon_sites == "elements":
-            sites |= set(np.round(h * np.arange(1, n), 12))
-        site_s = np.array(sorted(sites))
+        if routing == "continuous":
+            # Joint k's plane, on body k − 1 (the clamp for k = 1); then the tip on body N.
+            site_s = np.append(h * (np.arange(1, n + 1) - 0.5), length)
+            site_body = np.append(np.arange(n), n)
+        else:
+            sites = set(np.round(disc_s, 12))
+            if routing == "elements":
+                sites |= set(np.round(h * np.arange(1, n), 12))
+            site_s = np.array(sorted(sites))
+            site_body = np.minimum(n, np.floor(site_s / h + 0.5 + 1e-9)).astype(int)
         s_all = np.concatenate([[0.0], site_s])
         xy = tendon_offsets_m(params, s_all)
         z = np.broadcast_to(s_all[None, :, None], (xy.shape[0], s_all.size, 1))
         path = np.linalg.norm(np.diff(np.concatenate([xy, z], axis=2), axis=1), axis=2).sum(axis=1)
-        return cls(n, h, disc_s, disc_body, site_s, xy, SPOOL_OFFSET_M + path)
+        return cls(n, h, disc_s, disc_body, site_s, xy, SPOOL_OFFSET_M + path, site_body, routing)
 
     def body_of(self, s_m: float) -> int:
-        """Index k (1..N) of the body whose span holds arc length ``s_m``."""
+        """Index k of the body whose span holds arc length ``s_m``: 0 (the clamp) before the
+        first joint, then 1..N."""
         return int(min(self.elements, math.floor(s_m / self.element_length_m + 0.5 + 1e-9)))
 
     def body_origin_s_m(self, k: int) -> float:
-        """Arc length of body k's frame origin (its joint), (k − ½) h."""
-        return (k - 0.5) * self.element_length_m
+        """Arc length of body k's frame origin: its joint, (k − ½) h, or the base for the clamp (k = 0)."""
+        return (k - 0.5) * self.element_length_m if k > 0 else 0.0
 
 
 def tendon_offsets_m(params: Params, s_m) -> np.ndarray:
@@ -188,8 +227,29 @@ def _disc_inertia(mass_kg: float, params: Params) -> np.ndarray:
     return np.array(_segment_inertia(mass_kg, d.thickness_m, d.outer_radius_m))
 
 
+def station_joints(params: Params, station: int = 1) -> tuple:
+    """The joints of backbone station ``station`` (1..N), from :data:`STATION_JOINTS`: the shear
+    slides if ``sim.shear_joints``, the axial slide if ``sim.axial_joints``, and the bend and
+    twist hinges.
+
+    Two hinges in a row, x by a then y by b, turn the body by exp(aX + bY + ½ab·Z + …): a twist
+    ab/2 that no spring resists. In the same order at every station it would add up along a rod
+    bent out of the tendons' planes (κ = 26.2 1/m at φ = 45°: 3.5° of twist at N = 10; the tip
+    0.39 mm off the arc at N = 20 and 0.18 mm at N = 40 instead of 0.21 and 0.05 mm, an error
+    falling as 1/N rather than 1/N²), so even stations bend about y first and the twists cancel
+    pairwise.
+    """
+    wanted = {"shear": params.sim.shear_joints, "axial": params.sim.axial_joints,
+              "bend": True, "twist": True}
+    joints = [j for j in STATION_JOINTS if wanted[j[3]]]
+    if station % 2 == 0:
+        bx, by = (i for i, j in enumerate(joints) if j[3] == "bend")
+        joints[bx], joints[by] = joints[by], joints[bx]
+    return tuple(joints)
+
+
 def build_spec(params: Params, *, base_rotation=HORIZONTAL, elements: int | None = None,
-               tendon_sites: str = "discs") -> mujoco.MjSpec:
+               tendon_sites: str | None = None) -> mujoco.MjSpec:
     """The MjSpec of the endoscope, rig and holder.
 
     Args:
@@ -197,7 +257,7 @@ def build_spec(params: Params, *, base_rotation=HORIZONTAL, elements: int | None
         base_rotation: nominal clamp orientation (3×3, body → world); ``effects.base_tilt_deg``
             is applied on top of it.
         elements: number of elements N (default ``sim.elements``).
-        tendon_sites: see :meth:`Layout.from_params`.
+        tendon_sites: override of ``sim.tendon_routing`` (see :meth:`Layout.from_params`).
     """
     layout = Layout.from_params(params, elements=elements, tendon_sites=tendon_sites)
     sim = params.sim
@@ -256,7 +316,7 @@ def _add_backbone(spec, clamp, params, layout) -> list:
         body = parent.add_body(name=f"b{k}", pos=[0, 0, h / 2 if k == 1 else h], mass=mass,
                                ipos=[0, 0, span / 2], inertia=_segment_inertia(mass, span, b.radius_m))
         body.explicitinertial = True
-        for suffix, kind, axis, strain in STATION_JOINTS:
+        for suffix, kind, axis, strain in station_joints(params, k):
             body.add_joint(name=f"b{k}_{suffix}", type=kind, axis=list(axis),
                            stiffness=[stiffness[strain], 0, 0],
                            damping=[sim.damping_time_s * stiffness[strain], 0, 0])
@@ -321,15 +381,27 @@ def _add_tendons_and_spools(spec, clamp, stations, params, layout) -> None:
         # rather than a length limit, because a soft constraint's stretch under a given tension
         # depends on the masses around it and so jumps when the spool switches drive mode.
         tendon.stiffness = [tendon_stiffness_n_per_m(params), 0, 0]
-        tendon.springlength = [0.0, float(layout.rest_length_m[i])]
-        tendon.wrap_site(f"spool{i}")
-        tendon.wrap_site(f"hole{i}")
-        for j, s in enumerate(layout.site_s_m):
-            k = layout.body_of(s)
+        fixed = layout.routing == "continuous"
+        # The fixed tendon's length is its stretch beyond just taut (0 in the straight pose); the
+        # lower end of the dead band only has to lie below any slack a spool can pay out.
+        tendon.springlength = [-1.0, 0.0] if fixed else [0.0, float(layout.rest_length_m[i])]
+        if fixed:
+            tendon.wrap_joint(f"spool{i}", -1.0)
+            for k in range(1, layout.elements + 1):
+                x, y = layout.tendon_xy_m[i, k]
+                tendon.wrap_joint(f"b{k}_bx", float(y))
+                tendon.wrap_joint(f"b{k}_by", float(-x))
+                if params.sim.axial_joints:
+                    tendon.wrap_joint(f"b{k}_az", 1.0)
+        else:
+            tendon.wrap_site(f"spool{i}")
+            tendon.wrap_site(f"hole{i}")
+        for j, (s, k) in enumerate(zip(layout.site_s_m, layout.site_body)):
             x, y = layout.tendon_xy_m[i, j + 1]
             name = f"t{i}_s{j + 1}"
             stations[k].add_site(name=name, pos=[x, y, s - layout.body_origin_s_m(k)], size=_SITE_SIZE)
-            tendon.wrap_site(name)
+            if not fixed:
+                tendon.wrap_site(name)
     # Grouped by mode so that each mode's controls are one contiguous block of ctrl.
     for add in (_add_motor, _add_tension_source, _add_position_servo):
         for i in range(params.tendons.count):
@@ -365,7 +437,7 @@ def _add_position_servo(spec, i: int, motor: MotorConstants) -> None:
 
 
 def build_model(params: Params, *, base_rotation=HORIZONTAL, elements: int | None = None,
-                tendon_sites: str = "discs") -> mujoco.MjModel:
+                tendon_sites: str | None = None) -> mujoco.MjModel:
     """Compiled :func:`build_spec`."""
     return build_spec(params, base_rotation=base_rotation, elements=elements,
                       tendon_sites=tendon_sites).compile()

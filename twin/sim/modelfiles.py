@@ -12,7 +12,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from twin.params import DEFAULT_PARAMS_PATH, Params, load_params
-from twin.sim.model import INEXTENSIBLE_COMPLIANCE_M_PER_N, SPOOL_DAMPING_N_S_PER_M, model_xml
+from twin.sim.model import INEXTENSIBLE_COMPLIANCE_M_PER_N, SPOOL_DAMPING_N_S_PER_M, model_xml, station_joints
 from twin.sim.motor import MotorConstants
 
 __all__ = ["MODELS_DIR", "readme_text", "write_model_files"]
@@ -44,7 +44,8 @@ def readme_text(params: Params) -> str:
     ]
     for section, entries in params.to_dict().items():
         for key, entry in entries.items():
-            lines.append(f"| `{section}.{key}` | {entry['value']} | {entry['source']} |")
+            value = str(entry["value"]).lower() if isinstance(entry["value"], bool) else entry["value"]
+            lines.append(f"| `{section}.{key}` | {value} | {entry['source']} |")
     lines += [
         "",
         "## Derived quantities of the twin",
@@ -57,7 +58,10 @@ def readme_text(params: Params) -> str:
         f"| shear stiffness GA | {b.shear_stiffness_n:.6g} N | G·π r² |",
         f"| axial stiffness | {b.axial_stiffness_n:.6g} N | backbone.axial_stiffness_n |",
         f"| joint stiffness bend / twist | {b.bending_stiffness_nm2 / h:.6g} / {b.torsional_stiffness_nm2 / h:.6g} N·m/rad | EI/h, K_t/h |",
-        f"| joint stiffness shear / axial | {b.shear_stiffness_n / h:.6g} / {b.axial_stiffness_n / h:.6g} N/m | GA/h, EA/h |",
+        f"| station joints | {', '.join(j[0] for j in station_joints(params))} | sim.shear_joints, sim.axial_joints; "
+        "even stations bend about y before x |",
+        f"| joint stiffness shear / axial | {b.shear_stiffness_n / h:.6g} / {b.axial_stiffness_n / h:.6g} N/m | GA/h, EA/h "
+        "(where the station has the slide) |",
         f"| joint damping | sim.damping_time_s × stiffness | stiffness-proportional |",
         f"| tendon stiffness | {1 / max(params.effects.tendon_compliance_m_per_n, INEXTENSIBLE_COMPLIANCE_M_PER_N):.6g} N/m | 1 / max(effects.tendon_compliance_m_per_n, {INEXTENSIBLE_COMPLIANCE_M_PER_N:g}) |",
         f"| motor constant K | {motor.torque_constant_nm_per_a:.6g} N·m/A | V / ω₀ at the gearbox output |",

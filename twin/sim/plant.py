@@ -29,7 +29,7 @@ import numpy as np
 
 from twin.params import Params, load_params
 from twin.pose import HORIZONTAL
-from twin.sim.effects import TendonFriction
+from twin.sim.effects import FRICTION_MAX_STEP_S, TendonFriction
 from twin.sim.model import ACTUATOR_GROUPS, SPOOL_TRAVEL_M, Layout, build_model, tendon_stiffness_n_per_m
 from twin.sim.motor import MotorConstants, duty_to_voltage_v, encoder_counts
 from twin.sim.sensors import LoadCells, LoadCellSample, Tracker, TrackerSample
@@ -69,11 +69,11 @@ class Plant:
         base_rotation: nominal clamp orientation (3×3, body → world); horizontal by default.
         seed: seed of the sensor-noise generator.
         elements: override of ``sim.elements``.
-        tendon_sites: ``"discs"`` (the rig) or ``"elements"``; see :class:`twin.sim.model.Layout`.
+        tendon_sites: override of ``sim.tendon_routing``; see :class:`twin.sim.model.Layout`.
     """
 
     def __init__(self, params: Params | None = None, *, base_rotation=HORIZONTAL, seed: int = 0,
-                 elements: int | None = None, tendon_sites: str = "discs"):
+                 elements: int | None = None, tendon_sites: str | None = None):
         self.params = params if params is not None else load_params()
         self.base_rotation = np.asarray(base_rotation, dtype=float)
         self.model = build_model(self.params, base_rotation=self.base_rotation, elements=elements,
@@ -89,12 +89,20 @@ class Plant:
         self._tip_site = m.site("tip").id
         self._tip_load = m.body("tip_load").id
         self._holder = np.array([m.equality(f"holder{j}").id for j in range(1, self.params.discs.count + 1)])
-        adr = m.tendon_adr
-        self._path_sites = np.array([m.wrap_objid[adr[i] + 1:adr[i] + m.tendon_num[i]] for i in range(n)])
+        self._path_sites = np.array([[m.site(f"hole{i}").id] + [m.site(f"t{i}_s{j + 1}").id for j in range(
+            self.layout.site_s_m.size)] for i in range(n)])
+        spool_sites = np.array([[m.site(f"spool{i}").id] for i in range(n)])
+        self._slack_length_m = m.tendon_lengthspring[:, 1].copy()
         self._tendon_stiffness = tendon_stiffness_n_per_m(self.params)
         friction = self.params.effects.tendon_friction_coeff
-        self._friction = TendonFriction(m, friction, self._spool_v) if friction > 0 else None
+        self._friction = (TendonFriction(m, friction, self._spool_v, np.hstack([spool_sites, self._path_sites]))
+                          if friction > 0 else None)
         self._dt = m.opt.timestep
+        # Friction is updated between physics steps from the spool's last move; beyond
+        # FRICTION_MAX_STEP_S that explicit update chatters against the stiff tendon, so the
+        # plant then takes each step as several shorter ones.
+        self._substeps = math.ceil(self._dt / FRICTION_MAX_STEP_S - 1e-9) if self._friction is not None else 1
+        m.opt.timestep = self._dt / self._substeps
         self.reset(seed)
 
     # ----------------------------------------------------------------------------- state
@@ -201,7 +209,7 @@ class Plant:
             if self._friction is None:
                 mujoco.mj_step(self.model, self.data, chunk)
             else:
-                for _ in range(chunk):
+                for _ in range(chunk * self._substeps):
                     self._friction.apply(self.model, self.data, self.true_tensions_n())
                     mujoco.mj_step(self.model, self.data)
             remaining -= chunk
@@ -216,23 +224,27 @@ class Plant:
         self.step(max(0.0, time_s - self.time_s))
 
     def settle(self, tol_m: float = 1e-6, timeout_s: float = 3.0, window_s: float = 0.02) -> SettleResult:
-        """Step until neither the tip nor any spool moved more than ``tol_m`` over a window.
+        """Step until neither the tip nor any spool moved more than ``tol_m`` over each of two
+        consecutive windows.
 
-        With the backbone's damping time of ``sim.damping_time_s`` the state left to go is then
-        about tol_m · damping_time_s / window_s.
+        One window is not enough: a rod carrying a tip mass swings slowly (4 Hz with 10 g), and
+        a window that straddles a turning point sees almost no change. Two in a row cannot both
+        do so. With the backbone's damping time of ``sim.damping_time_s`` the state left to go is
+        then about tol_m · damping_time_s / window_s.
 
         Returns:
             :class:`SettleResult`; ``settled`` is False when ``timeout_s`` of simulated time ran
             out first — the caller must not take that state as static.
         """
         start_sim, start_wall = self.time_s, time.perf_counter()
-        change = math.inf
+        change, quiet = math.inf, 0
         while self.time_s - start_sim < timeout_s:
             before = np.concatenate([self.tip_pose()[0], self.data.qpos[self._spool_q]])
             self.step(window_s)
             after = np.concatenate([self.tip_pose()[0], self.data.qpos[self._spool_q]])
             change = float(np.max(np.abs(after - before)))
-            if change < tol_m:
+            quiet = quiet + 1 if change < tol_m else 0
+            if quiet == 2:
                 return SettleResult(True, self.time_s - start_sim, time.perf_counter() - start_wall, change)
         return SettleResult(False, self.time_s - start_sim, time.perf_counter() - start_wall, change)
 
@@ -256,7 +268,7 @@ class Plant:
     # ----------------------------------------------------------------------------- ground truth
     def true_tensions_n(self) -> np.ndarray:
         """(n,) tension at the spool end of each tendon (N): what a perfect load cell reads."""
-        stretch = self.data.ten_length - self.layout.rest_length_m
+        stretch = self.data.ten_length - self._slack_length_m
         return np.maximum(stretch, 0.0) * self._tendon_stiffness
 
     def tip_pose(self) -> tuple[np.ndarray, np.ndarray]:
@@ -323,7 +335,8 @@ class Plant:
         return TrackerSample(positions, axes, index, self.time_s)
 
     def _warning_counts(self) -> np.ndarray:
-        return np.array([w.number for w in self.data.warning])
+        # The vector view: building it from the per-warning structs costs 60 µs, a step's worth.
+        return self.data.warning.number.copy()
 
     def _check_warnings(self) -> None:
         counts = self._warning_counts()
