@@ -43,3 +43,11 @@ def test_a_bad_dataset_path_is_named(tmp_path, capsys):
     code, out, err = run(capsys, "discrepancy", tmp_path / "nowhere")
     assert code == 2 and out == ""
     assert "nowhere" in err and "missing" in err
+
+
+def test_bad_options_are_refused_by_name(tmp_path, capsys):
+    synthetic_validation_dataset(tmp_path / "data", NOMINAL, NOMINAL, grid=validation_grid()[:6], seed=0)
+    code, out, err = run(capsys, "discrepancy", tmp_path / "data", "--max-effects", "0")
+    assert code == 2 and "max_effects = 0" in err
+    code, out, err = run(capsys, "discrepancy", tmp_path / "data", "--holdout", "1.5")
+    assert code == 2 and "holdout_fraction = 1.5" in err

@@ -37,7 +37,8 @@ class DiscrepancyResult:
         residuals: the Find step on all rows with ``params_before``.
         rounds: the greedy rounds (the last one named nothing, unless ``max_effects`` stopped it).
         named: the effects named, in order.
-        fit: the final joint fit of all named effects' parameters on the training rows (None if none named).
+        fit: the fit of the named effects' parameters on the training rows, jointly when there are
+            several (None if none named).
         errors_before_m, errors_after_m: (held-out rows, 3) p̂ − p* before and after (failures charged).
         converged_before, converged_after: (held-out rows,) which held-out predictions exist.
     """
@@ -131,8 +132,10 @@ def run_discrepancy(dataset: Dataset, params: Params | None = None, *, holdout_f
         progress: progress bars on stderr.
 
     Raises:
-        ValueError: no row can be predicted, or the dataset is too small to split.
+        ValueError: ``max_effects`` < 1, no row can be predicted, or the dataset is too small to split.
     """
+    if max_effects < 1:
+        raise ValueError(f"max_effects = {max_effects!r}: must be >= 1")
     params = params or dataset.params
     residuals = find_discrepancy(dataset, params, progress=progress)
     train, test = split_rows(dataset, holdout_fraction, seed)
