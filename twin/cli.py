@@ -16,6 +16,7 @@ COMMAND_MODULES = [
     "twin.rod.commands",
     "twin.sim.commands",
     "twin.device.commands",
+    "twin.experiments.commands",
     "twin.discrepancy.commands",
     "twin.bench",
     "twin.demo",

@@ -1,0 +1,242 @@
+"""The thesis's experimental procedures, run on any device (the twin by default, the rig by URL).
+
+Each protocol only talks to :class:`twin.device.Device` (commands, telemetry, ``device.fixture``
+for the hands-on steps, ``device.tracker`` for the tip) and writes a dataset row by row, so an
+interrupted run keeps what it measured and resumes where it stopped.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+from typing import Sequence
+
+import numpy as np
+from tqdm import tqdm
+
+from twin.calibration import Calibration, run_calibration
+from twin.experiments.dataset import DatasetWriter
+from twin.params import Params
+from twin.pcc import tendon_length_changes_m, validation_grid
+from twin.pose import HORIZONTAL, matrix_to_quat
+
+__all__ = ["ProtocolError", "Measurement", "measure", "settle", "pretension", "run_validation",
+           "run_stiffness", "calibrate_device", "nominal_calibration"]
+
+
+# g used to turn a pretension into the dead weight hung over a pulley (thesis value, m/s²).
+PRETENSION_GRAVITY_M_S2 = 9.813
+
+
+class ProtocolError(RuntimeError):
+    """A procedure could not go on (no tracker, a faulted board, a tip that does not settle)."""
+
+
+@dataclasses.dataclass(frozen=True)
+class Measurement:
+    """One static measurement: means over a short window.
+
+    Attributes:
+        tensions_n, lengths_m: (4,) calibrated tensions (N) and relative lengths (m) from telemetry.
+        raw_counts: (4,) mean HX711 counts.
+        tip_position_m: (3,) fused tracker position, base frame (m).
+        tip_quaternion: (4,) (w, x, y, z) of the mean tracker rotation.
+        time_s: device time at the end of the window (s).
+        frames: tracker frames averaged (rejected frames are left out).
+    """
+
+    tensions_n: np.ndarray
+    lengths_m: np.ndarray
+    raw_counts: np.ndarray
+    tip_position_m: np.ndarray
+    tip_quaternion: np.ndarray
+    time_s: float
+    frames: int
+
+
+def _check_state(telemetry) -> None:
+    if telemetry.fault_flags:
+        raise ProtocolError(f"the board reports fault {telemetry.fault_flags!r} (state {telemetry.state!r}); "
+                            "clear the cause and re-enable")
+
+
+def measure(device, *, duration_s: float = 0.25) -> Measurement:
+    """Average telemetry and tracker frames over ``duration_s`` of device time."""
+    if device.tracker is None:
+        raise ProtocolError("this device has no tracker (serial:// needs ?igtl=host:port)")
+    samples, positions, rotations = [], [], []
+    end = device.time_s + duration_s
+    while device.time_s < end:
+        sample = device.wait_next(timeout_s=1.0)
+        _check_state(sample)
+        samples.append(sample)
+        fused = device.tracker.read()
+        if fused.ok:
+            positions.append(fused.pose.position_m)
+            rotations.append(fused.pose.rotation)
+    if not positions:
+        raise ProtocolError(f"no valid tracker frame in {duration_s} s (last: {device.tracker.read().reason})")
+    mean_rot = np.mean(rotations, axis=0)
+    u, _, vt = np.linalg.svd(mean_rot)
+    rotation = u @ np.diag([1.0, 1.0, np.linalg.det(u @ vt)]) @ vt
+    return Measurement(
+        tensions_n=np.mean([s.tensions_n for s in samples], axis=0),
+        lengths_m=np.mean([s.tendon_lengths_m for s in samples], axis=0),
+        raw_counts=np.mean([s.raw_counts for s in samples], axis=0),
+        tip_position_m=np.mean(positions, axis=0),
+        tip_quaternion=matrix_to_quat(rotation),
+        time_s=samples[-1].time_s,
+        frames=len(positions),
+    )
+
+
+def settle(device, *, tension_tolerance_n: float = 0.01, tip_tolerance_m: float = 3e-4, window_s: float = 0.1,
+           timeout_s: float = 4.0) -> float:
+    """Wait until the endoscope is at rest: successive ``window_s`` means of the tensions and of the
+    tracked tip change by less than the tolerances (set above the sensors' noise on window means:
+    load cells ~5 mN, tracker ~0.2 mm per sample).
+
+    Returns the device time it took (s). Raises :class:`ProtocolError` after ``timeout_s``.
+    """
+    start = device.time_s
+    last = None
+    while device.time_s - start < timeout_s:
+        end = device.time_s + window_s
+        tensions, tips = [], []
+        while device.time_s < end:
+            sample = device.wait_next(timeout_s=1.0)
+            _check_state(sample)
+            tensions.append(sample.tensions_n)
+            if device.tracker is not None:
+                fused = device.tracker.read()
+                if fused.ok:
+                    tips.append(fused.pose.position_m)
+        now = (np.mean(tensions, axis=0), np.mean(tips, axis=0) if tips else None)
+        if last is not None and np.max(np.abs(now[0] - last[0])) < tension_tolerance_n and (
+                now[1] is None or last[1] is None or np.linalg.norm(now[1] - last[1]) < tip_tolerance_m):
+            return device.time_s - start
+        last = now
+    raise ProtocolError(f"the endoscope did not come to rest within {timeout_s} s (tensions to "
+                        f"{tension_tolerance_n} N, tip to {tip_tolerance_m * 1e3:.2f} mm)")
+
+
+def nominal_calibration(params: Params) -> dict:
+    """The load-cell calibration the parameter set states (what the twin's HX711s are built with):
+    ``{"gain_counts_per_n": [...], "offset_counts": [...], "source": "nominal"}``."""
+    s = params.sensors
+    return {"gain_counts_per_n": [s.loadcell_gain_counts_per_n] * params.tendons.count,
+            "offset_counts": list(s.loadcell_offset_counts), "source": "nominal (sensors.* of the parameter set)"}
+
+
+def pretension(device, tension_n: float, *, settle_s: float = 0.3) -> np.ndarray:
+    """Hold the endoscope straight in the reference holder and pretension every tendon to ``tension_n``.
+
+    The thesis wound the tendons by hand until the load cells read 1.2–1.5 N (§8.3); here the same
+    is done by hanging a dead weight of ``tension_n``/g over each tendon's load-cell pulley (the
+    fixture: the operator on the rig, ideal weights on the twin), after which the board, enabled
+    in length mode, holds those lengths and the weights come off. Leaves the holder engaged.
+
+    Returns the relative lengths (m) of the pretensioned straight endoscope: the zero of the PCC
+    length setpoints.
+    """
+    device.fixture.engage_holder()
+    device.disable()
+    gravity = PRETENSION_GRAVITY_M_S2
+    device.fixture.hang_calibration_mass(tension_n / gravity * 1e3, range(4))
+    device.wait(settle_s)
+    device.set_mode("lengths")
+    device.enable()
+    device.fixture.remove_calibration_masses()
+    device.wait(0.05)
+    _check_state(device.latest())
+    return device.latest().tendon_lengths_m.copy()
+
+
+def run_validation(device, folder: str | Path, params: Params, *, grid: Sequence[tuple] | None = None,
+                   pretension_n: float | None = None, progress: bool = True, settle_timeout_s: float = 4.0,
+                   base_rotation=HORIZONTAL, calibration: dict | None = None) -> Path:
+    """The thesis's validation sweep (§8.3) on ``device``, written to a dataset in ``folder``.
+
+    For each (κ, φ): hold straight, pretension to 1.2–1.5 N, release, drive the PCC tendon-length
+    setpoints, then hang each tip mass while the lengths are held; record tensions, lengths and the
+    tracked tip after the tip settles. Configurations already in ``folder`` are skipped (resume).
+
+    Args:
+        device: a connected :class:`twin.device.Device` with a fixture and a tracker.
+        folder: the dataset folder.
+        params: the model's parameter set (recorded in the metadata; its PCC geometry sets the lengths).
+        grid: (config, κ 1/m, φ deg, tip mass kg) rows (default the 216 of thesis §8.3).
+        pretension_n: default ``tendons.pretension_n``.
+        calibration: the load-cell calibration the device applies, recorded in the metadata.
+    """
+    rows = list(grid or validation_grid())
+    pre = params.tendons.pretension_n if pretension_n is None else pretension_n
+    groups: dict[tuple[float, float], list[tuple[int, float]]] = {}
+    for config, kappa, phi, mass in rows:
+        groups.setdefault((kappa, phi), []).append((config, mass))
+    with DatasetWriter(folder, experiment="validation", device=device.url, params=params,
+                       base_rotation=base_rotation,
+                       calibration=calibration) as writer:
+        done = writer.completed()
+        todo = [(k, v) for k, v in groups.items() if not all(c in done for c, _ in v)]
+        bar = tqdm(total=sum(len(v) for _, v in todo), desc="validation sweep", unit="config",
+                   disable=not progress)
+        for (kappa, phi), configs in todo:
+            zero = pretension(device, pre)
+            device.fixture.release_holder()
+            device.set_lengths(zero + tendon_length_changes_m(kappa, phi, params))
+            for config, mass in sorted(configs, key=lambda c: c[1]):
+                device.fixture.hang_tip_mass(mass)
+                settle(device, timeout_s=settle_timeout_s)
+                if config not in done:
+                    m = measure(device)
+                    writer.write(_row(config, kappa, phi, mass, m, zero))
+                bar.update(1)
+            device.fixture.hang_tip_mass(0.0)
+            device.disable()
+        bar.close()
+    return Path(folder)
+
+
+def _row(config, kappa, phi, mass, m: Measurement, zero_lengths, repeat: int = 0) -> dict:
+    row = {"config": config, "repeat": repeat, "kappa_cmd_per_m": kappa, "phi_cmd_deg": phi, "tip_mass_kg": mass,
+           "tip_x_m": m.tip_position_m[0], "tip_y_m": m.tip_position_m[1], "tip_z_m": m.tip_position_m[2],
+           "tip_qw": m.tip_quaternion[0], "tip_qx": m.tip_quaternion[1], "tip_qy": m.tip_quaternion[2],
+           "tip_qz": m.tip_quaternion[3], "time_s": m.time_s}
+    for i in range(4):
+        row[f"tension_{i + 1}_n"] = m.tensions_n[i]
+        row[f"length_{i + 1}_m"] = m.lengths_m[i] - zero_lengths[i]
+    return row
+
+
+def run_stiffness(device, folder: str | Path, params: Params, *, masses_kg=(0.0, 0.005, 0.010), repeats: int = 2,
+                  progress: bool = True, base_rotation=HORIZONTAL) -> Path:
+    """Stiffness characterisation (thesis §8.2): tendons uncoupled (slack), tip masses each ``repeats`` times."""
+    with DatasetWriter(folder, experiment="stiffness", device=device.url, params=params,
+                       base_rotation=base_rotation) as writer:
+        done = writer.completed()
+        device.disable()  # motors coast: the tendons go slack, the endoscope hangs under its loads
+        device.fixture.release_holder()
+        zero = device.latest().tendon_lengths_m.copy()
+        configs = [(r * len(masses_kg) + i, r, m) for r in range(repeats) for i, m in enumerate(masses_kg)]
+        for config, repeat, mass in tqdm(configs, desc="stiffness", unit="load", disable=not progress):
+            device.fixture.hang_tip_mass(mass)
+            settle(device)
+            if config not in done:
+                writer.write(_row(config, 0.0, 0.0, mass, measure(device), zero, repeat=repeat))
+        device.fixture.hang_tip_mass(0.0)
+    return Path(folder)
+
+
+def calibrate_device(device, *, samples_per_mass: int = 10, progress: bool = True) -> Calibration:
+    """The thesis's load-cell calibration (§4.3) as a guided run: Table 2 masses over each pulley."""
+    device.disable()
+
+    def read_raw():
+        return device.wait_next(timeout_s=1.0).raw_counts.astype(float)
+
+    run = run_calibration(read_raw, device.fixture.hang_calibration_mass, samples_per_mass=samples_per_mass,
+                          device=device.url)
+    device.fixture.remove_calibration_masses()
+    return run.calibration
+
