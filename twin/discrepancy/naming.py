@@ -42,7 +42,7 @@ from twin.experiments.prediction import predict_rows
 from twin.fitting import ParameterFit, fit_parameters
 from twin.params import Params
 
-__all__ = ["NAME_ALPHA", "CandidateScore", "Round", "split_rows", "heldout_errors", "rank_candidates"]
+__all__ = ["NAME_ALPHA", "CandidateScore", "Round", "split_rows", "row_errors", "rank_candidates"]
 
 NAME_ALPHA = 1e-3
 # Error (m per axis) charged for a held-out row the model cannot predict; as in twin.fitting.
@@ -67,8 +67,8 @@ def split_rows(dataset: Dataset, holdout_fraction: float = 1 / 3, seed: int = 0)
     return ~test, test
 
 
-def heldout_errors(dataset: Dataset, params: Params, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(errors_m (n, 3) with failures charged :data:`FAILED_ROW_PENALTY_M`, converged (n,)) on ``rows``."""
+def row_errors(dataset: Dataset, params: Params, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """p̂ − p* on the ``rows`` mask: (errors_m (n, 3), failures charged :data:`FAILED_ROW_PENALTY_M`; converged (n,))."""
     data = dataset.subset(rows)
     tip, ok, _, _ = predict_rows(params, data.base_rotation, data.tensions_n, data["tip_mass_kg"], data.lengths_m)
     err = tip - data.tip_positions_m
@@ -101,7 +101,7 @@ class CandidateScore:
         train_rms_m, heldout_rms_m: RMS of |p̂ − p*| (m) on the training and held-out rows.
         score: S of the module rule (0 = no better than the current model; +inf when not applicable).
         f_statistic, p_value: training F-test against the current model.
-        beats_noise: S < 0 and p < :data:`NAME_ALPHA` / candidates.
+        beats_noise: S < 0, p < :data:`NAME_ALPHA` / candidates, and some parameter determined.
         note: why it was not fitted, if it was not.
     """
 
@@ -164,8 +164,8 @@ def rank_candidates(dataset: Dataset, params: Params, candidates: Sequence[Candi
         progress: show a progress bar on stderr.
         label: the progress bar's title.
     """
-    base_train, _ = heldout_errors(dataset, params, train)
-    base_test, _ = heldout_errors(dataset, params, test)
+    base_train, _ = row_errors(dataset, params, train)
+    base_test, _ = row_errors(dataset, params, test)
     rss0, mse0 = float(np.sum(base_train**2)), float(np.mean(base_test**2))
     n_train, n_test = base_train.size, base_test.size
     alpha = NAME_ALPHA / max(1, len(candidates))
@@ -182,7 +182,7 @@ def rank_candidates(dataset: Dataset, params: Params, candidates: Sequence[Candi
         fit = fit_parameters(dataset, params, candidate.parameters, x0=x0, source=f"{source}: {candidate.effect}",
                              max_evaluations=max_evaluations, rows=train)
         loose = _undetermined(fit)
-        note = ""
+        note = "not determined by the data" if len(loose) == k else ""
         if loose and len(loose) < k:
             note = "not determined, kept: " + ", ".join(
                 f"{fit.parameters[i].label} ({fit.values[i]:.3g} ± {fit.std_errors[i]:.2g})" for i in loose)
@@ -190,7 +190,7 @@ def rank_candidates(dataset: Dataset, params: Params, candidates: Sequence[Candi
             fit = fit_parameters(dataset, params, [candidate.parameters[i] for i in keep], x0=[x0[i] for i in keep],
                                  source=f"{source}: {candidate.effect}", max_evaluations=max_evaluations, rows=train)
             k = len(keep)
-        fitted_test, _ = heldout_errors(dataset, fit.params, test)
+        fitted_test, _ = row_errors(dataset, fit.params, test)
         rss1 = fit.rms_m**2 * len(base_train)  # the fit's rows carry the same failure penalty
         mse1 = float(np.mean(fitted_test**2))
         score = n_test * math.log(mse1 / mse0) + k * math.log(n_train)
@@ -200,7 +200,8 @@ def rank_candidates(dataset: Dataset, params: Params, candidates: Sequence[Candi
         else:
             f_stat, p_value = 0.0, 1.0
         scores.append(CandidateScore(candidate.effect, fit, k, fit.rms_m, _rms3(fitted_test), score,
-                                     float(f_stat), p_value, bool(score < 0 and p_value < alpha), note))
+                                     float(f_stat), p_value, bool(score < 0 and p_value < alpha and len(loose) < k),
+                                     note))
     scores.sort(key=lambda s: s.score)
     winner = next((s for s in scores if s.beats_noise), None)
     return Round(_rms3(base_train), _rms3(base_test), tuple(scores), winner)

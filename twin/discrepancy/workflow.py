@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from twin.discrepancy.candidates import UNTESTABLE_EFFECTS, candidate_library
-from twin.discrepancy.naming import Round, heldout_errors, rank_candidates, split_rows
+from twin.discrepancy.naming import Round, row_errors, rank_candidates, split_rows
 from twin.discrepancy.residuals import ResidualMap, find_discrepancy, thesis_signature
 from twin.experiments.dataset import Dataset
 from twin.fitting import ParameterFit, fit_parameters
@@ -166,8 +166,8 @@ def run_discrepancy(dataset: Dataset, params: Params | None = None, *, holdout_f
             fit = fit_parameters(dataset, params, parameters, x0=[_value(fit.params, p) for p in parameters],
                                  source=f"{source}: {', '.join(named)}", max_evaluations=max_evaluations, rows=train)
         current = fit.params
-    errors_before, ok_before = heldout_errors(dataset, params, test)
-    errors_after, ok_after = heldout_errors(dataset, current, test)
+    errors_before, ok_before = row_errors(dataset, params, test)
+    errors_after, ok_after = row_errors(dataset, current, test)
     return DiscrepancyResult(dataset, params, current, train, test, seed, residuals, tuple(rounds), tuple(named),
                              fit, errors_before, errors_after, ok_before, ok_after)
 
