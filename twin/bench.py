@@ -19,6 +19,7 @@ TARGETS = {
                    "tip_error_m": ("<=", 1e-6)}),
     "device": ("twin.device.bench", "bench_device",
                {"telemetry_rate_hz": (">=", 39.0), "latency_p95_ms": ("<=", 30.0)}),
+    "env": ("envs.bench", "bench_env", {"steps_per_s": (">=", 1000.0)}),
 }
 
 

@@ -1,0 +1,59 @@
+"""Env throughput on one core (``twin bench env``): steps of the default env per wall second.
+
+One step is one 40 Hz control period, 25 ms of device time: on ``sim://`` five 5 ms firmware
+ticks of the MuJoCo twin, so the figure is bounded by the twin's real-time factor × 40. The
+bench also times those 25 ms of device time alone, so the env's own share is visible.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from envs.reach import EndoscopeReachEnv
+from twin.params import Params, load_params
+
+__all__ = ["bench_env"]
+
+
+def bench_env(params: Params | None = None, *, steps: int = 400, seed: int = 0) -> dict:
+    """Time the default env (tension actions, tip loads) on ``sim://``.
+
+    The actions sway two tendons' tensions ±0.5 N about the pretension at 1 Hz, a motion that
+    neither faults the board nor leaves the twin at rest.
+
+    Returns:
+        ``steps_per_s`` (env steps per wall second), ``realtime_factor`` (device s per wall s),
+        ``device_period_ms`` (wall time of 25 ms of device time with no env around it),
+        ``env_overhead_ms`` (the env's own wall time per step), ``reset_s`` (wall time of a reset).
+    """
+    params = params if params is not None else load_params()
+    env = EndoscopeReachEnv(params=params)
+    try:
+        start = time.perf_counter()
+        env.reset(seed=seed)
+        reset_s = time.perf_counter() - start
+        pretension = params.tendons.pretension_n
+        actions = [env.action_for(pretension + 0.5 * np.array([np.sin(w), 0.0, -np.sin(w), 0.0]))
+                   for w in 2 * np.pi * np.arange(steps) / 40.0]
+        start = time.perf_counter()
+        for action in actions:
+            env.step(action)
+        step_s = (time.perf_counter() - start) / steps
+        device = env.device
+        period_s = device.info.telemetry_period_s
+        start = time.perf_counter()
+        for _ in range(steps):
+            device.wait(period_s)
+        device_s = (time.perf_counter() - start) / steps
+    finally:
+        env.close()
+    return {
+        "steps_per_s": 1.0 / step_s,
+        "realtime_factor": period_s / step_s,
+        "device_period_ms": device_s * 1e3,
+        "env_overhead_ms": (step_s - device_s) * 1e3,
+        "reset_s": reset_s,
+        "steps": steps,
+    }

@@ -1,0 +1,285 @@
+"""Reach and hold a tip target under tip loads: the endoscope on any device as a Gymnasium env."""
+
+from __future__ import annotations
+
+import collections
+import urllib.parse
+
+import gymnasium as gym
+import numpy as np
+from gymnasium import spaces
+
+from envs.randomization import Randomization, TipLoads
+from twin.control.pretension import pretension_straight
+from twin.device import CommandRejected, SimFixture, open_device
+from twin.device.codec import Fault
+from twin.params import Params, load_params
+from twin.pcc import arc_tip_position_m
+from twin.pose import HORIZONTAL
+
+__all__ = ["ACTION_MODES", "EndoscopeReachEnv"]
+
+# Env action mode → the board's control mode.
+ACTION_MODES = {"tensions": "tensions", "lengths": "lengths", "pairs": "pairs"}
+_FAULTS = Fault.TENSION_LIMIT | Fault.WATCHDOG
+# Simulated time the fixture gives each reset step to come to rest (s): the twin's backbone
+# damps out in ~0.1 s; the rig's operator fixture ignores it.
+_RESET_SETTLE_S = 0.2
+# Observation bounds: the firmware refuses length setpoints beyond ±50 mm, its duty clamp bounds a
+# tension runaway at ~30 N, and a 60 mm endoscope's tip stays within 0.1 m of the clamp.
+_LENGTH_BOUND_M = 0.1
+_TENSION_BOUND_N = 100.0
+_POSITION_BOUND_M = 0.2
+
+
+class EndoscopeReachEnv(gym.Env):
+    """Bring the endoscope tip to a target and hold it there while masses hang at the tip.
+
+    The endoscope is clamped horizontally (thesis §8.3: base +90° about world y, gravity along
+    world −z) and driven through :class:`twin.device.Device` on ``device_url``: ``sim://``, the
+    twin in simulated time (default), or ``serial://…?igtl=host:port``, the rig in real time.
+    One step is one 40 Hz control period: the action goes to the board, then the env waits for
+    the next telemetry sample (25 ms of device time) and reads the tracker.
+
+    Each episode starts from the pretensioned straight endoscope
+    (:func:`twin.control.pretension.pretension_straight`) with the board enabled in the action's
+    control mode, a tip mass from ``tip_loads``, and a target on a constant-curvature arc
+    (κ uniform in ``target_curvature_per_m``, bending plane uniform in 0…360°).
+
+    **Actions** — ``Box(-1, 1, (n_a,), float32)``, mapped to setpoints:
+
+    ============  =====  ==============================================================  ======
+    action_mode   n_a    setpoint of tendon / pair i                                     unit
+    ============  =====  ==============================================================  ======
+    ``tensions``  4      τ_i = τ_lo + (a_i + 1)/2 · (τ_hi − τ_lo)  (``tension_range_n``)   N
+    ``lengths``   4      Δℓ_i = a_i · ``max_length_m`` from the pretensioned zero        m
+    ``pairs``     2      d₁₃, d₂₄ = a_i · ``max_length_m``; tendon 1 → +d₁₃, 3 → −d₁₃    m
+    ============  =====  ==============================================================  ======
+
+    Positive lengths pay tendon out. With ``randomization.latency_steps`` an action reaches the
+    board that many steps late.
+
+    **Observations** — ``Box(float32)`` of size 18 + n_a:
+
+    ========  ============================================================  ========
+    index     quantity                                                      unit
+    ========  ============================================================  ========
+    0–3       tendon lengths from the pretensioned straight zero (encoders)  m
+    4–7       tendon tensions (load cells)                                  N
+    8–10      tip position from the tracker, world frame, base at origin     m
+    11–14     tip orientation from the tracker, quaternion (w, x, y, z)      —
+    15–17     target tip position, world frame                              m
+    18–       previous action (as given, before any latency)                —
+    ========  ============================================================  ========
+
+    Bounds: lengths ±0.1 m, tensions ±100 N, positions ±0.2 m (values are clipped to them).
+    A tracker frame the fusion rejects leaves the last good pose in place.
+
+    **Reward** — per step, with e the tip-to-target distance, τ the tensions and u the motor
+    duties of the sample:
+
+        r = −e / 10 mm − w_τ · Σ τ_i / (4 τ_limit) − w_u · mean(u_i²) − (fault_penalty if a fault)
+
+    **Termination** on a latched board fault: a tension over the limit (``rig.tension_limit_n``)
+    or the watchdog. **Truncation** by the registered ``max_episode_steps`` (200 = 5 s).
+
+    ``info``: ``tip_error_m``, ``tip_mass_kg``, ``tensions_n``, ``fault`` (flags), ``time_s``
+    (device clock), ``latency_steps``.
+
+    Args:
+        device_url: ``sim://[?pose=…]`` (no seed: the env seeds it) or ``serial://…?igtl=…``.
+        action_mode: ``"tensions"``, ``"lengths"`` or ``"pairs"``.
+        params: parameter set (default ``models/endoscope.toml``).
+        randomization: per-episode parameter, effect and latency spreads (default none).
+        tip_loads: tip masses per episode (default 0/5/10 g, half the episodes change once).
+        gains: ``{mode: {"kp": …, "ki": …, "kd": …, "output_limit": …}}`` set on the board at
+            reset (default the firmware's).
+        target_curvature_per_m: (low, high) curvature of the target arcs (1/m).
+        tension_range_n: (τ_lo, τ_hi) of tension actions (N).
+        max_length_m: length of a full length action (m).
+        pretension_n: pretension per tendon at reset (N); default ``tendons.pretension_n``.
+        tension_weight, effort_weight: w_τ and w_u of the reward.
+        fault_penalty: reward subtracted on the faulting step.
+    """
+
+    metadata = {"render_modes": []}
+
+    def __init__(self, device_url: str = "sim://", *, action_mode: str = "tensions", params: Params | None = None,
+                 randomization: Randomization | None = None, tip_loads: TipLoads | None = None,
+                 gains: dict | None = None, target_curvature_per_m: tuple[float, float] = (0.0, 20.0),
+                 tension_range_n: tuple[float, float] = (0.3, 5.0), max_length_m: float = 0.008,
+                 pretension_n: float | None = None, tension_weight: float = 0.1, effort_weight: float = 1.0,
+                 fault_penalty: float = 10.0):
+        if action_mode not in ACTION_MODES:
+            raise ValueError(f"action_mode = {action_mode!r}: must be one of {', '.join(ACTION_MODES)}")
+        parts = urllib.parse.urlsplit(device_url)
+        if parts.scheme == "sim" and "seed" in urllib.parse.parse_qs(parts.query):
+            raise ValueError(f"device_url = {device_url!r}: leave the seed out; reset(seed=...) seeds the twin")
+        self.params = params if params is not None else load_params()
+        low, high = tension_range_n
+        if not 0 <= low < high <= self.params.rig.tension_limit_n:
+            raise ValueError(f"tension_range_n = {tension_range_n!r}: need 0 <= low < high <= "
+                             f"rig.tension_limit_n = {self.params.rig.tension_limit_n}")
+        if not max_length_m > 0:
+            raise ValueError(f"max_length_m = {max_length_m!r}: must be > 0")
+        self.device_url = device_url
+        self.action_mode = action_mode
+        self.randomization = randomization or Randomization()
+        self.tip_loads = tip_loads or TipLoads()
+        self.gains = dict(gains or {})
+        self.target_curvature_per_m = target_curvature_per_m
+        self.tension_range_n = (float(low), float(high))
+        self.max_length_m = float(max_length_m)
+        self.pretension_n = self.params.tendons.pretension_n if pretension_n is None else float(pretension_n)
+        self.tension_weight, self.effort_weight, self.fault_penalty = tension_weight, effort_weight, fault_penalty
+
+        n_a = 2 if action_mode == "pairs" else 4
+        self.action_space = spaces.Box(-1.0, 1.0, (n_a,), np.float32)
+        high_obs = np.concatenate([np.full(4, _LENGTH_BOUND_M), np.full(4, _TENSION_BOUND_N),
+                                   np.full(3, _POSITION_BOUND_M), np.ones(4), np.full(3, _POSITION_BOUND_M),
+                                   np.ones(n_a)]).astype(np.float32)
+        self.observation_space = spaces.Box(-high_obs, high_obs, dtype=np.float32)
+
+        self.device = None
+        self._device_params: Params | None = None
+        self._neutral = self._neutral_action()
+
+    # ------------------------------------------------------------------ gymnasium API
+    def reset(self, *, seed: int | None = None, options: dict | None = None):
+        """Start an episode. ``options``: ``target_m`` (3,) fixes the target, ``tip_mass_kg``
+        the tip mass (no change during the episode)."""
+        super().reset(seed=seed)
+        options = options or {}
+        rng = self.np_random
+        params, latency = self.randomization.sample(self.params, rng)
+        self._open(params, int(rng.integers(2**31)))
+        device = self.device
+        if isinstance(device.fixture, SimFixture):
+            device.fixture.settle_s = _RESET_SETTLE_S
+        for mode, gains in self.gains.items():
+            device.set_gains(mode, **gains)
+        self._zero_m = pretension_straight(device, params, mode=ACTION_MODES[self.action_mode],
+                                           tension_n=self.pretension_n)
+        mass, self._change_step, self._later_mass_kg = self.tip_loads.sample(rng)
+        if "tip_mass_kg" in options:
+            mass, self._change_step = float(options["tip_mass_kg"]), None
+        device.fixture.hang_tip_mass(mass)
+        if isinstance(device.fixture, SimFixture):
+            # Mid-episode loads land within one step: the env's time must not jump.
+            device.fixture.settle_s = 0.0
+        self._tip_mass_kg = mass
+        self.target_m = np.asarray(options["target_m"], dtype=float) if "target_m" in options else self._sample_target(rng)
+        self._latency = latency
+        self._queue = collections.deque([self._neutral] * latency)
+        self._previous = self._neutral.copy()
+        self._steps = 0
+        self._pose = None
+        sample = device.wait_next()
+        while self._pose is None:
+            self._read_tracker()
+            if self._pose is None:
+                sample = device.wait_next()
+        observation = self._observation(sample)
+        return observation, self._info(sample, np.linalg.norm(self._pose[0] - self.target_m))
+
+    def step(self, action):
+        action = np.clip(np.asarray(action, dtype=np.float32).reshape(self.action_space.shape), -1.0, 1.0)
+        self._queue.append(action)
+        applied = self._queue.popleft()
+        rejected = False
+        try:
+            self._command(applied)
+        except CommandRejected:
+            # The board left ENABLED (a fault latched since the last sample): end the episode below.
+            rejected = True
+        self._steps += 1
+        if self._steps == self._change_step:
+            self.device.fixture.hang_tip_mass(self._later_mass_kg)
+            self._tip_mass_kg = self._later_mass_kg
+        sample = self.device.wait_next()
+        self._read_tracker()
+        self._previous = action
+        error = float(np.linalg.norm(self._pose[0] - self.target_m))
+        fault = rejected or bool(sample.fault_flags & _FAULTS) or not sample.enabled
+        reward = (-error / 0.01
+                  - self.tension_weight * float(np.sum(sample.tensions_n)) / (4 * self.params.rig.tension_limit_n)
+                  - self.effort_weight * float(np.mean(sample.motor_commands ** 2))
+                  - (self.fault_penalty if fault else 0.0))
+        return self._observation(sample), reward, fault, False, self._info(sample, error)
+
+    def close(self):
+        if self.device is not None:
+            self.device.close()
+            self.device = None
+
+    # ------------------------------------------------------------------ mapping
+    def setpoints(self, action) -> np.ndarray:
+        """What an action asks of the board: tensions (N), lengths from zero (m) or pair offsets (m)."""
+        a = np.asarray(action, dtype=float)
+        if self.action_mode == "tensions":
+            low, high = self.tension_range_n
+            return low + (a + 1.0) / 2.0 * (high - low)
+        return a * self.max_length_m
+
+    def action_for(self, setpoints) -> np.ndarray:
+        """The action that asks for ``setpoints`` (the inverse of :meth:`setpoints`), clipped to [−1, 1]."""
+        s = np.asarray(setpoints, dtype=float)
+        if self.action_mode == "tensions":
+            low, high = self.tension_range_n
+            a = 2.0 * (s - low) / (high - low) - 1.0
+        else:
+            a = s / self.max_length_m
+        return np.clip(a, -1.0, 1.0).astype(np.float32)
+
+    # ------------------------------------------------------------------ internals
+    def _neutral_action(self) -> np.ndarray:
+        if self.action_mode == "tensions":
+            return self.action_for(np.full(4, self.pretension_n))
+        return np.zeros(self.action_space.shape, dtype=np.float32)
+
+    def _command(self, action) -> None:
+        setpoints = self.setpoints(action)
+        if self.action_mode == "tensions":
+            self.device.set_tensions(setpoints)
+        elif self.action_mode == "lengths":
+            self.device.set_lengths(self._zero_m + setpoints)
+        else:
+            self.device.set_pairs(setpoints)
+
+    def _open(self, params: Params, seed: int) -> None:
+        scheme = urllib.parse.urlsplit(self.device_url).scheme
+        if self.device is not None and (scheme != "sim" or params == self._device_params):
+            if scheme == "sim":
+                # The same twin, reset: rebuilding the MuJoCo model is the slow part of a reset.
+                board = self.device.transport.board
+                board.plant.reset(seed)
+                board.power_cycle()
+                self.device.reconnect()
+            return
+        self.close()
+        self.device = open_device(self.device_url, params=params, seed=seed if scheme == "sim" else None)
+        self.device.connect()
+        if self.device.tracker is None:
+            raise ValueError(f"device_url = {self.device_url!r}: the env needs a tracker (serial:// takes ?igtl=host:port)")
+        self._device_params = params
+
+    def _sample_target(self, rng) -> np.ndarray:
+        kappa = rng.uniform(*self.target_curvature_per_m)
+        phi = rng.uniform(0.0, 360.0)
+        return HORIZONTAL @ arc_tip_position_m(kappa, phi, self.params.backbone.length_m)
+
+    def _read_tracker(self) -> None:
+        fused = self.device.tracker.read()
+        if fused.ok:
+            self._pose = (fused.pose.position_m, fused.pose.quaternion)
+
+    def _observation(self, sample) -> np.ndarray:
+        return np.concatenate([
+            sample.tendon_lengths_m - self._zero_m, sample.tensions_n, self._pose[0], self._pose[1],
+            self.target_m, self._previous,
+        ]).astype(np.float32).clip(self.observation_space.low, self.observation_space.high)
+
+    def _info(self, sample, error_m: float) -> dict:
+        return {"tip_error_m": float(error_m), "tip_mass_kg": self._tip_mass_kg,
+                "tensions_n": sample.tensions_n.copy(), "fault": int(sample.fault_flags),
+                "time_s": sample.time_s, "latency_steps": self._latency}

@@ -1,0 +1,117 @@
+"""The reach env: Gymnasium's checker, vector envs, seeding, action mapping, faults, randomisation."""
+
+import gymnasium as gym
+import numpy as np
+import pytest
+from gymnasium.utils.env_checker import check_env
+
+import envs
+from envs import EndoscopeReachEnv, Randomization, TipLoads
+from twin import load_params
+
+
+@pytest.mark.parametrize("action_mode", ["tensions", "pairs"])
+def test_registered_env_passes_the_checker(action_mode):
+    env = gym.make("twin/EndoscopeReach-v0", action_mode=action_mode)
+    try:
+        check_env(env.unwrapped, skip_render_check=True)
+        assert env.spec.max_episode_steps == 200
+    finally:
+        env.close()
+
+
+def test_sync_vector_env_steps_randomised_envs_with_their_own_twins():
+    vec = gym.vector.SyncVectorEnv([lambda: gym.make("twin/EndoscopeReachRandomized-v0") for _ in range(2)])
+    try:
+        obs, info = vec.reset(seed=5)
+        assert obs.shape == (2, 22)
+        hold = np.stack([vec.envs[i].unwrapped.action_for(np.full(4, 1.35)) for i in range(2)])
+        for _ in range(4):
+            obs, reward, terminated, truncated, info = vec.step(hold)
+        assert not terminated.any() and np.all(reward < 0)
+        # Different seeds draw different targets and twins.
+        assert not np.allclose(obs[0, 15:18], obs[1, 15:18])
+    finally:
+        vec.close()
+
+
+def test_a_step_is_one_telemetry_period_and_reset_is_reproducible():
+    env = EndoscopeReachEnv(tip_loads=TipLoads(masses_kg=(0.005,), change_probability=0.0))
+    try:
+        first, info = env.reset(seed=11)
+        t0 = info["time_s"]
+        _, _, _, _, info = env.step(env.action_for(np.full(4, 1.35)))
+        assert info["time_s"] - t0 == pytest.approx(0.025, abs=1e-9)
+        again, _ = env.reset(seed=11)
+        np.testing.assert_array_equal(first, again)
+        assert info["tip_mass_kg"] == 0.005
+    finally:
+        env.close()
+
+
+def test_tension_actions_bend_the_tip_towards_the_pulled_tendon():
+    # Horizontal clamp: body x (tendon 1) points down world −z, so pulling tendon 1 lowers the tip.
+    env = EndoscopeReachEnv(tip_loads=TipLoads.none())
+    try:
+        obs, _ = env.reset(seed=0)
+        z0 = obs[10]
+        action = env.action_for([2.5, 1.35, 1.35, 1.35])
+        for _ in range(40):
+            obs, *_ = env.step(action)
+        assert obs[10] < z0 - 0.005
+        assert 2.0 < obs[4] < 3.0
+        np.testing.assert_allclose(obs[18:], action)
+    finally:
+        env.close()
+
+
+def test_pulling_both_tendons_of_a_pair_in_length_mode_trips_the_limit_and_terminates():
+    env = EndoscopeReachEnv(action_mode="lengths", tip_loads=TipLoads.none())
+    try:
+        env.reset(seed=0)
+        terminated = False
+        for _ in range(40):
+            _, reward, terminated, _, info = env.step(np.array([-1.0, 0.0, -1.0, 0.0], np.float32))
+            if terminated:
+                break
+        assert terminated and info["fault"] and reward < -env.fault_penalty + 1
+    finally:
+        env.close()
+
+
+def test_randomization_is_seeded_and_within_its_ranges():
+    params = load_params()
+    spread = Randomization.typical()
+    a, la = spread.sample(params, np.random.default_rng(3))
+    b, lb = spread.sample(params, np.random.default_rng(3))
+    assert a == b and la == lb
+    ratio = a.backbone.youngs_modulus_pa / params.backbone.youngs_modulus_pa
+    assert 0.8 <= ratio <= 1.2 and ratio != 1.0
+    assert max(map(abs, a.effects.tension_gain_error)) <= 0.03
+    assert not Randomization().changes_params and spread.changes_params
+    with pytest.raises(ValueError, match="stiffness_scale"):
+        Randomization(stiffness_scale=(1.2, 0.8))
+
+
+def test_latency_delays_actions_by_whole_steps():
+    env = EndoscopeReachEnv(randomization=Randomization(latency_steps=(2, 2)), tip_loads=TipLoads.none())
+    try:
+        env.reset(seed=0)
+        pull = env.action_for([3.0, 1.35, 1.35, 1.35])
+        targets = []
+        for _ in range(3):
+            env.step(pull)
+            targets.append(env.device.latest().targets[0])
+        assert targets[0] == pytest.approx(1.35, abs=1e-3) and targets[1] == pytest.approx(1.35, abs=1e-3)
+        assert targets[2] == pytest.approx(3.0, abs=1e-3)
+    finally:
+        env.close()
+
+
+def test_bad_arguments_name_the_value():
+    with pytest.raises(ValueError, match="action_mode = 'torques'"):
+        EndoscopeReachEnv(action_mode="torques")
+    with pytest.raises(ValueError, match="leave the seed out"):
+        EndoscopeReachEnv("sim://?seed=3")
+    with pytest.raises(ValueError, match="tension_range_n"):
+        EndoscopeReachEnv(tension_range_n=(0.3, 60.0))
