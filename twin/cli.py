@@ -18,6 +18,7 @@ COMMAND_MODULES = [
     "twin.device.commands",
     "twin.experiments.commands",
     "twin.discrepancy.commands",
+    "twin.control.commands",
     "twin.bench",
     "twin.demo",
 ]

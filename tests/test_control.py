@@ -1,0 +1,69 @@
+"""Load compensation, the length-vs-tension study and the tuning example, on the predictor and the twin."""
+
+import numpy as np
+import pytest
+
+from twin import load_params
+from twin.control.cocontraction import run_cocontraction_study
+from twin.control.compensation import compensate_tensions, hold_tensions
+from twin.control.compensation_trial import run_compensation_trial
+from twin.control.tuning import DEFAULT_TENSION_GAINS, TUNED_TENSION_GAINS, tension_cost
+from twin.device import open_device
+from twin.pose import HORIZONTAL
+from twin.rod import RodModel, solve
+
+PARAMS = load_params()
+MODEL = RodModel.from_params(PARAMS)
+WEIGHT_10G = np.array([0.0, 0.0, -0.010 * PARAMS.environment.gravity_m_s2])
+
+
+def test_compensated_tensions_put_the_predicted_loaded_tip_on_target():
+    target = solve(MODEL, [2.0, 1.35, 1.0, 1.35], base_rotation=HORIZONTAL).tip_position_m
+    plan = compensate_tensions(MODEL, target, tip_force_n=WEIGHT_10G, base_rotation=HORIZONTAL,
+                               reference_tensions_n=[2.0, 1.35, 1.0, 1.35], floor_n=0.5, limit_n=5.0)
+    loaded = solve(MODEL, plan.tensions_n, tip_force_n=WEIGHT_10G, base_rotation=HORIZONTAL).tip_position_m
+    assert plan.reached and np.linalg.norm(loaded - target) < 1e-4
+    assert np.all(plan.tensions_n >= 0.5) and np.all(plan.tensions_n <= 5.0)
+    # Uncompensated, the same 10 g moves the predicted tip by millimetres.
+    sagged = solve(MODEL, [2.0, 1.35, 1.0, 1.35], tip_force_n=WEIGHT_10G, base_rotation=HORIZONTAL).tip_position_m
+    assert np.linalg.norm(sagged - target) > 2e-3
+
+
+def test_an_unreachable_target_is_reported_not_hidden():
+    plan = compensate_tensions(MODEL, [0.0, 0.0, 0.1], base_rotation=HORIZONTAL, floor_n=0.5, limit_n=2.0)
+    assert not plan.reached and plan.residual_m > 0.01 and plan.at_bounds.any()
+    with pytest.raises(ValueError, match="floor_n = 3"):
+        compensate_tensions(MODEL, [0.06, 0, 0], floor_n=3.0, limit_n=2.0)
+
+
+def test_hold_tensions_without_a_load_keeps_tensions_already_within_bounds():
+    plan = hold_tensions(MODEL, [2.0, 1.35, 1.2, 1.35], np.zeros(3), base_rotation=HORIZONTAL, floor_n=1.0)
+    np.testing.assert_allclose(plan.tensions_n, [2.0, 1.35, 1.2, 1.35], atol=0.02)
+
+
+@pytest.fixture(scope="module")
+def twin():
+    with open_device("sim://?seed=4", params=PARAMS) as device:
+        yield device
+
+
+def test_compensation_on_the_twin_cuts_the_loaded_tip_error(twin):
+    trial = run_compensation_trial(twin, PARAMS, configs=[(13.0, 90.0)], masses_kg=(0.010,))
+    (row,) = trial.rows
+    assert not row["fault"]
+    assert row["uncompensated_mm"] > 2.0
+    assert row["compensated_mm"] < 0.5 * row["uncompensated_mm"]
+
+
+def test_length_control_lets_the_pair_fight_tension_control_holds_it(twin):
+    study = run_cocontraction_study(twin, PARAMS, kappas_per_m=(13.0,), offsets_counts=(0, 40))
+    lengths, tensions = study.summary()["lengths"], study.summary()["tensions"]
+    # 40 encoder counts (38 µm) of common pair shortening: the antagonists fight.
+    assert lengths["max_cocontraction_with_mismatch_n"] > 0.3 and lengths["pair_sum_rise_at_largest_offset_n"] > 0.5
+    # Hanging 10 g shifts the held pair's tensions in length mode; tension mode keeps its setpoints.
+    assert lengths["pair_tension_change_under_10g_n"] > 0.1
+    assert tensions["pair_tension_change_under_10g_n"] < 0.03
+
+
+def test_tuned_tension_gains_beat_the_firmware_defaults_on_the_step_rollout():
+    assert tension_cost(TUNED_TENSION_GAINS) < tension_cost(DEFAULT_TENSION_GAINS)

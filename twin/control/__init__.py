@@ -1,0 +1,18 @@
+"""Control on top of the device interface: load compensation from the Cosserat predictor, the
+length-vs-tension study of an antagonistic pair, and controller tuning against the env.
+
+Example:
+    >>> from twin import load_params
+    >>> from twin.rod import RodModel
+    >>> from twin.pose import HORIZONTAL
+    >>> from twin.control import hold_tensions
+    >>> plan = hold_tensions(RodModel.from_params(load_params()), [2.0, 1.35, 1.2, 1.35],
+    ...                      [0.0, 0.0, -0.0981], base_rotation=HORIZONTAL, floor_n=1.0)
+    >>> plan.reached
+    True
+"""
+
+from twin.control.compensation import Compensation, compensate_tensions, hold_tensions
+from twin.control.pretension import pretension_straight
+
+__all__ = ["Compensation", "compensate_tensions", "hold_tensions", "pretension_straight"]

@@ -1,0 +1,69 @@
+"""``twin compensate``, ``twin cocontraction`` and ``twin tune``: the control studies from the shell."""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+from twin.cliargs import add_param_args, params_from_args
+
+__all__ = ["register"]
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("compensate", help="load compensation over the validation grid: PCC lengths vs "
+                                          "model-compensated tensions under 5 g and 10 g (Markdown report)")
+    p.add_argument("--device", default="sim://?seed=0", help="device URL (default the twin)")
+    p.add_argument("--quick", action="store_true", help="6 configurations instead of the 60 bends of the grid")
+    p.add_argument("--out", default="reports/compensation", help="report folder")
+    p.add_argument("--floor", type=float, default=1.0, help="lowest tendon tension of the compensation (N)")
+    add_param_args(p)
+    p.set_defaults(func=run_compensate)
+
+    p = sub.add_parser("cocontraction", help="length vs tension control on an antagonistic pair: "
+                                             "pair tensions while bending, under load and with a length mismatch")
+    p.add_argument("--device", default="sim://?seed=0", help="device URL (default the twin)")
+    p.add_argument("--out", default="reports/compensation", help="report folder")
+    add_param_args(p)
+    p.set_defaults(func=run_cocontraction)
+
+    p = sub.add_parser("tune", help="tune the tension PID and the tip-tracking gain on env rollouts")
+    from twin.control.tuning import add_arguments
+
+    add_arguments(p)
+    add_param_args(p)
+    p.set_defaults(func=run_tune)
+
+
+def run_compensate(args: argparse.Namespace) -> int:
+    from twin.control.compensation_trial import QUICK_CONFIGS, run_compensation_trial
+    from twin.device import open_device
+
+    params = params_from_args(args)
+    with open_device(args.device, params=params) as device:
+        trial = run_compensation_trial(device, params, configs=QUICK_CONFIGS if args.quick else None,
+                                       floor_n=args.floor, progress=print)
+    path = trial.write_report(Path(args.out))
+    print(json.dumps(trial.summary(), indent=1))
+    print(f"report: {path}")
+    return 0
+
+
+def run_cocontraction(args: argparse.Namespace) -> int:
+    from twin.control.cocontraction import run_cocontraction_study
+    from twin.device import open_device
+
+    params = params_from_args(args)
+    with open_device(args.device, params=params) as device:
+        study = run_cocontraction_study(device, params)
+    path = study.write_report(Path(args.out))
+    print(json.dumps(study.summary(), indent=1))
+    print(f"report: {path}")
+    return 0
+
+
+def run_tune(args: argparse.Namespace) -> int:
+    from twin.control.tuning import run
+
+    return run(args, params_from_args(args))

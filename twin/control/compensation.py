@@ -1,0 +1,159 @@
+"""Model-based load compensation: tendon tensions that keep the tip on target under known loads.
+
+The Cosserat predictor gives the tip position p(τ, F) for tensions τ and a tip force F, and its
+Jacobian ∂p/∂τ (:func:`twin.rod.tip_jacobian`). Holding the tip at p* under a known load is then
+a bounded nonlinear least-squares problem in the tensions,
+
+    min_τ  ‖(p(τ, F) − p*) / s‖² + λ² ‖τ − τ_ref‖²     subject to  τ_floor ≤ τ ≤ τ_max,
+
+solved by SciPy's trust-region reflective Gauss–Newton with the predictor's Jacobian. Four
+tensions for three coordinates leave one direction free (all tendons pulling together barely
+moves the tip); the small pull λ towards τ_ref — the tensions in use before the load — picks
+the change with the least co-contraction. The floor keeps every tendon taut (a slack tendon
+stops being controlled) and the ceiling stays under the board's tension limit.
+
+:func:`hold_tensions` is the form the rig uses: the target is where the tip *is* (known by the
+tensions it was put there with), so a model error common to the loaded and unloaded shapes
+cancels and only the load's effect is compensated.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+from scipy.optimize import least_squares
+
+from twin.rod import RodModel, solve, tip_jacobian
+
+__all__ = ["Compensation", "compensate_tensions", "hold_tensions"]
+
+# Position residuals are scaled to mm so that they and the tension pull (per N) are of one size.
+_POSITION_SCALE_M = 1e-3
+
+
+@dataclasses.dataclass(frozen=True)
+class Compensation:
+    """Tensions that hold the tip on target under a load, and how well the model says they do.
+
+    Attributes:
+        tensions_n: (nt,) tendon tensions (N), within the bounds.
+        target_m: (3,) the target tip position, world frame (m).
+        predicted_tip_m: (3,) the predictor's tip under the load at ``tensions_n`` (m).
+        residual_m: |predicted_tip_m − target_m| (m).
+        reached: True when the residual is within the tolerance; False when the bounds (or the
+            model) left the target out of reach — the tensions are then the nearest the bounds allow.
+        at_bounds: (nt,) bool, tendons held at the floor or the ceiling.
+        evaluations: predictor solves spent.
+        status: SciPy's termination message.
+    """
+
+    tensions_n: np.ndarray
+    target_m: np.ndarray
+    predicted_tip_m: np.ndarray
+    residual_m: float
+    reached: bool
+    at_bounds: np.ndarray
+    evaluations: int
+    status: str
+
+
+def compensate_tensions(model: RodModel, target_m, *, tip_force_n=None, tip_moment_nm=None, base_rotation=None,
+                        reference_tensions_n=None, floor_n: float = 0.3, limit_n: float = 5.0,
+                        regularisation: float = 0.03, tolerance_m: float = 1e-4) -> Compensation:
+    """Tendon tensions that put the predicted tip at ``target_m`` under the given tip load.
+
+    Args:
+        model: the predictor's rod.
+        target_m: (3,) target tip position, world frame (m).
+        tip_force_n, tip_moment_nm: (3,) known external tip force (N) and moment (N·m), world frame.
+        base_rotation: clamp orientation (3×3, body → world); default identity.
+        reference_tensions_n: (nt,) tensions the solution is pulled towards and started from
+            (N); default the floor plus half a newton.
+        floor_n: lowest tension of any tendon (N): keeps all tendons taut.
+        limit_n: highest tension (N): keep it under the board's tension limit.
+        regularisation: λ, weight of ‖τ − τ_ref‖ (per N) against the tip error (per mm).
+        tolerance_m: residual up to which the target counts as reached (m).
+
+    Returns:
+        The :class:`Compensation`.
+
+    Raises:
+        ValueError: bounds not 0 <= floor < limit, or a malformed vector (names the value).
+        ConvergenceError: the predictor fails at the starting tensions.
+    """
+    if not 0 <= floor_n < limit_n:
+        raise ValueError(f"floor_n = {floor_n!r}, limit_n = {limit_n!r}: need 0 <= floor_n < limit_n")
+    nt = model.tendon_count
+    target = np.asarray(target_m, dtype=float)
+    if target.shape != (3,) or not np.all(np.isfinite(target)):
+        raise ValueError(f"target_m = {target_m!r}: expected 3 finite numbers")
+    reference = np.full(nt, floor_n + 0.5) if reference_tensions_n is None else np.asarray(
+        reference_tensions_n, dtype=float)
+    if reference.shape != (nt,) or not np.all(np.isfinite(reference)):
+        raise ValueError(f"reference_tensions_n = {reference_tensions_n!r}: expected {nt} finite numbers")
+    loads = dict(tip_force_n=tip_force_n, tip_moment_nm=tip_moment_nm, base_rotation=base_rotation)
+    guess = [None]  # the last converged base moment: every solve after the first starts warm
+
+    def shape(tensions):
+        sol = solve(model, tensions, guess_nm=guess[0], **loads)
+        guess[0] = sol.base_moment_nm
+        return sol
+
+    cache: dict[bytes, tuple] = {}
+
+    def evaluate(tensions):
+        key = tensions.tobytes()
+        if key not in cache:
+            sol = shape(tensions)
+            cache.clear()
+            cache[key] = (sol, tip_jacobian(model, sol).position_wrt_tension)
+        return cache[key]
+
+    def residual(tensions):
+        sol, _ = evaluate(tensions)
+        return np.concatenate([(sol.tip_position_m - target) / _POSITION_SCALE_M,
+                               regularisation * (tensions - reference)])
+
+    def jacobian(tensions):
+        _, d_tip = evaluate(tensions)
+        return np.vstack([d_tip / _POSITION_SCALE_M, regularisation * np.eye(nt)])
+
+    start = np.clip(reference, floor_n, limit_n)
+    fit = least_squares(residual, start, jac=jacobian, bounds=(floor_n, limit_n), method="trf",
+                        xtol=1e-10, ftol=1e-10, gtol=1e-10, max_nfev=50)
+    tensions = np.clip(fit.x, floor_n, limit_n)
+    tip = shape(tensions).tip_position_m
+    error = float(np.linalg.norm(tip - target))
+    margin = 1e-6 * (limit_n - floor_n)
+    return Compensation(
+        tensions_n=tensions, target_m=target, predicted_tip_m=tip, residual_m=error,
+        reached=error <= tolerance_m,
+        at_bounds=(tensions <= floor_n + margin) | (tensions >= limit_n - margin),
+        evaluations=int(fit.nfev), status=str(fit.message),
+    )
+
+
+def hold_tensions(model: RodModel, unloaded_tensions_n, tip_force_n, *, tip_moment_nm=None, base_rotation=None,
+                  floor_n: float = 0.3, limit_n: float = 5.0, **options) -> Compensation:
+    """Tensions within the bounds that keep the tip where ``unloaded_tensions_n`` held it, under a tip load.
+
+    The target is the predictor's own unloaded tip at ``unloaded_tensions_n``, so a model error
+    shared by both shapes cancels: what is compensated is the load, and the move of any tendon
+    that was below the floor (slack) up to it.
+
+    Args:
+        model: the predictor's rod.
+        unloaded_tensions_n: (nt,) tensions (N, >= 0) that held the tip on target without the
+            load, e.g. measured on the device in length mode.
+        tip_force_n, tip_moment_nm: (3,) the known tip load, world frame (N, N·m); zero gives
+            the tensions that hold the target within the bounds without a load.
+        base_rotation: clamp orientation (3×3, body → world).
+        floor_n, limit_n: tension bounds (N).
+        **options: passed to :func:`compensate_tensions` (``regularisation``, ``tolerance_m``).
+    """
+    unloaded = np.asarray(unloaded_tensions_n, dtype=float)
+    target = solve(model, np.maximum(unloaded, 0.0), base_rotation=base_rotation).tip_position_m
+    return compensate_tensions(model, target, tip_force_n=tip_force_n, tip_moment_nm=tip_moment_nm,
+                               base_rotation=base_rotation, reference_tensions_n=np.clip(unloaded, floor_n, limit_n),
+                               floor_n=floor_n, limit_n=limit_n, **options)

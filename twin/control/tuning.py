@@ -1,0 +1,224 @@
+"""Controller tuning against the env, worked as an example: the board's tension PID, then a
+model-based tip-tracking controller on top of it.
+
+1. **Tension PID** (the firmware's tension mode; gains per :meth:`twin.device.Device.set_gains`).
+   A rollout asks for a fixed sequence of tension steps on an antagonistic pair and hangs a tip
+   mass half-way; the cost is the RMS tension tracking error (N), plus a penalty if the board
+   faults. Nelder–Mead on (log kp, log ki, log duty clamp) from the firmware's defaults.
+2. **Tip tracking** (:class:`TipTracker`): feedforward tensions from the predictor for the known
+   tip load (:func:`twin.control.compensation.compensate_tensions`), then an integral correction
+   through the predictor's Jacobian, τ ← τ + g·J⁺(p* − p). The cost is the mean tip error (mm)
+   over episodes with random targets and loads; the gain g is tuned by a bounded scalar search.
+   Episodes are independent, so they run in parallel processes (``workers``).
+
+``python -m twin.control.tuning`` (or ``twin tune``) runs both and prints the metrics before and
+after.
+"""
+
+from __future__ import annotations
+
+import argparse
+import concurrent.futures
+import dataclasses
+import math
+import sys
+from typing import Sequence
+
+import numpy as np
+from scipy.optimize import minimize, minimize_scalar
+
+from envs.reach import EndoscopeReachEnv
+from envs.randomization import TipLoads
+from twin.control.compensation import compensate_tensions
+from twin.params import Params, load_params
+from twin.pose import HORIZONTAL
+from twin.rod import RodModel, solve, tip_jacobian
+from twin.rod.grid import GRAVITY_TIP_FORCE_N
+
+__all__ = ["DEFAULT_TENSION_GAINS", "TUNED_TENSION_GAINS", "TipTracker", "TuningResult", "tension_cost",
+           "tracking_cost", "tune_tension_gains", "tune_tracking_gain", "main"]
+
+# The firmware's defaults (firmware/core/controller.cpp).
+DEFAULT_TENSION_GAINS = {"kp": 0.003, "ki": 0.3, "kd": 0.0, "output_limit": 0.2}
+# Found by ``python -m twin.control.tuning`` on the nominal twin (seed 0).
+TUNED_TENSION_GAINS = {"kp": 0.001, "ki": 0.3, "kd": 0.0, "output_limit": 0.035}
+
+# Cost of a rollout the board faulted in (N RMS or mm): above any error a working loop has.
+_FAULT_COST = 10.0
+# Tension setpoints of the PID rollout (N): steps on the pair 1–3 at 0.5 s intervals.
+_TENSION_STEPS_N = ((1.35, 1.35, 1.35, 1.35), (2.5, 1.35, 1.0, 1.35), (1.0, 1.35, 2.5, 1.35),
+                    (3.5, 1.35, 0.6, 1.35), (1.35, 1.35, 1.35, 1.35), (0.6, 1.35, 3.0, 1.35))
+_STEPS_PER_SETPOINT = 20
+
+
+@dataclasses.dataclass(frozen=True)
+class TuningResult:
+    """Before and after of one tuning: the parameters and the cost (lower is better)."""
+
+    name: str
+    before: dict
+    after: dict
+    cost_before: float
+    cost_after: float
+    unit: str
+    evaluations: int
+
+    def line(self) -> str:
+        return (f"{self.name}: {self.cost_before:.4g} → {self.cost_after:.4g} {self.unit} "
+                f"({self.evaluations} rollouts); {self.before} → {self.after}")
+
+
+def tension_cost(gains: dict, *, params: Params | None = None, seed: int = 0) -> float:
+    """RMS tension tracking error (N) of the tension-step rollout with these board gains.
+
+    The first 5 samples after each step are left out: no loop follows a step in 25 ms, and the
+    metric should reward settling, not the size of the steps.
+    """
+    env = EndoscopeReachEnv(params=params, gains={"tensions": gains}, tip_loads=TipLoads.none())
+    try:
+        env.reset(seed=seed)
+        errors = []
+        for k, setpoint in enumerate(_TENSION_STEPS_N):
+            if k == len(_TENSION_STEPS_N) // 2:
+                env.device.fixture.hang_tip_mass(0.010)
+            action = env.action_for(setpoint)
+            for i in range(_STEPS_PER_SETPOINT):
+                _, _, faulted, _, info = env.step(action)
+                if faulted:
+                    return _FAULT_COST
+                if i >= 5:
+                    errors.append(info["tensions_n"] - np.asarray(setpoint))
+        return float(np.sqrt(np.mean(np.square(errors))))
+    finally:
+        env.close()
+
+
+def tune_tension_gains(*, params: Params | None = None, start: dict | None = None, evaluations: int = 30,
+                       seed: int = 0) -> TuningResult:
+    """Nelder–Mead on (log kp, log ki, log output_limit) of the tension PID, kd = 0."""
+    start = dict(start or DEFAULT_TENSION_GAINS)
+    x0 = np.log([start["kp"], start["ki"], start["output_limit"]])
+
+    def gains_of(x):
+        return {"kp": float(np.exp(x[0])), "ki": float(np.exp(x[1])), "kd": 0.0,
+                "output_limit": float(min(1.0, np.exp(x[2])))}
+
+    cost_before = tension_cost(gains_of(x0), params=params, seed=seed)
+    fit = minimize(lambda x: tension_cost(gains_of(x), params=params, seed=seed), x0, method="Nelder-Mead",
+                   options={"maxfev": evaluations, "initial_simplex": x0 + np.vstack([np.zeros(3), -0.7 * np.eye(3)])})
+    return TuningResult("tension PID", gains_of(x0), gains_of(fit.x), cost_before, float(fit.fun), "N RMS",
+                        int(fit.nfev) + 1)
+
+
+class TipTracker:
+    """Feedforward plus Jacobian integral control of the tip, on tension actions.
+
+    At reset the predictor's tensions for the target under the known tip load are the
+    feedforward; each step then moves the tensions by ``gain`` · J⁺ (p* − p), J = ∂p/∂τ at the
+    current tensions (one predictor solve and Jacobian per step, warm-started), the pseudo-inverse
+    damped by ``damping`` (m/N) so that a near-singular J cannot command a jump.
+
+    Args:
+        params: the predictor's parameter set.
+        gain: integral gain per step (0 = feedforward only).
+        damping: Tikhonov damping of the pseudo-inverse (m/N).
+        floor_n, limit_n: tension bounds (N).
+    """
+
+    def __init__(self, params: Params, *, gain: float = 0.05, damping: float = 2e-3, floor_n: float = 1.0,
+                 limit_n: float = 5.0):
+        self.model = RodModel.from_params(params)
+        self.gravity_m_s2 = params.environment.gravity_m_s2
+        self.gain, self.damping, self.floor_n, self.limit_n = gain, damping, floor_n, limit_n
+        self.tensions_n = np.zeros(self.model.tendon_count)
+        self._guess = None
+
+    def reset(self, target_m, tip_mass_kg: float) -> np.ndarray:
+        """Feedforward tensions (N) for ``target_m`` under ``tip_mass_kg``."""
+        force = GRAVITY_TIP_FORCE_N(tip_mass_kg, self.gravity_m_s2)
+        plan = compensate_tensions(self.model, target_m, tip_force_n=force, base_rotation=HORIZONTAL,
+                                   floor_n=self.floor_n, limit_n=self.limit_n)
+        self.target_m, self.force_n = np.asarray(target_m, dtype=float), force
+        self.tensions_n = plan.tensions_n
+        self._guess = None
+        return self.tensions_n.copy()
+
+    def update(self, tip_m) -> np.ndarray:
+        """Next tensions (N) from the measured tip position (m)."""
+        if self.gain > 0:
+            sol = solve(self.model, self.tensions_n, tip_force_n=self.force_n, base_rotation=HORIZONTAL,
+                        guess_nm=self._guess)
+            self._guess = sol.base_moment_nm
+            j = tip_jacobian(self.model, sol).position_wrt_tension
+            step = j.T @ np.linalg.solve(j @ j.T + self.damping ** 2 * np.eye(3), self.target_m - np.asarray(tip_m))
+            self.tensions_n = np.clip(self.tensions_n + self.gain * step, self.floor_n, self.limit_n)
+        return self.tensions_n.copy()
+
+
+def _tracking_episode(args) -> float:
+    gain, params, seed, steps, gains = args
+    env = EndoscopeReachEnv(params=params, gains={"tensions": gains},
+                            tip_loads=TipLoads(change_probability=0.0))
+    controller = TipTracker(params if params is not None else load_params(), gain=gain)
+    try:
+        observation, info = env.reset(seed=seed)
+        action = env.action_for(controller.reset(env.target_m, info["tip_mass_kg"]))
+        errors = []
+        for _ in range(steps):
+            observation, _, faulted, _, info = env.step(action)
+            if faulted:
+                return _FAULT_COST
+            errors.append(info["tip_error_m"] * 1e3)
+            action = env.action_for(controller.update(observation[8:11]))
+        # The second half: how well the target is held once reached.
+        return float(np.mean(errors[steps // 2:]))
+    finally:
+        env.close()
+
+
+def tracking_cost(gain: float, *, params: Params | None = None, seeds: Sequence[int] = (0, 1, 2), steps: int = 60,
+                  tension_gains: dict | None = None, workers: int = 1) -> float:
+    """Mean tip error (mm) over the second half of episodes with the given integral gain."""
+    jobs = [(gain, params, seed, steps, tension_gains or TUNED_TENSION_GAINS) for seed in seeds]
+    if workers > 1:
+        with concurrent.futures.ProcessPoolExecutor(workers) as pool:
+            costs = list(pool.map(_tracking_episode, jobs))
+    else:
+        costs = [_tracking_episode(job) for job in jobs]
+    return float(np.mean(costs))
+
+
+def tune_tracking_gain(*, params: Params | None = None, start: float = 0.0, bounds=(0.003, 0.2),
+                       evaluations: int = 8, **options) -> TuningResult:
+    """Bounded scalar search of the integral gain on log scale; ``start`` is the baseline."""
+    cost_before = tracking_cost(start, params=params, **options)
+    fit = minimize_scalar(lambda x: tracking_cost(math.exp(x), params=params, **options),
+                          bounds=tuple(np.log(bounds)), method="bounded",
+                          options={"maxiter": evaluations, "xatol": 0.1})
+    return TuningResult("tip tracking (integral gain)", {"gain": start}, {"gain": float(math.exp(fit.x))},
+                        cost_before, float(fit.fun), "mm", int(fit.nfev) + 1)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m twin.control.tuning", description=__doc__.splitlines()[0])
+    add_arguments(parser)
+    return run(parser.parse_args(argv))
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--quick", action="store_true", help="few rollouts (a minute): the worked example")
+    parser.add_argument("--workers", type=int, default=2, help="processes for the tracking episodes")
+
+
+def run(args: argparse.Namespace, params: Params | None = None) -> int:
+    quick = args.quick
+    pid = tune_tension_gains(params=params, evaluations=12 if quick else 40)
+    print(pid.line())
+    tracking = tune_tracking_gain(params=params, tension_gains=pid.after, evaluations=4 if quick else 10,
+                                  seeds=(0, 1) if quick else (0, 1, 2, 3), workers=args.workers)
+    print(tracking.line())
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
