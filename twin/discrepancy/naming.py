@@ -21,6 +21,8 @@ The rule (documented here because the ranking and the verdict follow from it):
   its value (log-fitted) or its typical size ``scale`` (others) is not determined by the data
   (e.g. G, once tendon tension carries most of the shear); the candidate is refitted without it,
   so it stays at its prior value and is not written into the parameter set as if measured.
+* **Find first.** Nothing is named in the first round unless the Find step declared structured
+  disagreement beyond noise (:mod:`twin.discrepancy.residuals`), so the two never contradict.
 * **Greedy.** The winner's fitted values go into the model, and the remaining candidates are
   ranked again against it, until nothing beats noise (or ``max_effects`` are named).
 """
@@ -182,7 +184,8 @@ def rank_candidates(dataset: Dataset, params: Params, candidates: Sequence[Candi
         fit = fit_parameters(dataset, params, candidate.parameters, x0=x0, source=f"{source}: {candidate.effect}",
                              max_evaluations=max_evaluations, rows=train)
         loose = _undetermined(fit)
-        note = "not determined by the data" if len(loose) == k else ""
+        determined = len(loose) < k
+        note = "" if determined else "not determined by the data"
         if loose and len(loose) < k:
             note = "not determined, kept: " + ", ".join(
                 f"{fit.parameters[i].label} ({fit.values[i]:.3g} ± {fit.std_errors[i]:.2g})" for i in loose)
@@ -200,7 +203,7 @@ def rank_candidates(dataset: Dataset, params: Params, candidates: Sequence[Candi
         else:
             f_stat, p_value = 0.0, 1.0
         scores.append(CandidateScore(candidate.effect, fit, k, fit.rms_m, _rms3(fitted_test), score,
-                                     float(f_stat), p_value, bool(score < 0 and p_value < alpha and len(loose) < k),
+                                     float(f_stat), p_value, bool(score < 0 and p_value < alpha and determined),
                                      note))
     scores.sort(key=lambda s: s.score)
     winner = next((s for s in scores if s.beats_noise), None)

@@ -153,6 +153,10 @@ def run_discrepancy(dataset: Dataset, params: Params | None = None, *, holdout_f
         ranked = rank_candidates(dataset, current, remaining, train, test, source=source,
                                  max_evaluations=max_evaluations, progress=progress,
                                  label=f"round {len(rounds) + 1}")
+        if not rounds and not residuals.structure.beyond_noise:
+            # Find and Name must agree: with no structure beyond noise in the residuals there is
+            # nothing to name, even if a candidate's own F-test passes on the training rows.
+            ranked = dataclasses.replace(ranked, winner=None)
         rounds.append(ranked)
         if ranked.winner is None:
             break
