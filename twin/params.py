@@ -201,6 +201,7 @@ class SimSettings:
     damping_time_s: float = _f(_nonnegative)
     shear_joints: bool = _f()
     axial_joints: bool = _f()
+    slide_stride: int = _f(_positive)
     tendon_routing: str = _f(_choice("continuous", "discs"))
 
 

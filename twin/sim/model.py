@@ -17,9 +17,11 @@ one element:
     bend x, y (hinges):  EI / h         twist z (hinge): K_t / h  (E(Ixx+Iyy) or GJ, backbone.torsion)
     shear x, y (slides): GA / h         axial z (slide): backbone.axial_stiffness_n / h
 
-and stiffness-proportional damping ``sim.damping_time_s`` × stiffness. With an isotropic G the
-shear is ~0.5% of a tip-loaded cantilever's deflection and the hinges alone are the fast default;
-the thesis's G makes it a quarter, and then the shear slides are needed.
+and stiffness-proportional damping ``sim.damping_time_s`` × stiffness. The slides need not be at
+every station: with ``sim.slide_stride`` = k the middle station of each block of k takes the
+block's shear and axial compliance (:func:`slide_stations`), which keeps the chain short where
+those strains are small (with an isotropic G shear is ~0.5% of a tip-loaded cantilever's
+deflection). The thesis's G makes shear a quarter of it; then every station needs its slides.
 
 Spacer discs sit at s = jL/D. Each tendon runs from a spool behind the clamp to the tip disc,
 routed as ``sim.tendon_routing`` says (:data:`TENDON_SITES`): continuously, as the predictor
@@ -56,6 +58,7 @@ __all__ = [
     "build_spec",
     "clamp_rotation",
     "model_xml",
+    "slide_stations",
     "station_joints",
     "tendon_stiffness_n_per_m",
 ]
@@ -101,18 +104,21 @@ STATION_JOINTS = (
 #                 twist and shear, 1 + ε + u_x·y − u_y·x, linear in the bending strains. So the
 #                 tendon is a fixed tendon over the joints with coefficients y and −x on each
 #                 station's bend hinges, 1 on its axial slide, −1 on the spool: it pulls every joint
-#                 with the arm r exactly, and equal tensions leave the rod alone. Sites in every joint's plane, at the offset, and at the tip trace its path
-#                 (path lengths, friction, drawing) but carry no force. A spatial tendon through those
-#                 sites was measured as well: a straight line between body-fixed points reaches only
-#                 the arm r·(1 − Δθ²/2) at a joint bent by Δθ (0.63 mm at the tip at N = 10 and
-#                 κ = 26.2 1/m) and was a third slower at N = 20. The linear length leaves out what is
-#                 second order in it: the tendons' stiffening of twist (T·r² per unit twist) and, with
-#                 shear slides, of shear (the tensions add to GA).
+#                 with the arm r exactly, and equal tensions leave the rod alone. Sites in every
+#                 joint's plane, at the offset, and at the tip trace its path (path lengths,
+#                 friction, drawing) but carry no force. A spatial tendon through those sites was
+#                 measured as well: a straight line between body-fixed points reaches only the arm
+#                 r·(1 − Δθ²/2) at a joint bent by Δθ (0.63 mm at the tip at N = 10 and κ = 26.2 1/m)
+#                 and was a third slower at N = 20. The linear length leaves out what is second
+#                 order in it: the tendons' stiffening of twist (ΣT·r² per unit twist, 15% of
+#                 E(Ixx+Iyy) at 8 N) and, with shear slides, of shear (ΣT adds to GA); the
+#                 cross-check report shows what each costs.
 #   "discs"       a spatial tendon through a site per disc: straight chords between discs, as the
 #                 rig's line. A chord across a bent joint lies off the offset towards the centre of
 #                 curvature, so the pretension of all four tendons bends the rod further.
-#   "elements"    "discs" with a site at every body's middle as well: chords one element long (a
-#                 cause study of the cross-check, to show the chord effect shrink with the chord).
+#   "elements"    "discs" with a site at every body's middle as well: chords one element long (the
+#                 plant's ``tendon_sites`` override only; the cross-check shows with it how the
+#                 chord effect shrinks with the chord).
 TENDON_SITES = ("continuous", "discs", "elements")
 # Sites drawn as dots the size of the tendon (m), not MuJoCo's default 5 mm spheres.
 _SITE_SIZE = [0.0003, 0.0, 0.0]
@@ -227,10 +233,25 @@ def _disc_inertia(mass_kg: float, params: Params) -> np.ndarray:
     return np.array(_segment_inertia(mass_kg, d.thickness_m, d.outer_radius_m))
 
 
-def station_joints(params: Params, station: int = 1) -> tuple:
+def slide_stations(elements: int, stride: int) -> dict[int, int]:
+    """Stations that carry the shear and axial slides: ``{station: elements it lumps}``.
+
+    The stations are cut into blocks of ``stride`` (``sim.slide_stride``; the last may be
+    shorter) and each block's middle station takes the shear and axial compliance of the whole
+    block, by the midpoint rule as the hinges take their element's. Stride 1 gives every
+    station its own slides.
+    """
+    blocks = {}
+    for first in range(1, elements + 1, stride):
+        last = min(first + stride - 1, elements)
+        blocks[(first + last) // 2] = last - first + 1
+    return blocks
+
+
+def station_joints(params: Params, station: int = 1, *, elements: int | None = None) -> tuple:
     """The joints of backbone station ``station`` (1..N), from :data:`STATION_JOINTS`: the shear
-    slides if ``sim.shear_joints``, the axial slide if ``sim.axial_joints``, and the bend and
-    twist hinges.
+    slides if ``sim.shear_joints``, the axial slide if ``sim.axial_joints`` (both only where
+    :func:`slide_stations` puts slides), and the bend and twist hinges.
 
     Two hinges in a row, x by a then y by b, turn the body by exp(aX + bY + ½ab·Z + …): a twist
     ab/2 that no spring resists. In the same order at every station it would add up along a rod
@@ -239,7 +260,9 @@ def station_joints(params: Params, station: int = 1) -> tuple:
     falling as 1/N rather than 1/N²), so even stations bend about y first and the twists cancel
     pairwise.
     """
-    wanted = {"shear": params.sim.shear_joints, "axial": params.sim.axial_joints,
+    n = params.sim.elements if elements is None else int(elements)
+    slides = station in slide_stations(n, params.sim.slide_stride)
+    wanted = {"shear": params.sim.shear_joints and slides, "axial": params.sim.axial_joints and slides,
               "bend": True, "twist": True}
     joints = [j for j in STATION_JOINTS if wanted[j[3]]]
     if station % 2 == 0:
@@ -308,6 +331,7 @@ def _add_backbone(spec, clamp, params, layout) -> list:
         "shear": b.shear_stiffness_n / h, "axial": b.axial_stiffness_n / h,
         "bend": b.bending_stiffness_nm2 / h, "twist": b.torsional_stiffness_nm2 / h,
     }
+    lumped = slide_stations(n, sim.slide_stride)
     bodies = [clamp]
     parent = clamp
     for k in range(1, n + 1):
@@ -316,10 +340,10 @@ def _add_backbone(spec, clamp, params, layout) -> list:
         body = parent.add_body(name=f"b{k}", pos=[0, 0, h / 2 if k == 1 else h], mass=mass,
                                ipos=[0, 0, span / 2], inertia=_segment_inertia(mass, span, b.radius_m))
         body.explicitinertial = True
-        for suffix, kind, axis, strain in station_joints(params, k):
-            body.add_joint(name=f"b{k}_{suffix}", type=kind, axis=list(axis),
-                           stiffness=[stiffness[strain], 0, 0],
-                           damping=[sim.damping_time_s * stiffness[strain], 0, 0])
+        for suffix, kind, axis, strain in station_joints(params, k, elements=n):
+            k_joint = stiffness[strain] / (lumped[k] if kind == mujoco.mjtJoint.mjJNT_SLIDE else 1)
+            body.add_joint(name=f"b{k}_{suffix}", type=kind, axis=list(axis), stiffness=[k_joint, 0, 0],
+                           damping=[sim.damping_time_s * k_joint, 0, 0])
         body.add_geom(type=mujoco.mjtGeom.mjGEOM_CAPSULE, fromto=[0, 0, 0, 0, 0, span],
                       size=[b.radius_m, 0, 0], rgba=list(_RGBA_ROD), contype=0, conaffinity=0)
         bodies.append(body)
@@ -360,6 +384,7 @@ def tendon_stiffness_n_per_m(params: Params) -> float:
 
 def _add_tendons_and_spools(spec, clamp, stations, params, layout) -> None:
     motor = MotorConstants.from_rig(params.rig)
+    axial = slide_stations(layout.elements, params.sim.slide_stride)
     for i in range(params.tendons.count):
         x0, y0 = layout.tendon_xy_m[i, 0]
         clamp.add_site(name=f"hole{i}", pos=[x0, y0, 0], size=_SITE_SIZE)
@@ -391,7 +416,7 @@ def _add_tendons_and_spools(spec, clamp, stations, params, layout) -> None:
                 x, y = layout.tendon_xy_m[i, k]
                 tendon.wrap_joint(f"b{k}_bx", float(y))
                 tendon.wrap_joint(f"b{k}_by", float(-x))
-                if params.sim.axial_joints:
+                if params.sim.axial_joints and k in axial:
                     tendon.wrap_joint(f"b{k}_az", 1.0)
         else:
             tendon.wrap_site(f"spool{i}")

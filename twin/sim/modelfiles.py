@@ -11,8 +11,11 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import mujoco
+
 from twin.params import DEFAULT_PARAMS_PATH, Params, load_params
-from twin.sim.model import INEXTENSIBLE_COMPLIANCE_M_PER_N, SPOOL_DAMPING_N_S_PER_M, model_xml, station_joints
+from twin.sim.model import (INEXTENSIBLE_COMPLIANCE_M_PER_N, SPOOL_DAMPING_N_S_PER_M, STATION_JOINTS, model_xml,
+                            slide_stations)
 from twin.sim.motor import MotorConstants
 
 __all__ = ["MODELS_DIR", "readme_text", "write_model_files"]
@@ -26,6 +29,11 @@ def readme_text(params: Params) -> str:
     b, rig = params.backbone, params.rig
     motor = MotorConstants.from_rig(rig)
     h = b.length_m / params.sim.elements
+    lumped = slide_stations(params.sim.elements, params.sim.slide_stride)
+    kinds = [j[0] for j in STATION_JOINTS if j[1] == mujoco.mjtJoint.mjJNT_SLIDE
+             and (params.sim.shear_joints if j[3] == "shear" else params.sim.axial_joints)]
+    slides = (f"{', '.join(kinds)} at stations {', '.join(str(k) for k in lumped)} "
+              f"(each lumping {', '.join(str(c) for c in lumped.values())} elements)") if kinds else "no slides"
     lines = [
         "# models/",
         "",
@@ -58,10 +66,10 @@ def readme_text(params: Params) -> str:
         f"| shear stiffness GA | {b.shear_stiffness_n:.6g} N | G·π r² |",
         f"| axial stiffness | {b.axial_stiffness_n:.6g} N | backbone.axial_stiffness_n |",
         f"| joint stiffness bend / twist | {b.bending_stiffness_nm2 / h:.6g} / {b.torsional_stiffness_nm2 / h:.6g} N·m/rad | EI/h, K_t/h |",
-        f"| station joints | {', '.join(j[0] for j in station_joints(params))} | sim.shear_joints, sim.axial_joints; "
-        "even stations bend about y before x |",
-        f"| joint stiffness shear / axial | {b.shear_stiffness_n / h:.6g} / {b.axial_stiffness_n / h:.6g} N/m | GA/h, EA/h "
-        "(where the station has the slide) |",
+        f"| station joints | bx, by, tz at every station; {slides} | sim.shear_joints, sim.axial_joints, "
+        "sim.slide_stride; even stations bend about y before x |",
+        f"| slide stiffness shear / axial, per element lumped | {b.shear_stiffness_n / h:.6g} / "
+        f"{b.axial_stiffness_n / h:.6g} N/m | GA/h, EA/h, divided by the elements a slide lumps |",
         f"| joint damping | sim.damping_time_s × stiffness | stiffness-proportional |",
         f"| tendon stiffness | {1 / max(params.effects.tendon_compliance_m_per_n, INEXTENSIBLE_COMPLIANCE_M_PER_N):.6g} N/m | 1 / max(effects.tendon_compliance_m_per_n, {INEXTENSIBLE_COMPLIANCE_M_PER_N:g}) |",
         f"| motor constant K | {motor.torque_constant_nm_per_a:.6g} N·m/A | V / ω₀ at the gearbox output |",
