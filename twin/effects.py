@@ -38,7 +38,7 @@ class Effect:
 
 
 EFFECTS: dict[str, Effect] = {e.name: e for e in (
-    Effect("tendon_friction", ("effects.tendon_friction_coeff",),
+    Effect("tendon_friction", ("effects.tendon_friction_coeff", "effects.tendon_friction_direction"),
            "capstan friction at the disc holes: tension lost towards the tip while pulled, gained while released"),
     Effect("tendon_compliance", ("effects.tendon_compliance_m_per_n",),
            "tendon stretch per newton: encoder lengths differ from the path lengths"),
@@ -87,8 +87,10 @@ def tracked_point_m(params: Params, tip_position_m, tip_rotation) -> np.ndarray:
     return np.asarray(tip_position_m) + np.asarray(tip_rotation) @ np.asarray(params.effects.tracker_offset_m)
 
 
-def friction_direction(relative_lengths_m) -> np.ndarray:
+def friction_direction(relative_lengths_m, sense: float = 1.0) -> np.ndarray:
     """Sliding direction per tendon for a static state reached from the pretensioned straight pose:
-    +1 for a tendon that was pulled in (shortened) to get there, −1 for one paid out."""
+    +1 (tension lost towards the tip) for a tendon pulled in (shortened) to get there, −1 for one
+    paid out — times ``sense`` (``effects.tendon_friction_direction``), −1 when a length controller
+    settled by backing off past the presliding travel, which flips every tendon's last motion."""
     lengths = np.asarray(relative_lengths_m, dtype=float)
-    return np.where(lengths > 0, -1.0, 1.0)
+    return sense * np.where(lengths > 0, -1.0, 1.0)

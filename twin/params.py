@@ -185,6 +185,7 @@ class Effects:
     """Effects real rigs have; all zero = off. Shared vocabulary of twin.sim and twin.discrepancy."""
 
     tendon_friction_coeff: float = _f(_nonnegative)
+    tendon_friction_direction: float = _f(_choice(1.0, -1.0))
     tendon_compliance_m_per_n: float = _f(_nonnegative)
     tension_gain_error: tuple[float, ...] = _f()
     tension_offset_error_n: tuple[float, ...] = _f()

@@ -4,7 +4,8 @@ parameters, fitted with :func:`twin.fitting.fit_parameters`.
 What is fitted, and why no more than that:
 
 ==================  =========================================================================
-tendon_friction     μ (log; starts at 0.02 when off): one coefficient for all holes.
+tendon_friction     μ (log; starts at 0.02 when off): one coefficient for all holes, fitted for
+                    both sliding directions at rest (pulled / backed off), the better kept.
 tension_gain        g_1 … g_4: one relative gain error per load cell.
 tension_offset      o_1, o_2 with o_3 = o_4 held: an offset common to an antagonist pair adds
                     equal tension on opposite sides of the backbone and bends nothing, so only
@@ -51,12 +52,15 @@ class Candidate:
         parameters: the fitted scalars.
         start: ``label → value`` where the current value cannot start a fit (log of zero).
         applies: whether the dataset can show the effect at all (e.g. tip loads hung).
+        variants: discrete settings (``key → value``) to try, each fitted; the best training fit
+            is kept and the choice counts as one more parameter (friction's sliding direction).
     """
 
     effect: str
     parameters: tuple[FitParameter, ...]
     start: dict[str, float] = dataclasses.field(default_factory=dict)
     applies: Callable[[Dataset], bool] = lambda dataset: True
+    variants: tuple[dict, ...] = ()
 
     def __post_init__(self):
         keys = set(EFFECTS[self.effect].keys)
@@ -96,7 +100,8 @@ def candidate_library(params: Params) -> dict[str, Candidate]:
     n = params.tendons.count
     friction = FitParameter("effects.tendon_friction_coeff", log=True)
     return {c.effect: c for c in (
-        Candidate("tendon_friction", (friction,), start={friction.label: _FRICTION_START}),
+        Candidate("tendon_friction", (friction,), start={friction.label: _FRICTION_START},
+                  variants=({"effects.tendon_friction_direction": 1.0}, {"effects.tendon_friction_direction": -1.0})),
         Candidate("tension_gain", tuple(FitParameter("effects.tension_gain_error", i, scale=0.05) for i in range(n))),
         Candidate("tension_offset", tuple(FitParameter("effects.tension_offset_error_n", i, scale=0.05)
                                           for i in _antagonist_representatives(params.tendons.angles_deg))),

@@ -76,7 +76,8 @@ def synthetic_validation_dataset(folder: str | Path, nominal: Params, truth: Par
             # not move (cos(φ − α) = 0 up to rounding): they stay as the holder pulled them.
             lengths = np.round(tendon_length_changes_m(kappa, phi, nominal) / count_m) * count_m + 0.0
             sol = predictor.solve(tensions, tip_force_n=effects.tip_force_n(truth, mass), base_rotation=clamp,
-                                  friction_direction=effects.friction_direction(lengths), raise_on_failure=False)
+                                  friction_direction=effects.friction_direction(
+                                      lengths, truth.effects.tendon_friction_direction), raise_on_failure=False)
             if not sol.converged:
                 predictor.reset()
                 continue

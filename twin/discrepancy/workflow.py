@@ -167,7 +167,11 @@ def run_discrepancy(dataset: Dataset, params: Params | None = None, *, holdout_f
             # first has absorbed some of what a later one explains; refit them together before
             # the next round, or the leftover bias is named as yet another effect.
             parameters = [p for rnd in rounds if rnd.winner for p in rnd.winner.fit.parameters]
-            fit = fit_parameters(dataset, params, parameters, x0=[_value(fit.params, p) for p in parameters],
+            # Discrete choices a winner made (friction's sliding direction) stay as chosen.
+            carried = {key: fit.params.get(key) for effect in named for variant in library[effect].variants
+                       for key in variant}
+            start = params.replace(carried, source=source) if carried else params
+            fit = fit_parameters(dataset, start, parameters, x0=[_value(fit.params, p) for p in parameters],
                                  source=f"{source}: {', '.join(named)}", max_evaluations=max_evaluations, rows=train)
         current = fit.params
     errors_before, ok_before = row_errors(dataset, params, test)

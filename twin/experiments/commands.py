@@ -99,8 +99,10 @@ def _run_folder(args, name: str) -> Path:
 def run_validate(args: argparse.Namespace) -> int:
     from twin.experiments.analysis import analyse_validation
     from twin.experiments.dataset import read_dataset
+    from twin.device.errors import DeviceError
     from twin.experiments.protocols import ProtocolError, run_validation
     from twin.experiments.report import write_validation_report
+    from twin.sim.plant import SimulationError
 
     params = params_from_args(args)
     folder = _run_folder(args, "validate")
@@ -116,9 +118,9 @@ def run_validate(args: argparse.Namespace) -> int:
     try:
         calibration = _calibration(args, params, device)
         run_validation(device, folder / "dataset", params, grid=grid, calibration=calibration)
-    except ProtocolError as exc:
-        print(f"twin validate: stopped: {exc}. Every measurement so far is in {folder / 'dataset'}; "
-              f"continue with --resume {folder}", file=sys.stderr)
+    except (ProtocolError, DeviceError, SimulationError) as exc:
+        print(f"twin validate: stopped: {type(exc).__name__}: {exc}. Every measurement so far is in "
+              f"{folder / 'dataset'}; continue with --resume {folder}", file=sys.stderr)
         return 4
     finally:
         device.close()
@@ -142,7 +144,8 @@ def _picture(args, params, folder: Path) -> Path | None:
         return None
     try:
         from twin.rod.grid import pcc_tensions_n
-        from twin.sim import Plant, render_png
+        from twin.sim import Plant
+        from twin.sim.render import render_png
 
         plant = Plant(params, base_rotation=HORIZONTAL)
         plant.set_tensions(pcc_tensions_n(17.5, 30.0, params))

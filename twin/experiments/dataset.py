@@ -42,7 +42,7 @@ from typing import Any, Iterable, Mapping
 
 import numpy as np
 
-from twin.params import Params, _from_dict
+from twin.params import Params, _from_dict, load_params
 
 __all__ = [
     "FORMAT",
@@ -127,8 +127,18 @@ class Dataset:
 
     @property
     def params(self) -> Params:
-        """The parameter set recorded with the data (what the model believed at the time)."""
-        return _from_dict(self.metadata["params"], origin=f"{self.path or 'dataset'} metadata params")
+        """The parameter set recorded with the data (what the model believed at the time).
+
+        Keys added to the parameter set after the data was recorded take today's defaults,
+        marked as such in their source.
+        """
+        merged = load_params().to_dict()
+        for section, entries in merged.items():
+            for key, entry in entries.items():
+                entry["source"] = f"default (not recorded with the data): {entry['source']}"
+        for section, entries in self.metadata["params"].items():
+            merged.setdefault(section, {}).update(entries)
+        return _from_dict(merged, origin=f"{self.path or 'dataset'} metadata params")
 
     def subset(self, mask: np.ndarray) -> "Dataset":
         """The rows where ``mask`` is true (same metadata)."""

@@ -80,7 +80,7 @@ def predict_rows(params: Params, base_rotation, tensions_n, tip_mass_kg, lengths
             np.clip(effects.true_tensions_n(params, tensions_n[i]), 0.0, None),
             tip_force_n=effects.tip_force_n(params, tip_mass_kg[i]),
             base_rotation=rotation,
-            friction_direction=effects.friction_direction(lengths_m[i]),
+            friction_direction=effects.friction_direction(lengths_m[i], params.effects.tendon_friction_direction),
             raise_on_failure=False,
         )
         converged[i] = sol.converged

@@ -139,10 +139,12 @@ def pretension(device, tension_n: float, *, settle_s: float = 0.3) -> np.ndarray
     Returns the relative lengths (m) of the pretensioned straight endoscope: the zero of the PCC
     length setpoints.
     """
-    device.fixture.engage_holder()
+    # Equal dead weights first: they pull a bent endoscope (from the previous configuration) back
+    # to nearly straight, so the holder closes on a straight endoscope, not snaps a bent one.
     device.disable()
     gravity = PRETENSION_GRAVITY_M_S2
     device.fixture.hang_calibration_mass(tension_n / gravity * 1e3, range(4))
+    device.fixture.engage_holder()
     device.wait(settle_s)
     device.set_mode("lengths")
     device.enable()
