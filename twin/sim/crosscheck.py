@@ -39,7 +39,7 @@ THESIS_SHEAR_MODULUS_PA = 4.7586e4
 CAUSES = (
     ("N = 20 elements", {"sim.elements": 20}, False, 1e-6,
      "element count: the ends of the chain are straight half-elements and a tip load is lumped by "
-     "the midpoint rule, both errors falling as 1/N²; N = 20 runs at a third of the speed (20x instead of 60–70x real time)."),
+     "the midpoint rule, both errors falling as 1/N²; N = 20 runs at a third of the speed."),
     ("N = 20, slides at every station: the predictor's strains, finely", {"sim.elements": 20, "sim.slide_stride": 1},
      False, 1e-6,
      "what is left is mostly what the twin's linear continuous tendon leaves out: the tendons' "
@@ -70,7 +70,7 @@ CAUSES = (
      "−0.1% (p = 0.6) with them."),
     ("slides at every station instead of every fifth", {"sim.slide_stride": 1}, False, 1e-6,
      "lumping the small shear and axial compliance of five elements at their middle station."),
-    ("time step 1 ms", {"sim.timestep_s": 1e-3}, False, 1e-6,
+    ("time step 1 ms instead of 1.25 ms", {"sim.timestep_s": 1e-3}, False, 1e-6,
      "the discrete integrator's statics do not depend on the step."),
     ("settled to 1e-7 m instead of 1e-6 m", {}, False, 1e-7,
      "settling: what is left to move after two quiet 20 ms windows."),

@@ -27,7 +27,7 @@ Spacer discs sit at s = jL/D. Each tendon runs from a spool behind the clamp to 
 routed as ``sim.tendon_routing`` says (:data:`TENDON_SITES`): continuously, as the predictor
 routes it (a fixed tendon whose length is linear in the joint bends), or through a site per
 disc in straight chords, as the real line does. Either way it is pull-only: a dead-band
-spring, slack below its straight length (never pushing) and as stiff as the line above it
+spring, slack below its straight length less :data:`TAUT_STRETCH_M` (never pushing) and as stiff as the line above it
 (``effects.tendon_compliance_m_per_n``, or practically inextensible when that effect is off).
 Each spool is a slide joint along the clamp axis (position =
 tendon paid out) with three actuators in separate groups, one group enabled at a time by the
@@ -70,9 +70,19 @@ SPOOL_OFFSET_M = 0.05
 SPOOL_TRAVEL_M = 0.03
 # Mass of the spool carriage without motor (kg): light, so the ideal modes are fast to settle.
 SPOOL_CARRIAGE_MASS_KG = 1e-3
-# Compliance of an "inextensible" tendon (m/N): one encoder count (0.94 µm) per newton. The
-# discrete integrator treats the tendon spring implicitly, so any stiffness is stable.
-INEXTENSIBLE_COMPLIANCE_M_PER_N = 1e-6
+# Compliance of an "inextensible" tendon (m/N): five encoder counts (0.94 µm each) per newton.
+# The discrete integrator keeps any stiffness stable, but a dead-band spring is linearised where
+# the step starts, so a slack tendon going taut is springless for that step and engages with a
+# spike that grows with stiffness × step. A spool pulled in onto a line gone slack while coasting
+# (the device tests' start on the emulated board) peaked at 15–37 N with 1e-6 m/N, over the rig's
+# 6 N tension limit, and at 1–7 N with 5e-6 m/N (2–2.5 ms steps; a real line and rod would give
+# a few newtons at most), which still tripped the emulated board's limit now and then; hence the
+# 1.25 ms default step. Softer still, the twin's co-contraction study no longer settles.
+INEXTENSIBLE_COMPLIANCE_M_PER_N = 5e-6
+# How far into its spring a "just taut" tendon starts (m): 0.2 mN at the default stiffness. From
+# exactly the slack edge the rod sagging from straight engages the spring with the same spike
+# (1.2 N at 2.5 ms); from 1 nm in, the first step already sees the stiffness (0.13 N, as at 1 ms).
+TAUT_STRETCH_M = 1e-9
 # Viscous friction of a spool's bearings and gearbox at the tendon (N·s/m): an assumption, small
 # against the motor's 300 N·s/m of back-EMF damping, so that a free spool comes to rest.
 SPOOL_DAMPING_N_S_PER_M = 1.0
@@ -407,9 +417,10 @@ def _add_tendons_and_spools(spec, clamp, stations, params, layout) -> None:
         # depends on the masses around it and so jumps when the spool switches drive mode.
         tendon.stiffness = [tendon_stiffness_n_per_m(params), 0, 0]
         fixed = layout.routing == "continuous"
-        # The fixed tendon's length is its stretch beyond just taut (0 in the straight pose); the
-        # lower end of the dead band only has to lie below any slack a spool can pay out.
-        tendon.springlength = [-1.0, 0.0] if fixed else [0.0, float(layout.rest_length_m[i])]
+        # The fixed tendon's length is its stretch from the straight pose; the lower end of the
+        # dead band only has to lie below any slack a spool can pay out.
+        tendon.springlength = ([-1.0, -TAUT_STRETCH_M] if fixed
+                               else [0.0, float(layout.rest_length_m[i]) - TAUT_STRETCH_M])
         if fixed:
             tendon.wrap_joint(f"spool{i}", -1.0)
             for k in range(1, layout.elements + 1):

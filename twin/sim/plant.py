@@ -107,7 +107,7 @@ class Plant:
 
     # ----------------------------------------------------------------------------- state
     def reset(self, seed: int | None = None) -> None:
-        """Back to t = 0: straight, at rest, tendons just taut, no tip mass, holder released,
+        """Back to t = 0: straight, at rest, tendons just taut (0.2 mN), no tip mass, holder released,
         motors braked (``pwm`` with duty 0), sample counters at zero."""
         if seed is not None:
             self._seed = seed
