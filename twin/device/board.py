@@ -47,7 +47,10 @@ class EmulatedBoard:
         self.firmware = FirmwareLib()
         self._power_up_s = self.plant.time_s
         self._last_loadcell_index = -1
+        self._applied = None
         self._held_tensions_n: np.ndarray | None = None
+        # The motor outputs last given to the plant (see _apply); None forces the next.
+        self._applied: tuple[bytes, bytes] | None = None
 
     @property
     def time_s(self) -> float:
@@ -83,6 +86,7 @@ class EmulatedBoard:
         self.firmware = FirmwareLib()
         self._power_up_s = self.plant.time_s
         self._last_loadcell_index = -1
+        self._applied = None
 
     def hold_tensions(self, tensions_n) -> None:
         """Pull the tendons with ideal tension sources (N) instead of the motors, until
@@ -110,7 +114,15 @@ class EmulatedBoard:
 
     def _apply(self, duty: np.ndarray, drives: np.ndarray) -> None:
         if self._held_tensions_n is not None:
+            self._applied = None
             return
+        # The control loop runs at 100 Hz and the board ticks at 200 Hz: every other tick
+        # repeats the outputs, and the plant already has them (the plant's drive is changed only
+        # here, by hold_tensions, and by a reset that comes with power_cycle).
+        outputs = (duty.tobytes(), drives.tobytes())
+        if outputs == self._applied:
+            return
+        self._applied = outputs
         if np.all(drives == codec.Drive.COAST):
             self.plant.coast()
         else:
