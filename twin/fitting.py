@@ -102,6 +102,28 @@ def _current(params: Params, p: FitParameter) -> float:
     return float(value if p.index is None else value[p.index])
 
 
+def _covariance(jac: np.ndarray, sigma2: float) -> np.ndarray:
+    """sigma2 · (JᵀJ)⁻¹ on the directions the data determine; inf for the parameters they do not.
+
+    A parameter that moves no residual (its column of J numerically zero, or a combination of
+    columns that cancels) makes JᵀJ singular. Inverting it whole would give every parameter an
+    infinite or meaningless variance — a well-determined E would be dropped with an
+    undetermined G. The eigen-directions below 1e-12 of the largest are left out, and only the
+    parameters with weight in them are marked undetermined (variance inf, correlations NaN).
+    """
+    k = jac.shape[1]
+    if not np.all(np.isfinite(jac)):
+        return np.full((k, k), np.inf)
+    w, v = np.linalg.eigh(jac.T @ jac)
+    good = w > max(float(w.max()), 0.0) * 1e-12 if w.size else w.astype(bool)
+    cov = sigma2 * (v[:, good] / w[good]) @ v[:, good].T
+    loose = np.sum(v[:, ~good] ** 2, axis=1) > 1e-6
+    cov[loose, :] = np.nan
+    cov[:, loose] = np.nan
+    cov[loose, loose] = np.inf
+    return cov
+
+
 def fit_parameters(dataset: Dataset, params: Params, parameters: Sequence[FitParameter], *,
                    x0: Sequence[float] | None = None, source: str = "fitted", max_evaluations: int = 200,
                    rows: np.ndarray | None = None) -> ParameterFit:
@@ -161,15 +183,13 @@ def fit_parameters(dataset: Dataset, params: Params, parameters: Sequence[FitPar
     jac = result.jac
     dof = max(1, r.size - len(parameters))
     sigma2 = float(r @ r) / dof
-    try:
-        cov_z = sigma2 * np.linalg.inv(jac.T @ jac)
-    except np.linalg.LinAlgError:
-        cov_z = np.full((len(parameters), len(parameters)), np.inf)
+    cov_z = _covariance(jac, sigma2)
     # Delta method: d value / d z is value for log parameters, the scale otherwise.
     dvdz = np.array([v if p.log else s for p, v, s in zip(parameters, values, scales)])
-    cov = cov_z * np.outer(dvdz, dvdz)
-    std = np.sqrt(np.clip(np.diag(cov), 0, None))
-    with np.errstate(invalid="ignore", divide="ignore"):
+    # An undetermined log parameter may have run off to a huge value: its variance is inf anyway.
+    with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
+        cov = cov_z * np.outer(dvdz, dvdz)
+        std = np.sqrt(np.clip(np.diag(cov), 0, None))
         corr = cov / np.outer(std, std)
     err3 = r.reshape(-1, 3)
     return ParameterFit(
