@@ -5,7 +5,7 @@ import pytest
 
 from twin import load_params
 from twin.control.cocontraction import run_cocontraction_study
-from twin.control.compensation import compensate_tensions, hold_tensions
+from twin.control.compensation import compensate_tensions, correct_tensions, hold_tensions
 from twin.control.compensation_trial import run_compensation_trial
 from twin.control.tuning import DEFAULT_TENSION_GAINS, TUNED_TENSION_GAINS, tension_cost
 from twin.device import open_device
@@ -39,6 +39,33 @@ def test_an_unreachable_target_is_reported_not_hidden():
 def test_hold_tensions_without_a_load_keeps_tensions_already_within_bounds():
     plan = hold_tensions(MODEL, [2.0, 1.35, 1.2, 1.35], np.zeros(3), base_rotation=HORIZONTAL, floor_n=1.0)
     np.testing.assert_allclose(plan.tensions_n, [2.0, 1.35, 1.2, 1.35], atol=0.02)
+
+
+def test_a_correction_removes_a_load_error_the_feedforward_did_not_know():
+    # The "device" is the predictor itself with 10 % more tip load than the plan compensated.
+    unloaded = [2.0, 1.35, 1.0, 1.35]
+    bounds = dict(base_rotation=HORIZONTAL, floor_n=0.3, limit_n=5.0)
+    plan = hold_tensions(MODEL, unloaded, WEIGHT_10G, **bounds)
+
+    def miss(tensions):
+        return solve(MODEL, tensions, tip_force_n=1.1 * WEIGHT_10G, base_rotation=HORIZONTAL).tip_position_m - plan.target_m
+
+    first = correct_tensions(MODEL, plan, plan.target_m, miss(plan.tensions_n), tip_force_n=WEIGHT_10G, **bounds)
+    second = correct_tensions(MODEL, first, plan.target_m, miss(first.tensions_n), tip_force_n=WEIGHT_10G, **bounds)
+    before, after = np.linalg.norm(miss(plan.tensions_n)), np.linalg.norm(miss(first.tensions_n))
+    assert before > 5e-4 and after < 0.2 * before
+    assert np.linalg.norm(miss(second.tensions_n)) <= after + 1e-6
+    assert np.all(first.tensions_n >= 0.3) and np.all(first.tensions_n <= 5.0)
+
+
+def test_a_miss_the_predictor_expected_is_not_corrected():
+    # Out of reach within the bounds: the tracker seeing exactly the predicted miss is no model error.
+    goal = solve(MODEL, [0.0, 0.0, 3.0, 0.0], base_rotation=HORIZONTAL).tip_position_m
+    bounds = dict(base_rotation=HORIZONTAL, floor_n=0.5, limit_n=2.0)
+    plan = compensate_tensions(MODEL, goal, tip_force_n=WEIGHT_10G, **bounds)
+    assert not plan.reached
+    again = correct_tensions(MODEL, plan, goal, plan.predicted_tip_m - goal, tip_force_n=WEIGHT_10G, **bounds)
+    np.testing.assert_allclose(again.tensions_n, plan.tensions_n, atol=2e-3)
 
 
 @pytest.fixture(scope="module")

@@ -12,7 +12,7 @@ Example:
     True
 """
 
-from twin.control.compensation import Compensation, compensate_tensions, hold_tensions
+from twin.control.compensation import Compensation, compensate_tensions, correct_tensions, hold_tensions
 from twin.control.pretension import pretension_straight
 
-__all__ = ["Compensation", "compensate_tensions", "hold_tensions", "pretension_straight"]
+__all__ = ["Compensation", "compensate_tensions", "correct_tensions", "hold_tensions", "pretension_straight"]

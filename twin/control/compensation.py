@@ -15,6 +15,10 @@ stops being controlled) and the ceiling stays under the board's tension limit.
 :func:`hold_tensions` is the form the rig uses: the target is where the tip *is* (known by the
 tensions it was put there with), so a model error common to the loaded and unloaded shapes
 cancels and only the load's effect is compensated.
+
+:func:`correct_tensions` closes the loop once the tip can be measured: the tracker's miss at the
+applied tensions, against the predictor's own miss there, is the model's error; it is taken as
+locally constant and the predictor re-aimed by it (one bounded solve per correction).
 """
 
 from __future__ import annotations
@@ -26,7 +30,7 @@ from scipy.optimize import least_squares
 
 from twin.rod import RodModel, solve, tip_jacobian
 
-__all__ = ["Compensation", "compensate_tensions", "hold_tensions"]
+__all__ = ["Compensation", "compensate_tensions", "correct_tensions", "hold_tensions"]
 
 # Position residuals are scaled to mm so that they and the tension pull (per N) are of one size.
 _POSITION_SCALE_M = 1e-3
@@ -157,3 +161,51 @@ def hold_tensions(model: RodModel, unloaded_tensions_n, tip_force_n, *, tip_mome
     return compensate_tensions(model, target, tip_force_n=tip_force_n, tip_moment_nm=tip_moment_nm,
                                base_rotation=base_rotation, reference_tensions_n=np.clip(unloaded, floor_n, limit_n),
                                floor_n=floor_n, limit_n=limit_n, **options)
+
+
+def correct_tensions(model: RodModel, applied: Compensation, goal_m, measured_miss_m, *, tip_force_n=None,
+                     tip_moment_nm=None, base_rotation=None, floor_n: float = 0.3, limit_n: float = 5.0,
+                     regularisation: float = 1.0, **options) -> Compensation:
+    """One closed-loop correction: re-aim the predictor by the model error the tracker reveals.
+
+    With ``applied.tensions_n`` on the device and the load hung, the tracker puts the tip at
+    ``measured_miss_m`` from the measured target; the predictor put it at
+    ``applied.predicted_tip_m − goal_m``. Their difference ê is the model's error at these tensions
+    (plus what the device adds: tension tracking, sensor offsets). Taken as locally constant, the
+    tensions that bring the real tip to the target are those that bring the predicted one to
+    ``goal_m − ê``: the same bounded least squares as :func:`compensate_tensions`, started from and
+    pulled towards the applied tensions, so a correction changes only what the error asks for.
+    A miss the predictor already expected (a target out of reach within the bounds) gives ê = 0
+    and no change: nothing winds up against the bounds.
+
+    Args:
+        model: the predictor's rod.
+        applied: the :class:`Compensation` whose tensions are on the device (its ``predicted_tip_m``
+            is the predictor's loaded tip at them, world frame, m).
+        goal_m: (3,) the target in the predictor's frame (m): for :func:`hold_tensions`, its
+            ``target_m`` (the predictor's unloaded tip), not a re-aimed one.
+        measured_miss_m: (3,) measured loaded tip minus measured target, world frame (m), e.g.
+            tracker means over a second with the tip at rest.
+        tip_force_n, tip_moment_nm, base_rotation: the known load and the clamp orientation, as
+            for :func:`compensate_tensions`.
+        floor_n, limit_n: tension bounds (N).
+        regularisation: λ, weight of the change from the applied tensions (mm of tip error per N).
+            The tip Jacobian has two bending directions of ~20 mm/N and one of ~0.05 mm/N, all
+            four tendons pulling together (the tip moves along the backbone only by its axial
+            compression); 1 mm/N passes the first two whole and holds the third, so the noise of
+            a measured miss (~0.02 mm) cannot command newtons of co-contraction. The feed-forward's
+            0.03 lets the predictor use that direction, which it knows.
+        **options: passed to :func:`compensate_tensions` (``tolerance_m``).
+
+    Returns:
+        The corrected :class:`Compensation`; its ``target_m`` is the re-aimed point and its
+        ``residual_m`` the predictor's miss of it.
+    """
+    goal = np.asarray(goal_m, dtype=float)
+    miss = np.asarray(measured_miss_m, dtype=float)
+    if goal.shape != (3,) or miss.shape != (3,) or not np.all(np.isfinite(np.concatenate([goal, miss]))):
+        raise ValueError(f"goal_m = {goal_m!r}, measured_miss_m = {measured_miss_m!r}: expected 3 finite numbers each")
+    model_error = (goal + miss) - applied.predicted_tip_m
+    return compensate_tensions(model, goal - model_error, tip_force_n=tip_force_n, tip_moment_nm=tip_moment_nm,
+                               base_rotation=base_rotation, reference_tensions_n=applied.tensions_n,
+                               floor_n=floor_n, limit_n=limit_n, regularisation=regularisation, **options)
