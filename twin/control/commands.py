@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import time
 from pathlib import Path
 
 from twin.cliargs import add_param_args, params_from_args
@@ -13,11 +14,17 @@ __all__ = ["register"]
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("compensate", help="load compensation over the validation grid: PCC lengths vs "
-                                          "model-compensated tensions under 5 g and 10 g (Markdown report)")
+                                          "model-compensated tensions (feed-forward, then tracker-corrected) "
+                                          "under 5 g and 10 g (Markdown report)")
     p.add_argument("--device", default="sim://?seed=0", help="device URL (default the twin)")
     p.add_argument("--quick", action="store_true", help="6 configurations instead of the 60 bends of the grid")
     p.add_argument("--out", default="reports/compensation", help="report folder")
-    p.add_argument("--floor", type=float, default=1.0, help="lowest tendon tension of the compensation (N)")
+    p.add_argument("--floor", type=float, default=0.3, help="lowest tendon tension of the compensation (N)")
+    p.add_argument("--ceiling", type=float, default=None,
+                   help="highest tendon tension of the compensation (N); default what the tension loop can hold "
+                        "at its duty clamp, with headroom (5.12 N for the tuned gains)")
+    p.add_argument("--corrections", type=int, default=2,
+                   help="most closed-loop corrections from the tracker per mass (0: feed-forward only)")
     add_param_args(p)
     p.set_defaults(func=run_compensate)
 
@@ -41,10 +48,12 @@ def run_compensate(args: argparse.Namespace) -> int:
     from twin.device import open_device
 
     params = params_from_args(args)
+    start = time.perf_counter()
     with open_device(args.device, params=params) as device:
         trial = run_compensation_trial(device, params, configs=QUICK_CONFIGS if args.quick else None,
-                                       floor_n=args.floor, progress=print)
-    path = trial.write_report(Path(args.out))
+                                       floor_n=args.floor, limit_n=args.ceiling, corrections=args.corrections,
+                                       progress=print)
+    path = trial.write_report(Path(args.out), runtime_s=time.perf_counter() - start)
     print(json.dumps(trial.summary(), indent=1))
     print(f"report: {path}")
     return 0
