@@ -70,7 +70,7 @@ CAUSES = (
      "−0.1% (p = 0.6) with them."),
     ("slides at every station instead of every fifth", {"sim.slide_stride": 1}, False, 1e-6,
      "lumping the small shear and axial compliance of five elements at their middle station."),
-    ("time step 1 ms instead of 1.25 ms", {"sim.timestep_s": 1e-3}, False, 1e-6,
+    ("time step 1 ms instead of the default sim.timestep_s", {"sim.timestep_s": 1e-3}, False, 1e-6,
      "the discrete integrator's statics do not depend on the step."),
     ("settled to 1e-7 m instead of 1e-6 m", {}, False, 1e-7,
      "settling: what is left to move after two quiet 20 ms windows."),

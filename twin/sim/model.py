@@ -77,7 +77,8 @@ SPOOL_CARRIAGE_MASS_KG = 1e-3
 # (the device tests' start on the emulated board) peaked at 15–37 N with 1e-6 m/N, over the rig's
 # 6 N tension limit, and at 1–7 N with 5e-6 m/N (2–2.5 ms steps; a real line and rod would give
 # a few newtons at most), which still tripped the emulated board's limit now and then; hence the
-# 1.25 ms default step. Softer still, the twin's co-contraction study no longer settles.
+# plant takes up slack tendons in steps of 1.25 ms (twin.sim.plant.ENGAGE_MAX_STEP_S). Softer
+# still, the twin's co-contraction study no longer settles.
 INEXTENSIBLE_COMPLIANCE_M_PER_N = 5e-6
 # How far into its spring a "just taut" tendon starts (m): 0.2 mN at the default stiffness. From
 # exactly the slack edge the rod sagging from straight engages the spring with the same spike

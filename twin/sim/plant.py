@@ -40,6 +40,17 @@ MODES = ("pwm", "coast", "tension", "length")
 _ACTUATOR_BLOCK = {"pwm": 0, "tension": 1, "length": 2}
 
 
+# Taking up a slack tendon: the discrete integrator linearises the tendon's dead-band spring where
+# a step starts, so a tendon that goes from slack to taut within one step is springless for that
+# step and engages with a spike that grows with the step (twin/sim/model.py,
+# INEXTENSIBLE_COMPLIANCE_M_PER_N). With steps of 1.25 ms a spool pulling in a slack line stays
+# within the rig's 6 N tension limit; with 2.5 ms it tripped the emulated board now and then. So
+# while any tendon carries less than ENGAGE_MARGIN_N (or is slack) the plant takes each step as
+# shorter ones of at most ENGAGE_MAX_STEP_S; taut tendons run at the full sim.timestep_s.
+ENGAGE_MAX_STEP_S = 1.25e-3
+ENGAGE_MARGIN_N = 0.5
+
+
 class SimulationError(RuntimeError):
     """The simulation diverged or was asked something it cannot do; the message says which."""
 
@@ -102,6 +113,9 @@ class Plant:
         # FRICTION_MAX_STEP_S that explicit update chatters against the stiff tendon, so the
         # plant then takes each step as several shorter ones.
         self._substeps = math.ceil(self._dt / FRICTION_MAX_STEP_S - 1e-9) if self._friction is not None else 1
+        # A tendon near or past slack is taken up with steps of at most ENGAGE_MAX_STEP_S.
+        self._engage_substeps = max(self._substeps, math.ceil(self._dt / ENGAGE_MAX_STEP_S - 1e-9))
+        self._engage_stretch_m = ENGAGE_MARGIN_N / self._tendon_stiffness
         m.opt.timestep = self._dt / self._substeps
         self.reset(seed)
 
@@ -206,10 +220,15 @@ class Plant:
         while remaining > 0:
             chunk = min(remaining, self._steps_until(self._next_loadcell_s),
                         self._steps_until(self._next_tracker_s))
+            substeps = self._substeps
+            if self._engage_substeps > substeps and np.any(
+                    self.data.ten_length - self._slack_length_m < self._engage_stretch_m):
+                substeps = self._engage_substeps
+            self.model.opt.timestep = self._dt / substeps
             if self._friction is None:
-                mujoco.mj_step(self.model, self.data, chunk)
+                mujoco.mj_step(self.model, self.data, chunk * substeps)
             else:
-                for _ in range(chunk * self._substeps):
+                for _ in range(chunk * substeps):
                     self._friction.apply(self.model, self.data, self.true_tensions_n())
                     mujoco.mj_step(self.model, self.data)
             remaining -= chunk
