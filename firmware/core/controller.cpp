@@ -27,8 +27,14 @@ Controller::Controller()
     : gains_{kDefaultLengthGains, kDefaultLengthGains, kDefaultTensionGains} {}
 
 void Controller::set_mode(Mode mode, const Measurements& now, float tension_limit_n) {
+  float duty[kChannels];
+  for (size_t i = 0; i < kChannels; ++i) duty[i] = last_duty_[i];
   mode_ = mode;
   hold(now, tension_limit_n);
+  for (size_t i = 0; i < kChannels; ++i) {
+    pid_[i].reset(measured(now, i), duty[i]);
+    last_duty_[i] = duty[i];
+  }
 }
 
 void Controller::hold(const Measurements& now, float tension_limit_n) {
@@ -56,7 +62,10 @@ void Controller::hold(const Measurements& now, float tension_limit_n) {
 }
 
 void Controller::restart(const Measurements& now) {
-  for (size_t i = 0; i < kChannels; ++i) pid_[i].reset(measured(now, i));
+  for (size_t i = 0; i < kChannels; ++i) {
+    pid_[i].reset(measured(now, i));
+    last_duty_[i] = 0.0f;
+  }
 }
 
 void Controller::set_setpoints(const float values[kChannels]) {
@@ -70,6 +79,7 @@ void Controller::step(const Measurements& now, float dt_s, float duty[kChannels]
     // In tension mode the loop runs on −tension: paying out (positive duty) lowers tension.
     const float sign = mode_ == Mode::kTension ? -1.0f : 1.0f;
     duty[i] = pid_[i].step(g, sign * targets_[i], measured(now, i), dt_s);
+    last_duty_[i] = duty[i];
   }
 }
 

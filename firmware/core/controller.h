@@ -28,15 +28,17 @@ class Controller {
   const PidGains& gains(Mode mode) const { return gains_[static_cast<size_t>(mode)]; }
   void set_gains(Mode mode, const PidGains& gains) { gains_[static_cast<size_t>(mode)] = gains; }
 
-  // Switches mode and holds: see hold().
+  // Switches mode and holds (see hold()), with each PID's integral starting at the duty of the
+  // last step, so the motors keep pulling as they were instead of letting go: entering tension
+  // mode from a length-held bend under load no longer kicks the tip by millimetres.
   void set_mode(Mode mode, const Measurements& now, float tension_limit_n);
 
   // Bumpless start: setpoints := the current measurement (tensions clamped to
   // [0, tension_limit_n]), PIDs restart from it. The rig holds still until new setpoints arrive.
   void hold(const Measurements& now, float tension_limit_n);
 
-  // Restarts the PIDs from the current measurement, keeping the setpoints (motion resumes
-  // after a pause without a derivative kick).
+  // Restarts the PIDs from the current measurement and a stopped motor, keeping the setpoints
+  // (motion resumes after a pause without a derivative kick).
   void restart(const Measurements& now);
 
   // Setpoints in the active mode's units (validated by the caller); pairs use values[0..1].
@@ -58,6 +60,7 @@ class Controller {
   float setpoints_[kChannels] = {};
   float pair_centres_m_[kChannels / 2] = {};
   float targets_[kChannels] = {};
+  float last_duty_[kChannels] = {};  // duty of the last step; 0 after restart()
 };
 
 }  // namespace twinfw

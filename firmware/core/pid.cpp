@@ -6,8 +6,8 @@ namespace {
 float clamp(float x, float limit) { return x > limit ? limit : (x < -limit ? -limit : x); }
 }  // namespace
 
-void Pid::reset(float measurement) {
-  integral_ = 0.0f;
+void Pid::reset(float measurement, float output) {
+  integral_ = output;
   last_measurement_ = measurement;
 }
 

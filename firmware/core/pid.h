@@ -14,9 +14,10 @@ struct PidGains {
 
 class Pid {
  public:
-  // Bumpless start: the output was 0 (motor stopped), so the integral restarts at 0, and the
-  // derivative restarts from `measurement` instead of differencing against a stale value.
-  void reset(float measurement);
+  // Bumpless start: the integral restarts at `output`, the output the motor had (0 when it was
+  // stopped), so with zero error the first step gives it again; the derivative restarts from
+  // `measurement` instead of differencing against a stale value.
+  void reset(float measurement, float output = 0.0f);
 
   float step(const PidGains& gains, float setpoint, float measurement, float dt_s);
 

@@ -22,6 +22,31 @@ void hold_is_bumpless() {
   }
 }
 
+void mode_switch_keeps_the_motors_pulling() {
+  // Lengths held with the motors pulling (reeling in) against the tendon tension; switching to
+  // tension mode at the measured tension carries each motor's duty over instead of dropping it.
+  Controller c;
+  const Measurements now = at(-0.001f, 0.0f, 0.001f, 0.0f, 2.0f);
+  c.set_mode(Mode::kLengths, now, 6.0f);
+  const float sp[kChannels] = {-0.0012f, 0.0f, 0.0012f, 0.0f};
+  c.set_setpoints(sp);
+  float before[kChannels];
+  for (int k = 0; k < 50; ++k) c.step(now, kControlPeriodS, before);
+  CHECK(before[0] < -0.01f && before[2] > 0.01f);
+  c.set_mode(Mode::kTension, now, 6.0f);
+  float after[kChannels];
+  c.step(now, kControlPeriodS, after);
+  // The tension gains clamp at 0.2 duty; within that the duty is unchanged.
+  for (size_t i = 0; i < kChannels; ++i) {
+    const float expected = before[i] > 0.2f ? 0.2f : (before[i] < -0.2f ? -0.2f : before[i]);
+    CHECK_NEAR(after[i], expected, 1e-6);
+  }
+  // A restart (motion held, or enabling) starts from a stopped motor again.
+  c.restart(now);
+  c.step(now, kControlPeriodS, after);
+  for (float d : after) CHECK_NEAR(d, 0.0, 1e-6);
+}
+
 void antagonistic_pairs_couple() {
   Controller c;
   // Pair (1,3) centred at 1 mm, pair (2,4) at −0.5 mm when the mode is entered.
@@ -102,6 +127,7 @@ void closed_loops_on_the_bench() {
 
 void test_controller() {
   hold_is_bumpless();
+  mode_switch_keeps_the_motors_pulling();
   antagonistic_pairs_couple();
   tension_mode_sign();
   tension_hold_clamps_to_limit();
