@@ -92,14 +92,18 @@ def measure(device, *, duration_s: float = 0.25) -> Measurement:
 
 def settle(device, *, tension_tolerance_n: float = 0.01, tip_tolerance_m: float = 3e-4, window_s: float = 0.1,
            timeout_s: float = 4.0) -> float:
-    """Wait until the endoscope is at rest: successive ``window_s`` means of the tensions and of the
+    """Wait until the endoscope is at rest: the ``window_s`` means of the tensions and of the
     tracked tip change by less than the tolerances (set above the sensors' noise on window means:
-    load cells ~5 mN, tracker ~0.2 mm per sample).
+    load cells ~5 mN, tracker ~0.2 mm per sample) from each window to the next, twice in a row.
+
+    Once is not enough: in tension mode the loaded endoscope swings slowly (~1.7 Hz, damping
+    ratio ~0.1), and two windows around a turning point of the swing have nearly the same mean.
+    Three windows span half its period, so they cannot all sit at one.
 
     Returns the device time it took (s). Raises :class:`ProtocolError` after ``timeout_s``.
     """
     start = device.time_s
-    last = None
+    last, quiet = None, 0
     while device.time_s - start < timeout_s:
         end = device.time_s + window_s
         tensions, tips = [], []
@@ -114,7 +118,11 @@ def settle(device, *, tension_tolerance_n: float = 0.01, tip_tolerance_m: float 
         now = (np.mean(tensions, axis=0), np.mean(tips, axis=0) if tips else None)
         if last is not None and np.max(np.abs(now[0] - last[0])) < tension_tolerance_n and (
                 now[1] is None or last[1] is None or np.linalg.norm(now[1] - last[1]) < tip_tolerance_m):
-            return device.time_s - start
+            quiet += 1
+            if quiet == 2:
+                return device.time_s - start
+        else:
+            quiet = 0
         last = now
     raise ProtocolError(f"the endoscope did not come to rest within {timeout_s} s (tensions to "
                         f"{tension_tolerance_n} N, tip to {tip_tolerance_m * 1e3:.2f} mm)")
