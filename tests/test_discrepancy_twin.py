@@ -2,7 +2,9 @@
 
 The sweeps run through the device interface (the real firmware on the twin, load-cell and
 tracker noise on), with the effect hidden in the simulated rig only: the model recorded with the
-dataset knows nothing of it.
+dataset knows nothing of it. The twin differs from the predictor by its own discretisation
+(reports/crosscheck: 0.04 mm median), so the tolerances are a little wider than on the
+predictor-made data of tests/test_discrepancy.py, with the same values hidden.
 """
 
 import numpy as np
@@ -10,15 +12,26 @@ import pytest
 
 from twin import load_params
 from twin.device import open_device
-from twin.discrepancy import run_discrepancy
+from twin.discrepancy import find_discrepancy, run_discrepancy
 from twin.experiments.dataset import read_dataset
 from twin.experiments.protocols import nominal_calibration, run_validation
 from twin.pcc import validation_grid
 
 MODEL = load_params()
-# 48 configurations: 4 curvatures x 6 planes x (0, 10 g).
-SMALL_GRID = [g for g in validation_grid()
-              if g[1] in (0.0, 8.7, 17.5, 26.2) and g[2] in (0.0, 60.0, 120.0, 180.0, 240.0, 300.0) and g[3] != 0.005]
+# A sixth of the thesis grid (κ 0/13/26.2 1/m, every other plane, 0 and 10 g): 36 configurations.
+GRID = [g for g in validation_grid() if g[1] in (0.0, 13.0, 26.2) and g[2] % 60 == 0 and g[3] in (0.0, 0.01)]
+
+# effect → (hidden values in the twin, what the fit should find, tolerance).
+HIDDEN = {
+    "tension_gain": ({"effects.tension_gain_error": [0.08, -0.06, 0.05, -0.07]}, [0.08, -0.06, 0.05, -0.07], 0.015),
+    # Only the antagonist differences o1 − o3, o2 − o4 bend the endoscope (candidates.py).
+    "tension_offset": ({"effects.tension_offset_error_n": [0.08, -0.06, -0.05, 0.07]}, [0.13, -0.13], 0.02),
+    "weight": ({"backbone.mass_kg": 0.0078}, [0.0078], 0.0006),
+    "tip_load": ({"effects.tip_load_error_fraction": 0.15}, [0.15], 0.03),
+    "stiffness": ({"backbone.youngs_modulus_pa": 0.8 * 8.2414e6}, [0.8 * 8.2414e6], 0.04 * 8.2414e6),
+    "base_tilt": ({"effects.base_tilt_deg": [1.5, -1.0]}, [1.5, -1.0], 0.25),
+    "tracker_offset": ({"effects.tracker_offset_m": [0.0015, -0.001, 0.002]}, [0.0015, -0.001, 0.002], 4e-4),
+}
 
 
 def twin_sweep(folder, hidden, grid, seed=3):
@@ -31,24 +44,38 @@ def twin_sweep(folder, hidden, grid, seed=3):
 
 
 def test_no_hidden_effect_names_none(tmp_path):
-    result = run_discrepancy(twin_sweep(tmp_path, {}, SMALL_GRID))
-    assert result.effect == "none"
+    result = run_discrepancy(twin_sweep(tmp_path, {}, GRID))
+    assert result.effect == "none", [r.to_dict()["ranking"][:3] for r in result.rounds]
     assert result.rms_after_m == result.rms_before_m < 3e-4
 
 
-def test_hidden_load_cell_gains_are_named_and_recovered(tmp_path):
-    gains = [0.08, -0.06, 0.05, -0.07]
-    result = run_discrepancy(twin_sweep(tmp_path, {"effects.tension_gain_error": gains}, SMALL_GRID))
-    assert result.effect == "tension_gain"
-    fitted = [result.parameters()[f"effects.tension_gain_error[{i}]"]["value"] for i in range(4)]
-    assert np.allclose(fitted, gains, atol=0.01)
-    assert result.rms_after_m < 0.3 * result.rms_before_m
+@pytest.mark.parametrize("effect", sorted(HIDDEN))
+def test_a_hidden_effect_in_the_twin_is_named_and_the_gap_shrinks(tmp_path, effect):
+    hidden, truth, tol = HIDDEN[effect]
+    result = run_discrepancy(twin_sweep(tmp_path, hidden, GRID))
+    assert result.named[:1] == (effect,), [r.to_dict()["ranking"][:3] for r in result.rounds]
+    assert np.allclose(result.fit.values[:len(truth)], truth, atol=tol), (result.fit.values, truth)
+    assert result.rms_after_m < 0.5 * result.rms_before_m
+
+
+# A third of the grid (κ 0/8.7/17.5/26.2 1/m, every other plane, all three masses): on a sixth,
+# a stiffer backbone explains the twin's friction almost as well (scores −84 vs −80).
+FRICTION_GRID = [g for g in validation_grid() if g[1] in (0.0, 8.7, 17.5, 26.2) and g[2] % 60 == 0]
 
 
 @pytest.mark.slow
-def test_hidden_friction_on_the_full_grid_is_named(tmp_path):
-    result = run_discrepancy(twin_sweep(tmp_path, {"effects.tendon_friction_coeff": 0.15}, validation_grid()))
-    assert result.effect == "tendon_friction"
+def test_hidden_friction_is_named_and_its_y_signature_removed(tmp_path):
+    result = run_discrepancy(twin_sweep(tmp_path, {"effects.tendon_friction_coeff": 0.15}, FRICTION_GRID))
+    assert result.effect == "tendon_friction", [r.to_dict()["ranking"][:3] for r in result.rounds]
     mu = result.parameters()["effects.tendon_friction_coeff"]
     assert abs(mu["value"] - 0.15) < 0.02
     assert result.rms_after_m < 0.5 * result.rms_before_m
+    # The thesis's y pattern (Fig. 20): e_y an inverted sine over the bending plane, most of a
+    # millimetre, and gone once friction is added. Its z pattern (always positive) is not what the
+    # twin's friction gives: z errors of both signs, the largest negative (see the closing note of
+    # issue 7), so it is not asserted.
+    before = result.residuals.signature()
+    after = find_discrepancy(result.dataset, result.params_after).signature()
+    assert before["corr_y_minus_sin_phi"] > 0.5
+    assert before["y_sine_amplitude_m"] > 5e-4
+    assert abs(after["y_sine_amplitude_m"]) < 0.3 * before["y_sine_amplitude_m"]

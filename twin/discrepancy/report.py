@@ -145,10 +145,12 @@ def write_report(result: DiscrepancyResult, folder: str | Path) -> Path:
     lines += ["## Show", "", markdown_table([
         {"": "before", "heldout_rms_mm": result.rms_before_m * 1e3,
          "failed": int(np.count_nonzero(~result.converged_before)), "mean_e_z_mm": sig["before"]["mean_z_m"] * 1e3,
-         "corr(e_y, -sin phi)": sig["before"]["corr_y_minus_sin_phi"]},
+         "corr(e_y, -sin phi)": sig["before"]["corr_y_minus_sin_phi"],
+         "e_y_sine_amplitude_mm": sig["before"]["y_sine_amplitude_m"] * 1e3},
         {"": "after", "heldout_rms_mm": result.rms_after_m * 1e3,
          "failed": int(np.count_nonzero(~result.converged_after)), "mean_e_z_mm": sig["after"]["mean_z_m"] * 1e3,
-         "corr(e_y, -sin phi)": sig["after"]["corr_y_minus_sin_phi"]}]), ""]
+         "corr(e_y, -sin phi)": sig["after"]["corr_y_minus_sin_phi"],
+         "e_y_sine_amplitude_mm": sig["after"]["y_sine_amplitude_m"] * 1e3}]), ""]
     for name, path in paths.items():
         lines += [f"### {name.replace('_', ' ')}", "", f"![{name}]({path.relative_to(folder)})", ""]
     lines += ["### Held-out configurations", "", markdown_table(result.heldout_table()), ""]

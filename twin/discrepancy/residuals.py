@@ -105,15 +105,18 @@ def thesis_signature(errors_m: np.ndarray, phi_deg) -> dict:
     """The thesis §9.2 pattern in a set of residuals (rows, 3), base frame with gravity along −z.
 
     Returns:
-        ``mean_z_m`` and ``positive_z_fraction`` (thesis: z errors always positive) and
+        ``mean_z_m`` and ``positive_z_fraction`` (thesis: z errors always positive),
         ``corr_y_minus_sin_phi``, the correlation of e_y with −sin φ (thesis: "an inverted sine";
-        φ = 90° bends towards +y in this frame).
+        φ = 90° bends towards +y in this frame), and ``y_sine_amplitude_m``, the least-squares
+        amplitude a of e_y ≈ a·(−sin φ) (m): the size of that sine, which the correlation alone
+        does not show once the residuals are down to noise.
     """
     e = np.asarray(errors_m, dtype=float)
     s = -np.sin(np.radians(phi_deg))
     corr = float(np.corrcoef(e[:, 1], s)[0, 1]) if np.std(e[:, 1]) > 0 and np.std(s) > 0 else 0.0
+    amplitude = float(e[:, 1] @ s / (s @ s)) if s @ s > 0 else 0.0
     return {"mean_z_m": float(np.mean(e[:, 2])), "positive_z_fraction": float(np.mean(e[:, 2] > 0)),
-            "corr_y_minus_sin_phi": corr}
+            "corr_y_minus_sin_phi": corr, "y_sine_amplitude_m": amplitude}
 
 
 @dataclasses.dataclass(frozen=True)
