@@ -6,4 +6,5 @@ PY=${PYTHON:-python3.11}
 command -v "$PY" >/dev/null || PY=python3
 [ -x .venv/bin/python ] || "$PY" -m venv .venv
 .venv/bin/python -m pip install -q --disable-pip-version-check -e '.[test]'
-exec .venv/bin/python -m pytest -q "$@"
+# Two workers (pytest-xdist): the suite is bound by one core per twin or fit, and CI has two.
+exec .venv/bin/python -m pytest -q -n 2 "$@"
