@@ -22,7 +22,8 @@ def bench_predictor(params: Params | None = None, *, stream_samples: int = 400) 
 
     cold_s: a solve from no guess, over the thesis grid.
     warm_s: the next sample of a 40 Hz stream whose tensions and tip load change slowly
-        (a 0.5 Hz sweep), each solve warm-started from the previous one.
+        (a 0.5 Hz sweep), each solve warm-started from the previous one (its base moment and
+        shooting Jacobian, as :class:`twin.rod.Predictor` does).
     jacobian_s: a warm-started tip pose plus its 6 × (nt + 6) Jacobian.
     tip_error_m: the largest tip difference against 640 RK4 steps over the grid sample.
     """
@@ -54,11 +55,13 @@ def bench_predictor(params: Params | None = None, *, stream_samples: int = 400) 
         tensions = base + 0.5 * np.array([np.sin(np.pi * t), np.cos(np.pi * t), 0.0, 0.0]).clip(0) * 0.5
         force = GRAVITY_TIP_FORCE_N(0.005 * (1 + np.sin(0.2 * np.pi * t)), g)
         t0 = time.perf_counter()
-        sol = solve(model, tensions, tip_force_n=force, base_rotation=HORIZONTAL, guess_nm=guess)
+        sol = solve(model, tensions, tip_force_n=force, base_rotation=HORIZONTAL,
+                    guess_nm=None if guess is None else guess.base_moment_nm,
+                    guess_jacobian=None if guess is None else guess.shooting_jacobian)
         t1 = time.perf_counter()
         tip_jacobian(model, sol)
         t2 = time.perf_counter()
-        guess = sol.base_moment_nm
+        guess = sol
         if k > 0:
             warm.append(t1 - t0)
             jac.append(t2 - t0)

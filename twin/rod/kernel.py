@@ -351,9 +351,45 @@ def _norm3(x):
 
 
 @njit(cache=True)
+def _fd_jacobian(m0, res, jac, trial, p0, r0, nodes, intervals, kse, kbt, tendons, length, mu, tip_force,
+                 tip_moment, grav, line_mass, pm_s, pm_m, states, strains, fd_step_nm):
+    """∂res/∂m0 by forward differences (backward where a forward step fails) into ``jac``.
+
+    Returns (ok, integrations)."""
+    calls = 0
+    for j in range(3):
+        for i in range(3):
+            trial[i] = m0[i]
+        trial[j] += fd_step_nm
+        okj, rj = integrate(trial, p0, r0, nodes, intervals, kse, kbt, tendons, length, mu,
+                            tip_force, tip_moment, grav, line_mass, pm_s, pm_m, states, strains)
+        calls += 1
+        if not okj:
+            trial[j] -= 2.0 * fd_step_nm
+            okj, rj = integrate(trial, p0, r0, nodes, intervals, kse, kbt, tendons, length, mu,
+                                tip_force, tip_moment, grav, line_mass, pm_s, pm_m, states, strains)
+            calls += 1
+            if not okj:
+                return False, calls
+            for i in range(3):
+                jac[i, j] = (res[i] - rj[i]) / fd_step_nm
+        else:
+            for i in range(3):
+                jac[i, j] = (rj[i] - res[i]) / fd_step_nm
+    return True, calls
+
+
+@njit(cache=True)
 def shoot(m0, p0, r0, nodes, intervals, kse, kbt, tendons, length, mu, tip_force, tip_moment, grav,
-          line_mass, pm_s, pm_m, states, strains, tol_nm, max_iter, fd_step_nm):
+          line_mass, pm_s, pm_m, states, strains, tol_nm, max_iter, fd_step_nm, jac, have_jac):
     """Newton shooting on the base moment m0 (updated in place) with a backtracking line search.
+
+    ``jac`` (3, 3) is ∂res/∂m0, in and out. With ``have_jac`` the solve starts from it (a
+    neighbouring solve's, e.g. the previous sample of a stream) and keeps it current by Broyden
+    updates, one integration per iteration; a step it does not make good (no decrease at the full
+    step, or less than halving the residual) recomputes it by finite differences, 3 integrations,
+    as every iteration does without it. On return it holds the latest ∂res/∂m0 (Broyden-updated:
+    good for a warm start, not for sensitivities).
 
     Returns:
         (status, residual norm N·m, Newton iterations, integrations). status: 0 converged,
@@ -365,54 +401,64 @@ def shoot(m0, p0, r0, nodes, intervals, kse, kbt, tendons, length, mu, tip_force
     if not ok:
         return 2, np.inf, 0, calls
     norm = _norm3(res)
-    jac = np.empty((3, 3))
     trial = np.empty(3)
+    fresh = False
     for it in range(max_iter):
         if norm <= tol_nm:
             return 0, norm, it, calls
-        for j in range(3):
-            for i in range(3):
-                trial[i] = m0[i]
-            trial[j] += fd_step_nm
-            okj, rj = integrate(trial, p0, r0, nodes, intervals, kse, kbt, tendons, length, mu,
-                                tip_force, tip_moment, grav, line_mass, pm_s, pm_m, states, strains)
-            calls += 1
+        if not have_jac:
+            okj, c = _fd_jacobian(m0, res, jac, trial, p0, r0, nodes, intervals, kse, kbt, tendons, length,
+                                  mu, tip_force, tip_moment, grav, line_mass, pm_s, pm_m, states, strains,
+                                  fd_step_nm)
+            calls += c
             if not okj:
-                trial[j] -= 2.0 * fd_step_nm
-                okj, rj = integrate(trial, p0, r0, nodes, intervals, kse, kbt, tendons, length, mu,
-                                    tip_force, tip_moment, grav, line_mass, pm_s, pm_m, states, strains)
-                calls += 1
-                if not okj:
-                    return 3, norm, it, calls
-                for i in range(3):
-                    jac[i, j] = (res[i] - rj[i]) / fd_step_nm
-            else:
-                for i in range(3):
-                    jac[i, j] = (rj[i] - res[i]) / fd_step_nm
+                return 3, norm, it, calls
+            have_jac, fresh = True, True
         step = np.linalg.solve(jac, -res)
         alpha = 1.0
         accepted = False
-        for _ in range(12):
+        new_norm = norm
+        for _ in range(12 if fresh else 1):
             for i in range(3):
                 trial[i] = m0[i] + alpha * step[i]
             okt, rt = integrate(trial, p0, r0, nodes, intervals, kse, kbt, tendons, length, mu,
                                 tip_force, tip_moment, grav, line_mass, pm_s, pm_m, states, strains)
             calls += 1
             if okt:
-                nt_ = _norm3(rt)
-                if nt_ < (1.0 - 1e-4 * alpha) * norm or nt_ <= tol_nm:
-                    for i in range(3):
-                        m0[i] = trial[i]
-                        res[i] = rt[i]
-                    norm = nt_
+                new_norm = _norm3(rt)
+                if new_norm < (1.0 - 1e-4 * alpha) * norm or new_norm <= tol_nm:
                     accepted = True
                     break
             alpha *= 0.5
-        if not accepted:
+        if accepted:
+            # Broyden's update along the step taken: jac += (Δres − jac·Δm) Δmᵀ / |Δm|².
+            dm2 = 0.0
+            for i in range(3):
+                dm2 += (alpha * step[i]) ** 2
+            if dm2 > 0.0:
+                for i in range(3):
+                    pred = 0.0
+                    for j in range(3):
+                        pred += jac[i, j] * alpha * step[j]
+                    corr = (rt[i] - res[i] - pred) / dm2
+                    for j in range(3):
+                        jac[i, j] += corr * alpha * step[j]
+            for i in range(3):
+                m0[i] = trial[i]
+                res[i] = rt[i]
+            slow = new_norm > 0.5 * norm
+            norm = new_norm
+            if slow and not fresh:
+                have_jac = False  # the carried Jacobian is stale: take a fresh one next
+            fresh = False
+        elif fresh:
             # Leave states consistent with m0 for the caller.
             integrate(m0, p0, r0, nodes, intervals, kse, kbt, tendons, length, mu, tip_force,
                       tip_moment, grav, line_mass, pm_s, pm_m, states, strains)
             return 3, norm, it + 1, calls + 1
+        else:
+            have_jac = False
     if norm <= tol_nm:
+        # The last accepted trial left states at m0.
         return 0, norm, max_iter, calls
     return 1, norm, max_iter, calls

@@ -103,6 +103,10 @@ class RodSolution:
         base_moment_nm: the solved m(0), reusable as a warm start.
         converged, status, residual_nm, iterations, integrations, continuation_steps, solve_time_s.
         load: the :class:`LoadCase` that was solved.
+        shooting_jacobian: (3, 3) ∂(tip moment residual)/∂m(0) (1) as the solve left it (finite
+            differences kept current by Broyden updates), reusable with the warm start
+            (``solve(..., guess_jacobian=...)``); None when the solve failed. Too rough for
+            sensitivities: :func:`twin.rod.tip_jacobian` computes its own.
     """
 
     s_m: np.ndarray
@@ -122,6 +126,7 @@ class RodSolution:
     continuation_steps: int
     solve_time_s: float
     load: LoadCase
+    shooting_jacobian: np.ndarray | None = None
 
     @property
     def tip_position_m(self) -> np.ndarray:
@@ -159,10 +164,15 @@ def kernel_args(model: RodModel, load: LoadCase, states, strains) -> tuple:
             a["grav"], model.line_mass_kg_per_m, a["pm_s"], a["pm_m"], states, strains)
 
 
-def _run(model: RodModel, load: LoadCase, m0: np.ndarray, states, strains):
+def _run(model: RodModel, load: LoadCase, m0: np.ndarray, states, strains, jac: np.ndarray | None = None):
+    """Shoot from m0 (updated in place); ``jac``, if given, is the ∂res/∂m0 to start from.
+
+    Returns (status code, residual N·m, iterations, integrations, the final ∂res/∂m0)."""
     tol = model.tolerance * model.moment_scale_nm
-    return kernel.shoot(m0, *kernel_args(model, load, states, strains), tol, model.max_iterations,
-                        1e-7 * model.moment_scale_nm)
+    out = np.array(jac, dtype=float) if jac is not None else np.zeros((3, 3))
+    code, res, iters, calls = kernel.shoot(m0, *kernel_args(model, load, states, strains), tol, model.max_iterations,
+                                           1e-7 * model.moment_scale_nm, out, jac is not None)
+    return code, res, iters, calls, out
 
 
 def _initial_guess(model: RodModel, load: LoadCase) -> np.ndarray:
@@ -183,8 +193,8 @@ def _initial_guess(model: RodModel, load: LoadCase) -> np.ndarray:
 
 
 def solve(model: RodModel, tensions_n, *, tip_force_n=None, tip_moment_nm=None, base_rotation=None,
-          base_position_m=None, friction_direction=None, guess_nm=None, continuation: bool = True,
-          raise_on_failure: bool = True) -> RodSolution:
+          base_position_m=None, friction_direction=None, guess_nm=None, guess_jacobian=None,
+          continuation: bool = True, raise_on_failure: bool = True) -> RodSolution:
     """Solve the static shape of the rod under tendon tensions, gravity and tip loads.
 
     Args:
@@ -195,6 +205,9 @@ def solve(model: RodModel, tensions_n, *, tip_force_n=None, tip_moment_nm=None, 
         base_position_m: base position (m), world frame.
         friction_direction: per tendon +1 pulled / −1 released (only with friction).
         guess_nm: base moment m(0) to start from (warm start), e.g. a previous ``base_moment_nm``.
+        guess_jacobian: with ``guess_nm``, that solution's ``shooting_jacobian``: Newton then
+            starts with Broyden updates of it (one integration per iteration) instead of finite
+            differences (four); a stale one is replaced on its own.
         continuation: if the direct solve fails, step the loads up from a solved smaller case.
         raise_on_failure: raise :class:`ConvergenceError` (default) instead of returning a
             ``converged=False`` report.
@@ -209,24 +222,29 @@ def solve(model: RodModel, tensions_n, *, tip_force_n=None, tip_moment_nm=None, 
     load = LoadCase.make(model, tensions_n, tip_force_n=tip_force_n, tip_moment_nm=tip_moment_nm,
                          base_rotation=base_rotation, base_position_m=base_position_m,
                          friction_direction=friction_direction)
-    return _solve_load(model, load, guess_nm, continuation, raise_on_failure)
+    if guess_jacobian is not None:
+        guess_jacobian = np.asarray(guess_jacobian, dtype=float)
+        if guess_nm is None or guess_jacobian.shape != (3, 3) or not np.all(np.isfinite(guess_jacobian)):
+            raise ValueError(f"guess_jacobian = {np.asarray(guess_jacobian).tolist()!r}: expected the 3x3 "
+                             "shooting_jacobian of a converged solution, with its guess_nm")
+    return _solve_load(model, load, guess_nm, continuation, raise_on_failure, guess_jacobian)
 
 
-def _solve_load(model, load, guess_nm, continuation, raise_on_failure) -> RodSolution:
+def _solve_load(model, load, guess_nm, continuation, raise_on_failure, guess_jacobian=None) -> RodSolution:
     start = time.perf_counter()
     k = model.stations
     nt = model.tendon_count
     states = np.empty((k, 15 + 2 * nt))
     strains = np.empty((k, 6))
     m0 = (_initial_guess(model, load) if guess_nm is None else np.array(guess_nm, dtype=float)).copy()
-    code, res, iters, calls = _run(model, load, m0, states, strains)
+    code, res, iters, calls, jac = _run(model, load, m0, states, strains, guess_jacobian)
     steps_taken = 0
     if code != 0 and guess_nm is not None:
         m0 = _initial_guess(model, load)
-        code, res, it2, c2 = _run(model, load, m0, states, strains)
+        code, res, it2, c2, jac = _run(model, load, m0, states, strains)
         iters, calls = iters + it2, calls + c2
     if code != 0 and continuation:
-        code, res, it2, c2, steps_taken, m0 = _continuation(model, load, states, strains)
+        code, res, it2, c2, steps_taken, m0, jac = _continuation(model, load, states, strains)
         iters, calls = iters + it2, calls + c2
     elapsed = time.perf_counter() - start
     status = _STATUS[code]
@@ -241,7 +259,7 @@ def _solve_load(model, load, guess_nm, continuation, raise_on_failure) -> RodSol
         states[:] = np.nan
         strains[:] = np.nan
     return _package(model, load, states, strains, m0, code == 0, status, float(res), iters, calls,
-                    steps_taken, elapsed)
+                    steps_taken, elapsed, jac if code == 0 else None)
 
 
 def _continuation(model, load, states, strains):
@@ -249,14 +267,14 @@ def _continuation(model, load, states, strains):
     lam, step = 0.0, 0.25
     m0 = _initial_guess(model, load.scaled(0.0))
     iters = calls = steps = 0
-    code, res, it, c = _run(model, load.scaled(0.0), m0, states, strains)
+    code, res, it, c, jac = _run(model, load.scaled(0.0), m0, states, strains)
     iters, calls = iters + it, calls + c
     if code != 0:
-        return code, res, iters, calls, steps, m0
+        return code, res, iters, calls, steps, m0, jac
     while lam < 1.0:
         target = min(1.0, lam + step)
         trial = m0.copy()
-        code, res, it, c = _run(model, load.scaled(target), trial, states, strains)
+        code, res, it, c, jac = _run(model, load.scaled(target), trial, states, strains)
         iters, calls, steps = iters + it, calls + c, steps + 1
         if code == 0:
             lam, m0 = target, trial
@@ -264,11 +282,11 @@ def _continuation(model, load, states, strains):
         else:
             step *= 0.5
             if step < 1e-3:
-                return code, res, iters, calls, steps, m0
-    return 0, res, iters, calls, steps, m0
+                return code, res, iters, calls, steps, m0, jac
+    return 0, res, iters, calls, steps, m0, jac
 
 
-def _package(model, load, states, strains, m0, converged, status, res, iters, calls, steps, elapsed):
+def _package(model, load, states, strains, m0, converged, status, res, iters, calls, steps, elapsed, jac=None):
     a = model.arrays
     nt = model.tendon_count
     k = states.shape[0]
@@ -299,6 +317,7 @@ def _package(model, load, states, strains, m0, converged, status, res, iters, ca
         continuation_steps=steps,
         solve_time_s=elapsed,
         load=load,
+        shooting_jacobian=jac,
     )
 
 
@@ -311,13 +330,15 @@ class Predictor:
 
     def __init__(self, model: RodModel):
         self.model = model
-        self._guess: np.ndarray | None = None
+        self._guess: RodSolution | None = None
 
     def reset(self) -> None:
         self._guess = None
 
     def solve(self, tensions_n, **kwargs) -> RodSolution:
-        sol = solve(self.model, tensions_n, guess_nm=self._guess, **kwargs)
+        last = self._guess
+        sol = solve(self.model, tensions_n, guess_nm=None if last is None else last.base_moment_nm,
+                    guess_jacobian=None if last is None else last.shooting_jacobian, **kwargs)
         if sol.converged:
-            self._guess = sol.base_moment_nm
+            self._guess = sol
         return sol
