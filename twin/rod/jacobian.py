@@ -86,9 +86,22 @@ def tip_jacobian(model: RodModel, solution: RodSolution) -> TipJacobian:
     r_ref = solution.tip_rotation
     scale = model.moment_scale_nm
 
-    def run(m0_, tensions=load.tensions_n, force=load.tip_force_n):
-        trial = dataclasses.replace(load, tensions_n=tensions, tip_force_n=force)
-        ok, res = kernel.integrate(np.array(m0_, dtype=float), *kernel_args(model, trial, states, strains))
+    # The kernel's arguments are built once; each perturbation is made in place and undone.
+    args = list(kernel_args(model, load, states, strains))
+    tendons = args[6]  # a copy of the model's tendon table with this load's tensions
+    force = args[9] = load.tip_force_n.copy()
+    column = kernel.T_TAU
+
+    def run(m0_, tendon: int | None = None, force_axis: int | None = None, h: float = 0.0):
+        if tendon is not None:
+            tendons[tendon, column] += h
+        if force_axis is not None:
+            force[force_axis] += h
+        ok, res = kernel.integrate(np.array(m0_, dtype=float), *args)
+        if tendon is not None:
+            tendons[tendon, column] = load.tensions_n[tendon]
+        if force_axis is not None:
+            force[force_axis] = load.tip_force_n[force_axis]
         if not ok:
             raise ValueError("tip_jacobian: a perturbed integration failed; the solution is on a singular branch")
         dpose = np.concatenate([states[-1, 0:3] - p_ref,
@@ -119,14 +132,12 @@ def tip_jacobian(model: RodModel, solution: RodSolution) -> TipJacobian:
     h_tau = 1e-6 * max(1.0, float(np.max(load.tensions_n)))
     h_f = 1e-6 * max(0.1, float(np.max(np.abs(load.tip_force_n))))
     for j in range(nt + 3):
-        tensions, force = load.tensions_n.copy(), load.tip_force_n.copy()
         if j < nt:
             h = h_tau
-            tensions[j] += h
+            res, dpose = run(m0, tendon=j, h=h)
         else:
             h = h_f
-            force[j - nt] += h
-        res, dpose = run(m0, tensions, force)
+            res, dpose = run(m0, force_axis=j - nt, h=h)
         dr_dth[:, j] = (res - res_0) / h
         dt_dth[:, j] = (dpose - pose_0) / h
     dm0 = -np.linalg.solve(dr_dm, dr_dth)
