@@ -32,7 +32,7 @@ from envs.randomization import TipLoads
 from twin.control.compensation import compensate_tensions
 from twin.params import Params, load_params
 from twin.pose import HORIZONTAL
-from twin.rod import RodModel, solve, tip_jacobian
+from twin.rod import Predictor, RodModel, tip_jacobian
 from twin.rod.grid import GRAVITY_TIP_FORCE_N
 
 __all__ = ["DEFAULT_TENSION_GAINS", "TUNED_TENSION_GAINS", "TipTracker", "TuningResult", "tension_cost",
@@ -137,7 +137,7 @@ class TipTracker:
         self.gravity_m_s2 = params.environment.gravity_m_s2
         self.gain, self.damping, self.floor_n, self.limit_n = gain, damping, floor_n, limit_n
         self.tensions_n = np.zeros(self.model.tendon_count)
-        self._guess = None
+        self._predictor = Predictor(self.model)
 
     def reset(self, target_m, tip_mass_kg: float) -> np.ndarray:
         """Feedforward tensions (N) for ``target_m`` under ``tip_mass_kg``."""
@@ -146,15 +146,13 @@ class TipTracker:
                                    floor_n=self.floor_n, limit_n=self.limit_n)
         self.target_m, self.force_n = np.asarray(target_m, dtype=float), force
         self.tensions_n = plan.tensions_n
-        self._guess = None
+        self._predictor.reset()
         return self.tensions_n.copy()
 
     def update(self, tip_m) -> np.ndarray:
         """Next tensions (N) from the measured tip position (m)."""
         if self.gain > 0:
-            sol = solve(self.model, self.tensions_n, tip_force_n=self.force_n, base_rotation=HORIZONTAL,
-                        guess_nm=self._guess)
-            self._guess = sol.base_moment_nm
+            sol = self._predictor.solve(self.tensions_n, tip_force_n=self.force_n, base_rotation=HORIZONTAL)
             j = tip_jacobian(self.model, sol).position_wrt_tension
             step = j.T @ np.linalg.solve(j @ j.T + self.damping ** 2 * np.eye(3), self.target_m - np.asarray(tip_m))
             self.tensions_n = np.clip(self.tensions_n + self.gain * step, self.floor_n, self.limit_n)
