@@ -47,7 +47,6 @@ class EmulatedBoard:
         self.firmware = FirmwareLib()
         self._power_up_s = self.plant.time_s
         self._last_loadcell_index = -1
-        self._applied = None
         self._held_tensions_n: np.ndarray | None = None
         # The motor outputs last given to the plant (see _apply); None forces the next.
         self._applied: tuple[bytes, bytes] | None = None

@@ -12,7 +12,7 @@ from twin.pose import HORIZONTAL
 from twin.rod.grid import GRAVITY_TIP_FORCE_N, pcc_tensions_n
 from twin.rod.jacobian import tip_jacobian
 from twin.rod.model import RodModel
-from twin.rod.solver import solve
+from twin.rod.solver import Predictor, solve
 
 __all__ = ["bench_predictor"]
 
@@ -22,8 +22,8 @@ def bench_predictor(params: Params | None = None, *, stream_samples: int = 400) 
 
     cold_s: a solve from no guess, over the thesis grid.
     warm_s: the next sample of a 40 Hz stream whose tensions and tip load change slowly
-        (a 0.5 Hz sweep), each solve warm-started from the previous one (its base moment and
-        shooting Jacobian, as :class:`twin.rod.Predictor` does).
+        (a 0.5 Hz sweep), each solve warm-started from the previous one by
+        :class:`twin.rod.Predictor` (its base moment and shooting Jacobian).
     jacobian_s: a warm-started tip pose plus its 6 × (nt + 6) Jacobian.
     tip_error_m: the largest tip difference against 640 RK4 steps over the grid sample.
     """
@@ -48,20 +48,17 @@ def bench_predictor(params: Params | None = None, *, stream_samples: int = 400) 
         error = max(error, float(np.linalg.norm(a - b)))
 
     warm, jac = [], []
-    guess = None
+    predictor = Predictor(model)
     base = pcc_tensions_n(13.0, 0.0, params)
     for k in range(stream_samples):
         t = k / 40.0
         tensions = base + 0.5 * np.array([np.sin(np.pi * t), np.cos(np.pi * t), 0.0, 0.0]).clip(0) * 0.5
         force = GRAVITY_TIP_FORCE_N(0.005 * (1 + np.sin(0.2 * np.pi * t)), g)
         t0 = time.perf_counter()
-        sol = solve(model, tensions, tip_force_n=force, base_rotation=HORIZONTAL,
-                    guess_nm=None if guess is None else guess.base_moment_nm,
-                    guess_jacobian=None if guess is None else guess.shooting_jacobian)
+        sol = predictor.solve(tensions, tip_force_n=force, base_rotation=HORIZONTAL)
         t1 = time.perf_counter()
         tip_jacobian(model, sol)
         t2 = time.perf_counter()
-        guess = sol
         if k > 0:
             warm.append(t1 - t0)
             jac.append(t2 - t0)

@@ -41,22 +41,14 @@ def bench_sim(params: Params | None = None, *, duration_s: float = 2.0, elements
     duty = np.zeros(plant.tendon_count)
     duty[0] = -0.02
     plant.set_motor_pwm(duty)
-    best = 0.0
-    for _ in range(3):
-        start = time.perf_counter()
-        plant.step(duration_s)
-        best = max(best, duration_s / (time.perf_counter() - start))
+    best = _best_realtime_factor(plant, duration_s)
     plant.reset()
     tensions = np.full(plant.tendon_count, params.tendons.pretension_n)
     tensions[0] += 1.0
     plant.set_tensions(tensions)
     settle = plant.settle()
     # The same bend held by tension sources: every tendon taut, so every step is a full one.
-    taut = 0.0
-    for _ in range(3):
-        start = time.perf_counter()
-        plant.step(duration_s)
-        taut = max(taut, duration_s / (time.perf_counter() - start))
+    taut = _best_realtime_factor(plant, duration_s)
     return {
         "steps_per_s": best / plant.timestep_s,
         "realtime_factor": best,
@@ -68,3 +60,13 @@ def bench_sim(params: Params | None = None, *, duration_s: float = 2.0, elements
         "settle_sim_s": settle.sim_time_s,
         "settled": settle.settled,
     }
+
+
+def _best_realtime_factor(plant: Plant, duration_s: float, runs: int = 3) -> float:
+    """Simulated s per wall s of ``plant.step(duration_s)``, the best of ``runs``."""
+    best = 0.0
+    for _ in range(runs):
+        start = time.perf_counter()
+        plant.step(duration_s)
+        best = max(best, duration_s / (time.perf_counter() - start))
+    return best
