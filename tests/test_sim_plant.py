@@ -90,6 +90,40 @@ def test_pwm_pays_out_for_positive_duty_and_pulls_for_negative():
     assert plant.true_tensions_n()[0] > 1.35
 
 
+def test_a_slack_tendon_is_taken_up_in_short_steps_and_one_resting_slack_is_not():
+    """Engaging a slack line in one full step spikes its tension (the spring is linearised where
+    the step starts); the plant takes short steps only while a tendon could close that fast."""
+    params = load_params(overrides=FAST)
+    duty = -0.035
+    plant = Plant(params)
+    plant.set_tensions(np.full(4, params.tendons.pretension_n))
+    plant.settle()
+    plant.set_tendon_lengths([0.001, 0.0, 0.0, 0.0])  # tendon 0 slack by 1 mm
+    plant.settle()
+    plant.set_motor_pwm(np.zeros(4))
+    plant.step(0.05)
+    before, peak_n = plant.short_steps, 0.0
+    for k in range(200):  # pulled in as a PID would: the duty ramps over four 5 ms ticks
+        plant.set_motor_pwm([duty * min(1.0, (k + 1) / 4), 0.0, 0.0, 0.0])
+        plant.step(0.005)
+        peak_n = max(peak_n, plant.true_tensions_n()[0])
+    assert plant.short_steps > before
+    # The line engages with a bump and then loads up as the rod bends: the tension's largest
+    # value is the last one (taken up in full steps, the bump is about twice that).
+    assert peak_n <= plant.true_tensions_n()[0] + 0.05
+
+    # One motor bends the rod, the other spools are braked: the tendons beside it sag to the
+    # slack edge and rest there, which needs no short steps.
+    plant.set_tensions(np.full(4, params.tendons.pretension_n))
+    plant.settle()
+    plant.set_motor_pwm([-0.02, 0.0, 0.0, 0.0])
+    plant.step(1.0)
+    assert plant.true_tensions_n()[1] == pytest.approx(0.0, abs=1e-3)
+    resting = plant.short_steps
+    plant.step(1.0)
+    assert plant.short_steps == resting
+
+
 def test_tip_mass_can_be_hung_and_removed():
     plant = _plant()
     plant.set_tensions([1.35] * 4)

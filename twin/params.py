@@ -203,6 +203,7 @@ class SimSettings:
     shear_joints: bool = _f()
     axial_joints: bool = _f()
     slide_stride: int = _f(_positive)
+    twist_stride: int = _f(_positive)
     tendon_routing: str = _f(_choice("continuous", "discs"))
 
 

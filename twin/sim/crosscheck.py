@@ -9,7 +9,7 @@ configuration in the thesis's order (each from its neighbour's state); the predi
 settings per configuration in mm and in % of L, the median and the worst, and the causes of what
 differs, each measured over the whole grid by changing one thing: the element count, the tendon
 routing (the rig's straight chords between discs against the predictor's continuous routing),
-the axial and shear joints and where they sit, the torsion, the thesis's shear modulus, the time
+the axial and shear joints and where they sit, where the twist hinges sit, the torsion, the thesis's shear modulus, the time
 step and the settling tolerance.
 """
 
@@ -70,6 +70,10 @@ CAUSES = (
      "−0.1% (p = 0.6) with them."),
     ("slides at every station instead of every fifth", {"sim.slide_stride": 1}, False, 1e-6,
      "lumping the small shear and axial compliance of five elements at their middle station."),
+    ("twist hinges at every station instead of every third", {"sim.twist_stride": 1}, False, 1e-6,
+     "lumping the torsional compliance of three elements at their middle station: a tip mass "
+     "hanging from a rod bent out of the vertical plane twists it about tangents that turn along "
+     "the rod, and one hinge per block turns the distal part about a single one of them."),
     ("time step 1 ms instead of the default sim.timestep_s", {"sim.timestep_s": 1e-3}, False, 1e-6,
      "the discrete integrator's statics do not depend on the step."),
     ("settled to 1e-7 m instead of 1e-6 m", {}, False, 1e-7,
@@ -201,7 +205,8 @@ def write_report(result: CrosscheckResult, studies, out_dir: str | Path, params:
         f"({params.tendons.pretension_n} N) + EI·κ/r·max(0, cos(φ − α_i)); tip mass hung at the tip. Twin at "
         f"the defaults: N = {sim.elements} elements, {sim.timestep_s * 1e3:g} ms steps, "
         f"{'axial' if sim.axial_joints else 'no axial'} and {'shear' if sim.shear_joints else 'no shear'} "
-        f"joints (slides at the middle of every {sim.slide_stride} stations), {sim.tendon_routing} tendon "
+        f"joints (slides at the middle of every {sim.slide_stride} stations), twist hinges at the middle of "
+        f"every {sim.twist_stride}, {sim.tendon_routing} tendon "
         "routing, ideal tension sources, settled to 1 µm over two 20 ms windows, configurations in the "
         "thesis's order. Predictor: `twin.rod.solve`. "
         f"Wall time {result.wall_s:.1f} s for the 216.",

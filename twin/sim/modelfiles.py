@@ -34,6 +34,9 @@ def readme_text(params: Params) -> str:
              and (params.sim.shear_joints if j[3] == "shear" else params.sim.axial_joints)]
     slides = (f"{', '.join(kinds)} at stations {', '.join(str(k) for k in lumped)} "
               f"(each lumping {', '.join(str(c) for c in lumped.values())} elements)") if kinds else "no slides"
+    twisted = slide_stations(params.sim.elements, params.sim.twist_stride)
+    twist = (f"tz at stations {', '.join(str(k) for k in twisted)} "
+             f"(each lumping {', '.join(str(c) for c in twisted.values())} elements)")
     lines = [
         "# models/",
         "",
@@ -65,9 +68,9 @@ def readme_text(params: Params) -> str:
         f"| torsional stiffness | {b.torsional_stiffness_nm2:.6g} N·m² | backbone.torsion: E(Ixx+Iyy) or G·J |",
         f"| shear stiffness GA | {b.shear_stiffness_n:.6g} N | G·π r² |",
         f"| axial stiffness | {b.axial_stiffness_n:.6g} N | backbone.axial_stiffness_n |",
-        f"| joint stiffness bend / twist | {b.bending_stiffness_nm2 / h:.6g} / {b.torsional_stiffness_nm2 / h:.6g} N·m/rad | EI/h, K_t/h |",
-        f"| station joints | bx, by, tz at every station; {slides} | sim.shear_joints, sim.axial_joints, "
-        "sim.slide_stride; even stations bend about y before x |",
+        f"| joint stiffness bend / twist | {b.bending_stiffness_nm2 / h:.6g} / {b.torsional_stiffness_nm2 / h:.6g} N·m/rad | EI/h, K_t/h; a twist hinge takes the K_t/h of each element it lumps in series |",
+        f"| station joints | bx, by at every station; {twist}; {slides} | sim.shear_joints, "
+        "sim.axial_joints, sim.slide_stride, sim.twist_stride; even stations bend about y before x |",
         f"| slide stiffness shear / axial, per element lumped | {b.shear_stiffness_n / h:.6g} / "
         f"{b.axial_stiffness_n / h:.6g} N/m | GA/h, EA/h, divided by the elements a slide lumps |",
         f"| joint damping | sim.damping_time_s × stiffness | stiffness-proportional |",

@@ -34,7 +34,7 @@ from twin.sim.model import ACTUATOR_GROUPS, SPOOL_TRAVEL_M, Layout, build_model,
 from twin.sim.motor import MotorConstants, duty_to_voltage_v, encoder_counts
 from twin.sim.sensors import LoadCells, LoadCellSample, Tracker, TrackerSample
 
-__all__ = ["MODES", "Plant", "SettleResult", "SimulationError"]
+__all__ = ["ENGAGE_MAX_STEP_S", "MODES", "Plant", "SettleResult", "SimulationError"]
 
 MODES = ("pwm", "coast", "tension", "length")
 _ACTUATOR_BLOCK = {"pwm": 0, "tension": 1, "length": 2}
@@ -42,13 +42,17 @@ _ACTUATOR_BLOCK = {"pwm": 0, "tension": 1, "length": 2}
 
 # Taking up a slack tendon: the discrete integrator linearises the tendon's dead-band spring where
 # a step starts, so a tendon that goes from slack to taut within one step is springless for that
-# step and engages with a spike that grows with the step (twin/sim/model.py,
-# INEXTENSIBLE_COMPLIANCE_M_PER_N). With steps of 1.25 ms a spool pulling in a slack line stays
-# within the rig's 6 N tension limit; with 2.5 ms it tripped the emulated board now and then. So
-# while any tendon carries less than ENGAGE_MARGIN_N (or is slack) the plant takes each step as
-# shorter ones of at most ENGAGE_MAX_STEP_S; taut tendons run at the full sim.timestep_s.
+# step and engages with a spike that grows with the step and with the speed it closes at
+# (twin/sim/model.py, INEXTENSIBLE_COMPLIANCE_M_PER_N): about stiffness × step × closing speed.
+# With steps of 1.25 ms a spool pulling in a slack line stays within the rig's 6 N tension limit;
+# with 2.5 ms it tripped the emulated board now and then. So the plant takes a stretch of steps
+# as shorter ones of at most ENGAGE_MAX_STEP_S when a tendon carrying less than ENGAGE_MARGIN_N
+# (or slack) could close over it fast enough for a full step's spike to exceed ENGAGE_SPIKE_N
+# (:meth:`Plant._engage_risk`). Taut tendons, and slack ones resting at the slack edge — the
+# perpendicular pair while one motor bends the rod — run at the full sim.timestep_s.
 ENGAGE_MAX_STEP_S = 1.25e-3
 ENGAGE_MARGIN_N = 0.5
+ENGAGE_SPIKE_N = 0.1
 
 
 class SimulationError(RuntimeError):
@@ -81,6 +85,10 @@ class Plant:
         seed: seed of the sensor-noise generator.
         elements: override of ``sim.elements``.
         tendon_sites: override of ``sim.tendon_routing``; see :class:`twin.sim.model.Layout`.
+
+    Attributes:
+        short_steps: physics steps of ``sim.timestep_s`` taken as shorter ones to take up a
+            slack tendon (:data:`ENGAGE_MAX_STEP_S`), since construction.
     """
 
     def __init__(self, params: Params | None = None, *, base_rotation=HORIZONTAL, seed: int = 0,
@@ -116,6 +124,14 @@ class Plant:
         # A tendon near or past slack is taken up with steps of at most ENGAGE_MAX_STEP_S.
         self._engage_substeps = max(self._substeps, math.ceil(self._dt / ENGAGE_MAX_STEP_S - 1e-9))
         self._engage_stretch_m = ENGAGE_MARGIN_N / self._tendon_stiffness
+        # Closing speed (m/s) at which a full step's engagement spike reaches ENGAGE_SPIKE_N.
+        self._engage_speed_m_s = ENGAGE_SPIKE_N / (self._tendon_stiffness * self._dt)
+        # Rows and columns of the sparse tendon Jacobian (mjData.ten_J), for ten_J · qacc.
+        entries = np.concatenate([np.arange(a, a + k) for a, k in zip(m.ten_J_rowadr, m.ten_J_rownnz)])
+        self._ten_j_entries = entries
+        self._ten_j_rows = np.repeat(np.arange(m.ntendon), m.ten_J_rownnz)
+        self._ten_j_cols = m.ten_J_colind[entries]
+        self.short_steps = 0
         m.opt.timestep = self._dt / self._substeps
         self.reset(seed)
 
@@ -132,6 +148,9 @@ class Plant:
         if self._friction is not None:
             self._friction.reset()
         self._tip_mass_kg = 0.0
+        self._jump = True
+        self._pwm_v = np.zeros(self.tendon_count)
+        self._jump_accel_m_s2 = 0.0
         self.model.body_mass[self._tip_load] = 0.0
         self.data.eq_active[self._holder] = False
         self._mode = None
@@ -159,7 +178,12 @@ class Plant:
     def set_motor_pwm(self, duty) -> None:
         """Drive the motors with PWM duties in [−1, 1] (clipped); positive pays tendon out."""
         self._set_mode("pwm")
-        self._ctrl("pwm")[:] = duty_to_voltage_v(self._vector("duty", duty), self._motor.supply_voltage_v)
+        volts = duty_to_voltage_v(self._vector("duty", duty), self._motor.supply_voltage_v)
+        # The spools' acceleration steps with the drive: bound it for the engagement check.
+        step_n = self._motor.stall_force_n / self._motor.supply_voltage_v * np.max(np.abs(volts - self._pwm_v))
+        self._jump_accel_m_s2 += step_n / self._motor.reflected_mass_kg
+        self._pwm_v = volts
+        self._ctrl("pwm")[:] = volts
 
     def coast(self) -> None:
         """Open the H-bridges: no drive, no braking."""
@@ -172,6 +196,7 @@ class Plant:
             raise ValueError(f"tensions_n = {t.tolist()}: tendons can only pull (all must be >= 0)")
         self._set_mode("tension")
         self._ctrl("tension")[:] = t
+        self._jump = True
 
     def set_tendon_lengths(self, lengths_m) -> None:
         """Hold each spool at a relative tendon length (m from the straight, just-taut length;
@@ -181,6 +206,7 @@ class Plant:
             raise ValueError(f"lengths_m = {d.tolist()}: beyond the spool travel of ±{SPOOL_TRAVEL_M} m")
         self._set_mode("length")
         self._ctrl("length")[:] = d
+        self._jump = True
 
     def set_tip_mass_kg(self, mass_kg: float) -> None:
         """Hang a mass at the tip (kg, nominal; 0 removes it). The weight is off by
@@ -188,6 +214,7 @@ class Plant:
         if not (math.isfinite(mass_kg) and mass_kg >= 0):
             raise ValueError(f"mass_kg = {mass_kg!r}: must be finite and >= 0")
         self._tip_mass_kg = float(mass_kg)
+        self._jump = True
         self.model.body_mass[self._tip_load] = mass_kg * (1.0 + self.params.effects.tip_load_error_fraction)
 
     @property
@@ -199,9 +226,11 @@ class Plant:
         """Clamp the reference holder around the discs: they are pulled back to and held in the
         straight pose (weld constraints), as while pretensioning."""
         self.data.eq_active[self._holder] = True
+        self._jump = True
 
     def release_holder(self) -> None:
         self.data.eq_active[self._holder] = False
+        self._jump = True
 
     @property
     def holder_engaged(self) -> bool:
@@ -221,9 +250,10 @@ class Plant:
             chunk = min(remaining, self._steps_until(self._next_loadcell_s),
                         self._steps_until(self._next_tracker_s))
             substeps = self._substeps
-            if self._engage_substeps > substeps and np.any(
-                    self.data.ten_length - self._slack_length_m < self._engage_stretch_m):
+            if self._engage_substeps > substeps and self._engage_risk(chunk * self._dt):
                 substeps = self._engage_substeps
+                self.short_steps += chunk
+            self._jump, self._jump_accel_m_s2 = False, 0.0
             self.model.opt.timestep = self._dt / substeps
             if self._friction is None:
                 mujoco.mj_step(self.model, self.data, chunk * substeps)
@@ -334,11 +364,40 @@ class Plant:
         enabled = ACTUATOR_GROUPS.get(mode)
         self.model.opt.disableactuator = sum(1 << g for g in ACTUATOR_GROUPS.values() if g != enabled)
         self.data.ctrl[:] = 0.0
+        self._jump = True
+        self._pwm_v = np.zeros(self.tendon_count)
         if mode == "length":
             # Start the servo where the spools are, so that switching modes does not jerk them.
             self._ctrl("length")[:] = self.data.qpos[self._spool_q]
         motor = mode in ("pwm", "coast")
         self.model.dof_armature[self._spool_v] = self._motor.reflected_mass_kg if motor else 0.0
+
+    def _engage_risk(self, span_s: float) -> bool:
+        """Could a tendon that is slack or carries less than ENGAGE_MARGIN_N engage within the
+        next ``span_s`` with a full step's spike over ENGAGE_SPIKE_N?
+
+        The closing speed is bounded from the last step: the tendon's speed, plus its
+        acceleration (``ten_J`` · ``qacc``, the last step's velocity change per second) and the
+        spools' acceleration step from a new PWM drive, over the span and the one step the
+        kinematics lag behind. After a jump the plant cannot bound (a mode switch, a new ideal
+        tension or length, the tip mass, the holder) any tendon near slack counts.
+        """
+        d = self.data
+        stretch = d.ten_length - self._slack_length_m
+        near = stretch < self._engage_stretch_m
+        if not near.any():
+            return False
+        if self._jump:
+            return True
+        span = span_s + self._dt
+        ten_acc = np.bincount(self._ten_j_rows, d.ten_J[self._ten_j_entries] * d.qacc[self._ten_j_cols],
+                              minlength=self.tendon_count)
+        accel = ten_acc.clip(0.0, None)
+        accel += self._jump_accel_m_s2
+        speed = d.ten_velocity.clip(0.0, None)
+        closing = speed + accel * span
+        reach = stretch + speed * span + 0.5 * span**2 * accel
+        return bool((near & (reach > 0.0) & (closing > self._engage_speed_m_s)).any())
 
     def _steps_until(self, t_s: float) -> int:
         return max(1, math.ceil((t_s - self.data.time) / self._dt - 1e-9))
@@ -358,8 +417,8 @@ class Plant:
         return self.data.warning.number.copy()
 
     def _check_warnings(self) -> None:
-        counts = self._warning_counts()
-        if np.any(counts > self._warnings_seen):
+        counts = self.data.warning.number
+        if (counts > self._warnings_seen).any():
             new = {mujoco.mjtWarning(i).name: int(c) for i, c in enumerate(counts - self._warnings_seen) if c}
             self._warnings_seen = counts
             raise SimulationError(f"MuJoCo warned at t = {self.time_s:.4f} s: {new}")
