@@ -19,7 +19,7 @@ TARGETS = {
                    "tip_error_m": ("<=", 1e-6)}),
     "device": ("twin.device.bench", "bench_device",
                {"telemetry_rate_hz": (">=", 39.0), "latency_p95_ms": ("<=", 30.0)}),
-    # 50x real time on one core (20000 steps/s at the default 2.5 ms step).
+    # 50x real time on one core (10000 steps/s at the default 5 ms step).
     "sim": ("twin.sim.bench", "bench_sim", {"realtime_factor": (">=", 50.0), "settle_wall_s": ("<=", 0.1)}),
     "env": ("envs.bench", "bench_env", {"steps_per_s": (">=", 1000.0)}),
 }

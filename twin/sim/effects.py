@@ -40,8 +40,10 @@ __all__ = ["FRICTION_MAX_STEP_S", "PRESLIDING_M", "TendonFriction"]
 # hundredths of a millimetre, well above an encoder count (0.94 µm).
 PRESLIDING_M = 2e-5
 # Longest physics step (s) the explicit friction update is stable at: measured, a spool pulled in
-# tension mode settles at 1 ms and chatters (±0.03 N of spool tension) at 2.5 ms.
-FRICTION_MAX_STEP_S = 1e-3
+# tension mode settles at 1 ms and chatters (±0.03 N of spool tension) at 2.5 ms; in the twin's
+# friction sweep (tests/test_discrepancy_twin.py) 1 ms steps diverged once, in tension mode after
+# 124 s, and 0.83 ms steps (2.5 ms / 3, 5 ms / 6) never did.
+FRICTION_MAX_STEP_S = 0.84e-3
 
 
 class TendonFriction:

@@ -9,6 +9,7 @@ asked (:func:`twin.sim.motor.encoder_counts`).
 from __future__ import annotations
 
 import dataclasses
+import math
 
 import numpy as np
 
@@ -19,8 +20,6 @@ __all__ = ["HX711_RANGE_COUNTS", "LoadCellSample", "LoadCells", "Tracker", "Trac
 
 # The HX711 outputs 24-bit two's complement: readings saturate at these codes.
 HX711_RANGE_COUNTS = (-(2**23), 2**23 - 1)
-# Index permutations for a cross product: (w × a)_i = w_{i+1} a_{i+2} − w_{i+2} a_{i+1}.
-_NEXT, _LAST = np.array([1, 2, 0]), np.array([2, 0, 1])
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -80,8 +79,12 @@ class LoadCells:
         sensed = (1.0 + self._gain_error) * t + self._offset_error
         if self._noise > 0:
             sensed += self._rng.normal(0.0, self._noise, t.shape)
-        counts = (self._offset + self._gain * sensed).round()
-        return counts.clip(*HX711_RANGE_COUNTS).astype(np.int64)
+        # Plain floats from here (round() rounds half to even, as np.rint): on four channels
+        # they are several times faster than numpy's calls.
+        low, high = HX711_RANGE_COUNTS
+        gain = self._gain
+        return np.array([min(max(round(o + gain * x), low), high)
+                         for o, x in zip(self._offset.tolist(), sensed.tolist())], dtype=np.int64)
 
 
 class Tracker:
@@ -99,21 +102,29 @@ class Tracker:
         offset = np.asarray(params.effects.tracker_offset_m, dtype=float)
         self._positions = np.array([cap.position_a_m, cap.position_b_m]) + offset
         self._axes = np.array([cap.axis_a, cap.axis_b])
+        self._positions_list, self._axes_list = self._positions.tolist(), self._axes.tolist()
         self._noise_m = params.sensors.tracker_noise_m
         self._noise_rad = params.sensors.tracker_noise_rad
         self._rng = rng
 
     def read(self, tip_position_m, tip_rotation) -> tuple[np.ndarray, np.ndarray]:
         """(positions (2, 3) m, unit axes (2, 3)) in the world frame for a tip pose."""
-        rot = np.asarray(tip_rotation, dtype=float)
-        positions = np.asarray(tip_position_m, dtype=float) + self._positions @ rot.T
-        axes = self._axes @ rot.T
-        if self._noise_m > 0:
-            positions += self._rng.normal(0.0, self._noise_m, positions.shape)
-        if self._noise_rad > 0:
-            # Small-angle rotation of each axis: a + w × a, then renormalised (the cross product
-            # written out: np.cross costs five times as much on two 3-vectors).
-            w = self._rng.normal(0.0, self._noise_rad, axes.shape)
-            axes += w[:, _NEXT] * axes[:, _LAST] - w[:, _LAST] * axes[:, _NEXT]
-            axes /= np.sqrt((axes * axes).sum(axis=1))[:, None]
-        return positions, axes
+        # Plain floats: on two 3-vectors they are several times faster than numpy's calls.
+        (r00, r01, r02), (r10, r11, r12), (r20, r21, r22) = np.asarray(tip_rotation, dtype=float).tolist()
+        px, py, pz = np.asarray(tip_position_m, dtype=float).tolist()
+        noise_m = self._rng.normal(0.0, self._noise_m, 6).tolist() if self._noise_m > 0 else [0.0] * 6
+        noise_rad = self._rng.normal(0.0, self._noise_rad, 6).tolist() if self._noise_rad > 0 else None
+        positions, axes = [], []
+        for k, ((x, y, z), (u, v, w)) in enumerate(zip(self._positions_list, self._axes_list)):
+            positions.append([px + r00 * x + r01 * y + r02 * z + noise_m[3 * k],
+                              py + r10 * x + r11 * y + r12 * z + noise_m[3 * k + 1],
+                              pz + r20 * x + r21 * y + r22 * z + noise_m[3 * k + 2]])
+            a0, a1, a2 = r00 * u + r01 * v + r02 * w, r10 * u + r11 * v + r12 * w, r20 * u + r21 * v + r22 * w
+            if noise_rad is not None:
+                # Small-angle rotation of the axis: a + w × a, then renormalised.
+                w0, w1, w2 = noise_rad[3 * k:3 * k + 3]
+                a0, a1, a2 = a0 + w1 * a2 - w2 * a1, a1 + w2 * a0 - w0 * a2, a2 + w0 * a1 - w1 * a0
+                norm = math.sqrt(a0 * a0 + a1 * a1 + a2 * a2)
+                a0, a1, a2 = a0 / norm, a1 / norm, a2 / norm
+            axes.append([a0, a1, a2])
+        return np.array(positions), np.array(axes)
