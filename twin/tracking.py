@@ -18,6 +18,7 @@ OpenIGTLink (PLUS) server, :class:`CallableSource` adapts the simulated twin.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import enum
 import math
 import time
@@ -242,9 +243,13 @@ class FusionResult:
 
 
 def _angle(u: np.ndarray, v: np.ndarray) -> float:
+    return _angle_floats(np.asarray(u, dtype=float).tolist(), np.asarray(v, dtype=float).tolist())
+
+
+def _angle_floats(u, v) -> float:
     # atan2 of |u×v| and u·v stays accurate near 0 and π where arccos of the dot product does not.
     # Written out for two 3-vectors: np.cross costs ten times as much, once per fused frame.
-    (ux, uy, uz), (vx, vy, vz) = u.tolist(), v.tolist()
+    (ux, uy, uz), (vx, vy, vz) = u, v
     cross = math.sqrt((uy * vz - uz * vy) ** 2 + (uz * vx - ux * vz) ** 2 + (ux * vy - uy * vx) ** 2)
     return math.atan2(cross, ux * vx + uy * vy + uz * vz)
 
@@ -256,11 +261,21 @@ def _wahba(world: np.ndarray, body: np.ndarray, weights: np.ndarray) -> np.ndarr
         world, body: (n, 3) unit directions in each frame.
         weights: (n,) non-negative weights.
     """
-    b = (weights[:, None] * world).T @ body
+    return _wahba_svd((weights[:, None] * world).T @ body)
+
+
+def _wahba_svd(b: np.ndarray) -> np.ndarray:
+    """The rotation nearest to B = Σ w_i world_i body_iᵀ: U diag(1, 1, det U det V) Vᵀ."""
     u, _, vt = np.linalg.svd(b)
     # The sign fix keeps det R = +1: without it a noisy or planar set can yield a reflection.
-    d = np.sign(np.linalg.det(u) * np.linalg.det(vt)) or 1.0
-    return u @ np.diag([1.0, 1.0, d]) @ vt
+    d = math.copysign(1.0, _det3(u.tolist()) * _det3(vt.tolist()))
+    u[:, 2] *= d
+    return u @ vt
+
+
+def _det3(m) -> float:
+    (a, b, c), (d, e, f), (g, h, i) = m
+    return a * (e * i - f * h) - b * (d * i - f * g) + c * (d * h - e * g)
 
 
 def fuse(
@@ -305,8 +320,8 @@ def fuse(
         if not probe.valid:
             return FusionResult(FrameStatus.INVALID, f"probe {name}: no valid sample")
     for name, probe in (("A", probe_a), ("B", probe_b)):
-        values = np.concatenate([probe.position_m, probe.axis, [probe.timestamp_s]])
-        if not np.all(np.isfinite(values)) or np.linalg.norm(probe.axis) == 0:
+        values = probe.position_m.tolist() + probe.axis.tolist() + [probe.timestamp_s]
+        if not all(map(math.isfinite, values)) or not any(values[3:6]):
             return FusionResult(
                 FrameStatus.NOT_FINITE,
                 f"probe {name}: position_m = {probe.position_m.tolist()}, axis = "
@@ -327,17 +342,21 @@ def fuse(
             f"probe samples {skew_s:.3f} s apart (max_skew_s = {settings.max_skew_s})",
         )
 
-    axis_a = probe_a.axis / np.linalg.norm(probe_a.axis)
-    axis_b = probe_b.axis / np.linalg.norm(probe_b.axis)
-    baseline = probe_b.position_m - probe_a.position_m
-    distance_m = float(np.linalg.norm(baseline))
-    distance_error_m = distance_m - calibration.probe_distance_m
-    angle_error_rad = _angle(axis_a, axis_b) - calibration.axis_angle_rad
+    # Plain floats from here: fused once per 40 Hz frame, numpy's calls on 3-vectors cost ten
+    # times as much (twin bench env).
+    cap = _cap_geometry(calibration)
+    pa, pb = probe_a.position_m.tolist(), probe_b.position_m.tolist()
+    axis_a, axis_b = _unit(probe_a.axis.tolist()), _unit(probe_b.axis.tolist())
+    baseline = [y - x for x, y in zip(pa, pb)]
+    distance_m = math.sqrt(sum(x * x for x in baseline))
+    distance_error_m = distance_m - cap.distance_m
+    angle_rad = _angle_floats(axis_a, axis_b)
+    angle_error_rad = angle_rad - cap.angle_rad
     if abs(distance_error_m) > settings.max_distance_error_m:
         return FusionResult(
             FrameStatus.DISTANCE,
             f"probe distance {distance_m * 1e3:.3f} mm, calibrated "
-            f"{calibration.probe_distance_m * 1e3:.3f} mm (max_distance_error_m = "
+            f"{cap.distance_m * 1e3:.3f} mm (max_distance_error_m = "
             f"{settings.max_distance_error_m})",
             distance_error_m=distance_error_m,
             angle_error_rad=angle_error_rad,
@@ -345,25 +364,47 @@ def fuse(
     if abs(angle_error_rad) > settings.max_angle_error_rad:
         return FusionResult(
             FrameStatus.ANGLE,
-            f"inter-axis angle {math.degrees(_angle(axis_a, axis_b)):.2f} deg, calibrated "
-            f"{math.degrees(calibration.axis_angle_rad):.2f} deg (max_angle_error_rad = "
+            f"inter-axis angle {math.degrees(angle_rad):.2f} deg, calibrated "
+            f"{math.degrees(cap.angle_rad):.2f} deg (max_angle_error_rad = "
             f"{settings.max_angle_error_rad:.4f})",
             distance_error_m=distance_error_m,
             angle_error_rad=angle_error_rad,
         )
 
-    c_a = np.asarray(calibration.position_a_m)
-    c_b = np.asarray(calibration.position_b_m)
-    body = np.array([calibration.axis_a, calibration.axis_b, (c_b - c_a) / calibration.probe_distance_m])
-    world = np.array([axis_a, axis_b, baseline / distance_m])
-    baseline_noise_rad = math.sqrt(2.0) * settings.position_noise_m / calibration.probe_distance_m
+    world = np.array([axis_a, axis_b, [x / distance_m for x in baseline]])
+    baseline_noise_rad = math.sqrt(2.0) * settings.position_noise_m / cap.distance_m
     weights = np.array([settings.axis_noise_rad, settings.axis_noise_rad, baseline_noise_rad]) ** -2.0
-    rotation = _wahba(world, body, weights)
-    position_m = 0.5 * ((probe_a.position_m - rotation @ c_a) + (probe_b.position_m - rotation @ c_b))
+    # B = Σ w_i world_i body_iᵀ, the matrix whose SVD solves Wahba's problem (_wahba).
+    rotation = _wahba_svd((world.T * weights) @ cap.body)
+    # The mean over both probes of p_i − R c_i.
+    position_m = 0.5 * (np.array(pa) + np.array(pb) - rotation @ cap.probe_sum_m)
     pose = TipPose(position_m, rotation, 0.5 * (probe_a.timestamp_s + probe_b.timestamp_s))
     return FusionResult(
         FrameStatus.OK, pose=pose, distance_error_m=distance_error_m, angle_error_rad=angle_error_rad
     )
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class _CapGeometry:
+    """What :func:`fuse` needs of a calibration, computed once per calibration."""
+
+    body: np.ndarray  # (3, 3) rows: axis A, axis B, the unit baseline A → B, in the tip frame
+    probe_sum_m: np.ndarray  # (3,) c_A + c_B (m)
+    distance_m: float
+    angle_rad: float
+
+
+@functools.lru_cache(maxsize=16)
+def _cap_geometry(calibration: CapCalibration) -> _CapGeometry:
+    c_a, c_b = np.array(calibration.position_a_m), np.array(calibration.position_b_m)
+    distance_m = calibration.probe_distance_m
+    body = np.array([calibration.axis_a, calibration.axis_b, (c_b - c_a) / distance_m])
+    return _CapGeometry(body, c_a + c_b, distance_m, calibration.axis_angle_rad)
+
+
+def _unit(v: list[float]) -> list[float]:
+    norm = math.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
+    return [v[0] / norm, v[1] / norm, v[2] / norm]
 
 
 def fuse_frame(

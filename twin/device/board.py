@@ -23,6 +23,8 @@ __all__ = ["TICK_S", "EmulatedBoard"]
 
 # The Teensy layer ticks the core at 200 Hz: the GCD of 100 Hz control and 40 Hz telemetry.
 TICK_S = 0.005
+# The firmware's drive modes (uint8 per motor) when all four motors coast.
+_ALL_COAST = bytes([codec.Drive.COAST] * codec.CHANNELS)
 
 
 class EmulatedBoard:
@@ -122,7 +124,7 @@ class EmulatedBoard:
         if outputs == self._applied:
             return
         self._applied = outputs
-        if np.all(drives == codec.Drive.COAST):
+        if outputs[1] == _ALL_COAST:
             self.plant.coast()
         else:
             # Duty 0 in the plant shorts the motor (brake). The plant coasts all motors or none;

@@ -77,7 +77,8 @@ class MotorConstants:
 
 def duty_to_voltage_v(duty, supply_voltage_v: float) -> np.ndarray:
     """Mean H-bridge terminal voltage (V) for PWM duties, clipped to [−1, 1]."""
-    return np.clip(np.asarray(duty, dtype=float), -1.0, 1.0) * supply_voltage_v
+    # minimum/maximum rather than np.clip: a third of the cost on four duties, every 10 ms.
+    return np.minimum(np.maximum(np.asarray(duty, dtype=float), -1.0), 1.0) * supply_voltage_v
 
 
 def encoder_counts(spool_position_m, rig: Rig) -> np.ndarray:

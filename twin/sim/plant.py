@@ -102,6 +102,7 @@ class Plant:
         m, n = self.model, self.params.tendons.count
         self.tendon_count = n
         self._motor = MotorConstants.from_rig(self.params.rig)
+        self._m_per_count = self.params.rig.tendon_m_per_count
         self._spool_joints = np.array([m.joint(f"spool{i}").id for i in range(n)])
         self._spool_q = m.jnt_qposadr[self._spool_joints]
         self._spool_v = m.jnt_dofadr[self._spool_joints]
@@ -135,6 +136,7 @@ class Plant:
         self._ten_j_rowadr = m.ten_J_rowadr.copy()
         self.short_steps = 0
         m.opt.timestep = self._dt / self._substeps
+        self._current_substeps = self._substeps
         self.reset(seed)
 
     # ----------------------------------------------------------------------------- state
@@ -182,7 +184,7 @@ class Plant:
         self._set_mode("pwm")
         volts = duty_to_voltage_v(self._vector("duty", duty), self._motor.supply_voltage_v)
         # The spools' acceleration steps with the drive: bound it for the engagement check.
-        step_n = self._motor.stall_force_n / self._motor.supply_voltage_v * np.max(np.abs(volts - self._pwm_v))
+        step_n = self._motor.stall_force_n / self._motor.supply_voltage_v * float(abs(volts - self._pwm_v).max())
         self._jump_accel_m_s2 += step_n / self._motor.reflected_mass_kg
         self._pwm_v = volts
         self._ctrl("pwm")[:] = volts
@@ -248,26 +250,29 @@ class Plant:
         if not (math.isfinite(duration_s) and duration_s >= 0):
             raise ValueError(f"duration_s = {duration_s!r}: must be finite and >= 0")
         remaining = max(1, round(duration_s / self._dt)) if duration_s > 0 else 0
+        model, data = self.model, self.data
         while remaining > 0:
-            chunk = min(remaining, self._steps_until(self._next_loadcell_s),
-                        self._steps_until(self._next_tracker_s))
+            chunk = min(remaining, self._steps_until(min(self._next_loadcell_s, self._next_tracker_s)))
             substeps = self._substeps
             if self._engage_substeps > substeps and self._engage_risk(chunk * self._dt):
                 substeps = self._engage_substeps
                 self.short_steps += chunk
             self._jump, self._jump_accel_m_s2 = False, 0.0
-            self.model.opt.timestep = self._dt / substeps
+            if substeps != self._current_substeps:
+                model.opt.timestep = self._dt / substeps
+                self._current_substeps = substeps
             if self._friction is None:
-                mujoco.mj_step(self.model, self.data, chunk * substeps)
+                mujoco.mj_step(model, data, chunk * substeps)
             else:
                 for _ in range(chunk * substeps):
                     self._friction.apply(self.model, self.data, self.true_tensions_n())
                     mujoco.mj_step(self.model, self.data)
             remaining -= chunk
             self._check_warnings()
-            if self.data.time >= self._next_loadcell_s - 1e-9:
+            now_s = data.time
+            if now_s >= self._next_loadcell_s - 1e-9:
                 self._loadcell = self._sample_loadcells(self._loadcell.index + 1)
-            if self.data.time >= self._next_tracker_s - 1e-9:
+            if now_s >= self._next_tracker_s - 1e-9:
                 self._tracker_frame = self._sample_tracker(self._tracker_frame.index + 1)
 
     def step_until(self, time_s: float) -> None:
@@ -302,7 +307,10 @@ class Plant:
     # ----------------------------------------------------------------------------- sensors
     def encoder_counts(self) -> np.ndarray:
         """(n,) int64 quadrature counts of the motor encoders (0 at reset, up = paid out)."""
-        return encoder_counts(self.data.qpos[self._spool_q], self.params.rig)
+        # The quantiser of twin.sim.motor.encoder_counts, on plain floats: called every 5 ms tick.
+        per_count = self._m_per_count
+        return np.array([math.floor(x / per_count + 1e-9) for x in self.data.qpos[self._spool_q].tolist()],
+                        dtype=np.int64)
 
     def loadcell_sample(self) -> LoadCellSample:
         """The latest load-cell sample (raw HX711 counts), held between 80 Hz samples."""
@@ -351,7 +359,7 @@ class Plant:
     # ----------------------------------------------------------------------------- internals
     def _vector(self, name: str, value) -> np.ndarray:
         v = np.asarray(value, dtype=float).reshape(-1)
-        if v.shape != (self.tendon_count,) or not np.all(np.isfinite(v)):
+        if v.shape != (self.tendon_count,) or not np.isfinite(v).all():
             raise ValueError(f"{name} = {value!r}: expected {self.tendon_count} finite numbers")
         return v
 
