@@ -1,8 +1,9 @@
 """Env throughput on one core (``twin bench env``): steps of the default env per wall second.
 
 One step is one 40 Hz control period, 25 ms of device time: on ``sim://`` five 5 ms firmware
-ticks of the MuJoCo twin, so the figure is bounded by the twin's real-time factor × 40. The
-bench also times those 25 ms of device time alone, so the env's own share is visible.
+ticks of the MuJoCo twin (run natively by :mod:`twin.device.board_loop` where they need no
+Python), so the figure is bounded by the twin's real-time factor × 40. The bench also times those
+25 ms of device time alone, so the env's own share is visible.
 """
 
 from __future__ import annotations

@@ -12,7 +12,9 @@ from __future__ import annotations
 import math
 from typing import Callable
 
-from twin.device.board import EmulatedBoard
+from twin.device import board_loop
+from twin.device.board import TICK_S, EmulatedBoard
+from twin.device.board_loop import BoardLoop, Reason
 from twin.device.inbox import Inbox
 from twin.device.transport import Transport
 
@@ -32,9 +34,11 @@ class SimTransport(Transport):
 
     clock = "simulated"
 
-    def __init__(self, board: EmulatedBoard, *, url: str = "sim://"):
+    def __init__(self, board: EmulatedBoard, *, url: str = "sim://", native_loop: bool = True):
         self.board = board
         self.url = url
+        # The ticks in native code where they need no Python (twin.device.board_loop).
+        self._loop = BoardLoop(board) if native_loop and board_loop.available() else None
         self._inbox: Inbox | None = None
         self._keepalive_s: float | None = None
         self._ping: Callable[[], None] | None = None
@@ -55,7 +59,10 @@ class SimTransport(Transport):
         while not predicate():
             if self.board.time_s >= deadline_s:
                 return False
-            self._step()
+            if self._loop is not None and self._loop.usable(TICK_S):
+                self._run_native(deadline_s)
+            else:
+                self._step()
         return True
 
     def time_s(self) -> float:
@@ -74,6 +81,31 @@ class SimTransport(Transport):
         self.board.tick()
         self._deliver()
         self.board.advance()
+
+    def _run_native(self, deadline_s: float) -> None:
+        """Ticks in native code up to the first that needs Python, then the rest of that tick
+        as :meth:`_step` would do it. Bytes reach the inbox only in :meth:`_deliver`, so the
+        wait's predicate cannot change during the native ticks."""
+        board = self.board
+        reason = self._loop.run(deadline_s, self._last_write_s, self._keepalive_s)
+        if reason == Reason.DEADLINE:
+            return
+        if reason in (Reason.KEEPALIVE, Reason.PYTHON):
+            self._step()
+        elif reason == Reason.APPLY:
+            board._apply(*self._loop.outputs())
+            self._deliver()
+            board.advance()
+        elif reason == Reason.TX:
+            self._deliver()
+            board.advance()
+        elif reason == Reason.ADVANCE:
+            board.advance()
+        elif reason in (Reason.WARNING, Reason.SAMPLE):
+            board.plant._check_warnings()
+            board.plant._take_due_samples()
+        else:
+            raise RuntimeError(f"board loop returned {reason!r}")
 
     def _deliver(self) -> None:
         data = self.board.take_tx()

@@ -1,8 +1,10 @@
 """Device URLs → devices: ``sim://`` (the twin) and ``serial://`` (the rig, or an emulated board
 on a pseudo-terminal).
 
-``sim://[?seed=N][&pose=horizontal|up]``
+``sim://[?seed=N][&pose=horizontal|up][&native=1|0]``
     The emulated board (:class:`twin.device.board.EmulatedBoard`) in simulated time.
+    ``native=0`` ticks it in Python only, not in :mod:`twin.device.board_loop` (same results,
+    slower; for checking the two against each other).
 ``serial://<path>[?igtl=host:port]``
     A board on a serial port: ``serial:///dev/ttyACM0``, or the pseudo-terminal printed by
     ``twin emulate``. ``igtl`` names the OpenIGTLink server of the EM tracker (PLUS); without
@@ -25,7 +27,7 @@ from twin.tracking import FusionSettings, OpenIGTLinkSource
 __all__ = ["SCHEMES", "open_device"]
 
 SCHEMES = ("sim", "serial")
-_QUERY_KEYS = {"sim": ("seed", "pose"), "serial": ("igtl",)}
+_QUERY_KEYS = {"sim": ("seed", "pose", "native"), "serial": ("igtl",)}
 
 
 def _query(url: str, scheme: str, query: str) -> dict[str, str]:
@@ -38,6 +40,15 @@ def _query(url: str, scheme: str, query: str) -> dict[str, str]:
             f"{scheme}:// takes {', '.join(_QUERY_KEYS[scheme])}"
         )
     return options
+
+
+def _flag(url: str, options: dict[str, str], key: str, default: bool) -> bool:
+    value = options.get(key)
+    if value is None:
+        return default
+    if value not in ("0", "1"):
+        raise ValueError(f"device URL {url!r}: {key}={value!r}; use {key}=1 or {key}=0")
+    return value == "1"
 
 
 def open_device(
@@ -84,7 +95,7 @@ def open_device(
         board = EmulatedBoard(params, seed=_seed(url, options, seed),
                               base_rotation=_pose(url, options.get("pose", "horizontal")))
         device = Device(
-            SimTransport(board, url=url),
+            SimTransport(board, url=url, native_loop=_flag(url, options, "native", True)),
             tracker=TipTracker(lambda: sim_probe_source(board.plant), settings=settings),
             **device_args,
         )

@@ -269,11 +269,7 @@ class Plant:
                     mujoco.mj_step(self.model, self.data)
             remaining -= chunk
             self._check_warnings()
-            now_s = data.time
-            if now_s >= self._next_loadcell_s - 1e-9:
-                self._loadcell = self._sample_loadcells(self._loadcell.index + 1)
-            if now_s >= self._next_tracker_s - 1e-9:
-                self._tracker_frame = self._sample_tracker(self._tracker_frame.index + 1)
+            self._take_due_samples()
 
     def step_until(self, time_s: float) -> None:
         """Advance to simulation time ``time_s`` (to the first step at or after it)."""
@@ -412,6 +408,14 @@ class Plant:
             if v + a * span > self._engage_speed_m_s and stretch[i] + (v + 0.5 * a * span) * span > 0.0:
                 return True
         return False
+
+    def _take_due_samples(self) -> None:
+        """Sample the load cells and the tracker if their time has come (after each chunk)."""
+        now_s = self.data.time
+        if now_s >= self._next_loadcell_s - 1e-9:
+            self._loadcell = self._sample_loadcells(self._loadcell.index + 1)
+        if now_s >= self._next_tracker_s - 1e-9:
+            self._tracker_frame = self._sample_tracker(self._tracker_frame.index + 1)
 
     def _steps_until(self, t_s: float) -> int:
         return max(1, math.ceil((t_s - self.data.time) / self._dt - 1e-9))

@@ -1,0 +1,241 @@
+"""The emulated board's ticks in native code, where nothing in them needs Python.
+
+:class:`twin.device.sim_transport.SimTransport` steps the board one 5 ms tick at a time: the
+firmware's tick, its motor outputs into the plant, the plant's physics step. In Python that glue
+costs three times the physics (``twin bench env``). :class:`BoardLoop` runs the same ticks in
+``native/board_loop.cpp`` and hands back to Python at the exact point of a tick where Python has
+work: bytes for the host, a sensor sample due, a drive the plant must switch mode for, a tendon
+near slack, a MuJoCo warning, the keepalive, the deadline. The numbers are the Python path's
+to the bit (``tests/test_board_loop.py``).
+
+It needs g++ (as the firmware library does) and MuJoCo's headers, which the wheel ships. When
+either is missing, or the plant runs something only Python does (tendon friction, a time step
+other than the 5 ms tick), the transport keeps to the Python path: slower, same results.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import fcntl
+import functools
+import math
+import subprocess
+import warnings
+from pathlib import Path
+
+import mujoco
+import numpy as np
+
+from twin.device import codec
+from twin.device.firmware_lib import load_library as load_firmware_library
+from twin.sim.plant import _ACTUATOR_BLOCK
+
+__all__ = ["BoardLoop", "Reason", "available", "build_library"]
+
+SOURCE = Path(__file__).parent / "native" / "board_loop.cpp"
+LIB_PATH = Path(__file__).parent / "native" / "build" / "libboardloop.so"
+ABI_VERSION = 2
+_CHANNELS = codec.CHANNELS
+
+
+class Reason:
+    """Why :meth:`BoardLoop.run` returned (``enum bl_reason`` in board_loop.cpp)."""
+
+    DEADLINE = 0
+    KEEPALIVE = 1
+    APPLY = 2
+    TX = 3
+    ADVANCE = 4
+    WARNING = 5
+    SAMPLE = 6
+    PYTHON = 7  # not from the C side: the tick needs Python from its start
+
+
+class _State(ctypes.Structure):
+    _fields_ = [
+        ("m_per_count", ctypes.c_double),
+        ("engage_stretch_m", ctypes.c_double),
+        ("supply_voltage_v", ctypes.c_double),
+        ("stall_force_n", ctypes.c_double),
+        ("reflected_mass_kg", ctypes.c_double),
+        ("tick_s", ctypes.c_double),
+        ("power_up_s", ctypes.c_double),
+        ("next_sample_s", ctypes.c_double),
+        ("deadline_s", ctypes.c_double),
+        ("last_write_s", ctypes.c_double),
+        ("keepalive_s", ctypes.c_double),
+        ("slack_length_m", ctypes.c_double * _CHANNELS),
+        ("pwm_v", ctypes.c_double * _CHANNELS),
+        ("jump_accel_m_s2", ctypes.c_double),
+        ("spool_qpos", ctypes.c_int32 * _CHANNELS),
+        ("pwm_ctrl", ctypes.c_int32 * _CHANNELS),
+        ("raw_counts", ctypes.c_int32 * _CHANNELS),
+        ("loadcell_index", ctypes.c_int32),
+        ("last_loadcell_index", ctypes.c_int32),
+        ("warnings_total", ctypes.c_int32),
+        ("plant_pwm", ctypes.c_int32),
+        ("held", ctypes.c_int32),
+        ("have_applied", ctypes.c_int32),
+        ("ticks", ctypes.c_int32),
+        ("applied_changed", ctypes.c_int32),
+        ("applied_duty", ctypes.c_float * _CHANNELS),
+        ("duty", ctypes.c_float * _CHANNELS),
+        ("applied_drive", ctypes.c_uint8 * _CHANNELS),
+        ("drive", ctypes.c_uint8 * _CHANNELS),
+    ]
+
+
+def build_library(*, force: bool = False) -> Path:
+    """Compile ``native/board_loop.cpp`` if the library is missing or older than it.
+
+    Raises:
+        RuntimeError: g++ is missing or the build failed (the message holds its output).
+    """
+    LIB_PATH.parent.mkdir(parents=True, exist_ok=True)
+    with open(LIB_PATH.parent / ".lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        if force or not LIB_PATH.exists() or LIB_PATH.stat().st_mtime < SOURCE.stat().st_mtime:
+            include = Path(mujoco.__file__).parent / "include"
+            tmp = LIB_PATH.with_suffix(".tmp")
+            command = ["g++", "-std=c++17", "-O2", "-Wall", "-Wextra", "-Werror", "-shared", "-fPIC",
+                       f"-I{include}", str(SOURCE), "-o", str(tmp)]
+            try:
+                result = subprocess.run(command, capture_output=True, text=True, check=False)
+            except FileNotFoundError as exc:
+                raise RuntimeError(f"{command[0]}: {exc}") from None
+            if result.returncode != 0:
+                raise RuntimeError(f"{' '.join(command)} exited {result.returncode}:\n{result.stderr[-4000:]}")
+            tmp.replace(LIB_PATH)
+    return LIB_PATH
+
+
+@functools.lru_cache(maxsize=1)
+def _load() -> tuple[ctypes.CDLL, int, int, int] | None:
+    """The loop library and the function pointers it calls, or None (with a warning) when it
+    cannot be built or loaded."""
+    try:
+        lib = ctypes.CDLL(str(build_library()))
+        lib.bl_abi_version.restype = ctypes.c_uint32
+        lib.bl_state_size.restype = ctypes.c_uint32
+        if lib.bl_abi_version() != ABI_VERSION or lib.bl_state_size() != ctypes.sizeof(_State):
+            raise RuntimeError(f"{LIB_PATH}: ABI {lib.bl_abi_version()}, state {lib.bl_state_size()} bytes; "
+                               f"expected {ABI_VERSION}, {ctypes.sizeof(_State)}")
+        lib.bl_run.restype = ctypes.c_int
+        lib.bl_run.argtypes = [ctypes.c_void_p, ctypes.c_void_p, ctypes.c_void_p, ctypes.c_void_p, ctypes.c_void_p,
+                               ctypes.c_void_p, ctypes.POINTER(_State), ctypes.c_int32]
+        mujoco_lib = ctypes.CDLL(str(next(Path(mujoco.__file__).parent.glob("libmujoco.so*"))))
+        firmware = load_firmware_library()
+        pointers = tuple(ctypes.cast(f, ctypes.c_void_p).value for f in
+                         (firmware.twinfw_tick, firmware.twinfw_tx_pending, mujoco_lib.mj_step))
+    except (OSError, RuntimeError, StopIteration) as exc:
+        warnings.warn(f"the emulated board's native tick loop is not available, ticking in Python: {exc}",
+                      RuntimeWarning, stacklevel=3)
+        return None
+    return (lib, *pointers)
+
+
+def available() -> bool:
+    """True when the native loop could be built and loaded."""
+    return _load() is not None
+
+
+class BoardLoop:
+    """Runs ticks of one :class:`twin.device.board.EmulatedBoard` natively.
+
+    Args:
+        board: the board; its plant and firmware are read from it on every call, so a power
+            cycle or a plant reset needs nothing here.
+
+    Attributes:
+        native_ticks: ticks run natively so far.
+        returns: how often each :class:`Reason` handed back to Python.
+    """
+
+    def __init__(self, board):
+        loaded = _load()
+        if loaded is None:
+            raise RuntimeError("the native tick loop is not available")
+        self._lib, self._tick, self._pending, self._step = loaded
+        self.board = board
+        plant = board.plant
+        s = self._state = _State()
+        motor = plant._motor
+        s.m_per_count = plant._m_per_count
+        s.engage_stretch_m = plant._engage_stretch_m
+        s.supply_voltage_v = motor.supply_voltage_v
+        s.stall_force_n = motor.stall_force_n
+        s.reflected_mass_kg = motor.reflected_mass_kg
+        s.tick_s = plant.timestep_s
+        if plant.tendon_count != _CHANNELS:
+            raise ValueError(f"{plant.tendon_count} tendons: the native loop drives {_CHANNELS}")
+        for i in range(_CHANNELS):
+            s.slack_length_m[i] = plant._slack_length_list[i]
+            s.spool_qpos[i] = int(plant._spool_q[i])
+            s.pwm_ctrl[i] = _ACTUATOR_BLOCK["pwm"] * plant.tendon_count + i
+        self._state_ref = ctypes.byref(s)
+        self.native_ticks = 0
+        # The objects last copied into the state: (load-cell sample, warning counts, PWM
+        # voltages, applied outputs); Python replaces rather than mutates each of them.
+        self._synced = (None, None, None, None)
+        self.returns: dict[int, int] = {}
+
+    def usable(self, tick_s: float) -> bool:
+        """Can the loop run the plant's steps? Not with friction (Python updates it between
+        steps) or a time step other than the tick."""
+        plant = self.board.plant
+        return plant._friction is None and plant._substeps == 1 and plant.timestep_s == tick_s
+
+    def run(self, deadline_s: float, last_write_s: float, keepalive_s: float | None, max_ticks: int = 1 << 20) -> int:
+        """Tick until a :class:`Reason` to return; the board and plant are left where the
+        Python path would be at that point. :data:`Reason.PYTHON`: this tick needs Python from
+        its start (the plant just had a jump, or is taking short steps)."""
+        board, plant, s = self.board, self.board.plant, self._state
+        if plant._jump or plant._current_substeps != 1:
+            self.returns[Reason.PYTHON] = self.returns.get(Reason.PYTHON, 0) + 1
+            return Reason.PYTHON
+        s.power_up_s = board._power_up_s
+        s.next_sample_s = min(plant._next_loadcell_s, plant._next_tracker_s)
+        s.deadline_s = deadline_s
+        s.last_write_s = last_write_s
+        s.keepalive_s = math.inf if keepalive_s is None else keepalive_s
+        s.last_loadcell_index = board._last_loadcell_index
+        s.plant_pwm = plant._mode == "pwm"
+        s.held = board._held_tensions_n is not None
+        s.jump_accel_m_s2 = plant._jump_accel_m_s2
+        # What Python may have replaced since the last call, copied only when it did.
+        sample = plant._loadcell
+        if sample is not self._synced[0]:
+            s.raw_counts[:] = sample.raw_counts.tolist()
+            s.loadcell_index = sample.index
+        if plant._warnings_seen is not self._synced[1]:
+            s.warnings_total = int(plant._warnings_seen.sum())
+        if plant._pwm_v is not self._synced[2]:
+            s.pwm_v[:] = plant._pwm_v.tolist()
+        applied = board._applied
+        if applied is not self._synced[3]:
+            s.have_applied = applied is not None
+            if applied is not None:
+                # The board keeps the duties as float64 bytes (they were float32 to begin with).
+                s.applied_duty[:] = np.frombuffer(applied[0], dtype=np.float64).tolist()
+                s.applied_drive[:] = list(applied[1])
+        reason = self._lib.bl_run(plant.model._address, plant.data._address, board.firmware._fw, self._tick,
+                                  self._pending, self._step, self._state_ref, max_ticks)
+        self.native_ticks += s.ticks
+        self.returns[reason] = self.returns.get(reason, 0) + 1
+        board._last_loadcell_index = s.last_loadcell_index
+        plant._jump_accel_m_s2 = s.jump_accel_m_s2
+        if s.applied_changed:
+            board._applied = ((np.array(s.applied_duty[:], dtype=np.float32).astype(np.float64).tobytes(),
+                               bytes(s.applied_drive)) if s.have_applied else None)
+            plant._pwm_v = np.array(s.pwm_v[:])
+        if s.ticks:
+            board.firmware._duty[:] = s.duty[:]
+            board.firmware._drive[:] = s.drive[:]
+        self._synced = (sample, plant._warnings_seen, plant._pwm_v, board._applied)
+        return reason
+
+    def outputs(self) -> tuple[np.ndarray, np.ndarray]:
+        """The last tick's duty (float64) and drive modes (uint8), as ``FirmwareLib.tick`` and
+        ``drive_modes`` give them."""
+        return (np.array(self._state.duty[:], dtype=np.float32).astype(np.float64),
+                np.array(self._state.drive[:], dtype=np.uint8))
