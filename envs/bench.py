@@ -19,7 +19,7 @@ __all__ = ["bench_env"]
 
 
 def bench_env(params: Params | None = None, *, steps: int = 400, seed: int = 0) -> dict:
-    """Time the default env (tension actions, tip loads) on ``sim://``.
+    """Time the default env (tension actions, tip loads) on ``sim://``, the best of three runs.
 
     The actions sway two tendons' tensions ±0.5 N about the pretension at 1 Hz, a motion that
     neither faults the board nor leaves the twin at rest.
@@ -38,16 +38,19 @@ def bench_env(params: Params | None = None, *, steps: int = 400, seed: int = 0) 
         pretension = params.tendons.pretension_n
         actions = [env.action_for(pretension + 0.5 * np.array([np.sin(w), 0.0, -np.sin(w), 0.0]))
                    for w in 2 * np.pi * np.arange(steps) / 40.0]
-        start = time.perf_counter()
-        for action in actions:
-            env.step(action)
-        step_s = (time.perf_counter() - start) / steps
         device = env.device
         period_s = device.info.telemetry_period_s
-        start = time.perf_counter()
-        for _ in range(steps):
-            device.wait(period_s)
-        device_s = (time.perf_counter() - start) / steps
+        step_s = device_s = float("inf")
+        # The best of three runs: shared machines vary by ±30% from one second to the next.
+        for _ in range(3):
+            start = time.perf_counter()
+            for action in actions:
+                env.step(action)
+            step_s = min(step_s, (time.perf_counter() - start) / steps)
+            start = time.perf_counter()
+            for _ in range(steps):
+                device.wait(period_s)
+            device_s = min(device_s, (time.perf_counter() - start) / steps)
     finally:
         env.close()
     return {

@@ -7,6 +7,8 @@ local z → world +x, with gravity along world −z.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 __all__ = ["HORIZONTAL", "UP", "base_rotation_from", "quat_to_matrix", "matrix_to_quat", "rot_x", "rot_y", "rot_z"]
@@ -47,20 +49,21 @@ def quat_to_matrix(quat) -> np.ndarray:
 
 def matrix_to_quat(rot) -> np.ndarray:
     """Quaternion ``(w, x, y, z)`` with w >= 0 of a rotation matrix (Shepperd's method)."""
-    m = np.asarray(rot, dtype=float)
-    t = np.trace(m)
+    # On plain floats: a fused tracker frame is converted 40 times a second.
+    m = np.asarray(rot, dtype=float).tolist()
+    t = m[0][0] + m[1][1] + m[2][2]
     if t > 0:
-        s = 2.0 * np.sqrt(1.0 + t)
-        q = [0.25 * s, (m[2, 1] - m[1, 2]) / s, (m[0, 2] - m[2, 0]) / s, (m[1, 0] - m[0, 1]) / s]
+        s = 2.0 * math.sqrt(1.0 + t)
+        q = [0.25 * s, (m[2][1] - m[1][2]) / s, (m[0][2] - m[2][0]) / s, (m[1][0] - m[0][1]) / s]
     else:
-        i = int(np.argmax(np.diag(m)))
+        i = max(range(3), key=lambda n: m[n][n])
         j, k = (i + 1) % 3, (i + 2) % 3
-        s = 2.0 * np.sqrt(1.0 + m[i, i] - m[j, j] - m[k, k])
+        s = 2.0 * math.sqrt(1.0 + m[i][i] - m[j][j] - m[k][k])
         q = [0.0, 0.0, 0.0, 0.0]
-        q[0] = (m[k, j] - m[j, k]) / s
+        q[0] = (m[k][j] - m[j][k]) / s
         q[1 + i] = 0.25 * s
-        q[1 + j] = (m[j, i] + m[i, j]) / s
-        q[1 + k] = (m[k, i] + m[i, k]) / s
+        q[1 + j] = (m[j][i] + m[i][j]) / s
+        q[1 + k] = (m[k][i] + m[i][k]) / s
     q = np.array(q)
     return q if q[0] >= 0 else -q
 

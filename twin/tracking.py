@@ -461,7 +461,8 @@ class CallableSource:
         time_s, positions_m, axes = self._sample()
         readings = []
         for position_m, axis in zip(np.asarray(positions_m, float), np.asarray(axes, float), strict=True):
-            if np.all(np.isfinite(position_m)) and np.all(np.isfinite(axis)):
+            # On plain floats: np.isfinite costs ten times as much on three numbers.
+            if all(map(math.isfinite, position_m.tolist() + axis.tolist())):
                 readings.append(ProbeReading(position_m, axis, time_s))
             else:
                 readings.append(ProbeReading.missing())

@@ -34,7 +34,7 @@ __all__ = ["BoardLoop", "Reason", "available", "build_library"]
 
 SOURCE = Path(__file__).parent / "native" / "board_loop.cpp"
 LIB_PATH = Path(__file__).parent / "native" / "build" / "libboardloop.so"
-ABI_VERSION = 2
+ABI_VERSION = 3
 _CHANNELS = codec.CHANNELS
 
 
@@ -55,6 +55,7 @@ class _State(ctypes.Structure):
     _fields_ = [
         ("m_per_count", ctypes.c_double),
         ("engage_stretch_m", ctypes.c_double),
+        ("engage_speed_m_s", ctypes.c_double),
         ("supply_voltage_v", ctypes.c_double),
         ("stall_force_n", ctypes.c_double),
         ("reflected_mass_kg", ctypes.c_double),
@@ -97,8 +98,9 @@ def build_library(*, force: bool = False) -> Path:
         if force or not LIB_PATH.exists() or LIB_PATH.stat().st_mtime < SOURCE.stat().st_mtime:
             include = Path(mujoco.__file__).parent / "include"
             tmp = LIB_PATH.with_suffix(".tmp")
-            command = ["g++", "-std=c++17", "-O2", "-Wall", "-Wextra", "-Werror", "-shared", "-fPIC",
-                       f"-I{include}", str(SOURCE), "-o", str(tmp)]
+            # -ffp-contract=off: no fused multiply-adds, so the sums round as Python's do.
+            command = ["g++", "-std=c++17", "-O2", "-ffp-contract=off", "-Wall", "-Wextra", "-Werror",
+                       "-shared", "-fPIC", f"-I{include}", str(SOURCE), "-o", str(tmp)]
             try:
                 result = subprocess.run(command, capture_output=True, text=True, check=False)
             except FileNotFoundError as exc:
@@ -162,6 +164,7 @@ class BoardLoop:
         motor = plant._motor
         s.m_per_count = plant._m_per_count
         s.engage_stretch_m = plant._engage_stretch_m
+        s.engage_speed_m_s = plant._engage_speed_m_s
         s.supply_voltage_v = motor.supply_voltage_v
         s.stall_force_n = motor.stall_force_n
         s.reflected_mass_kg = motor.reflected_mass_kg

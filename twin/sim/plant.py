@@ -128,12 +128,9 @@ class Plant:
         self._engage_stretch_m = ENGAGE_MARGIN_N / self._tendon_stiffness
         # Closing speed (m/s) at which a full step's engagement spike reaches ENGAGE_SPIKE_N.
         self._engage_speed_m_s = ENGAGE_SPIKE_N / (self._tendon_stiffness * self._dt)
-        # The sparse tendon Jacobian (mjData.ten_J) is stored row after row: its columns and row
-        # starts, for ten_J · qacc.
-        if not (np.all(m.ten_J_rownnz > 0) and np.array_equal(m.ten_J_rowadr[1:], np.cumsum(m.ten_J_rownnz)[:-1])):
-            raise SimulationError("tendon Jacobian not stored row after row: the engagement check needs it")
-        self._ten_j_cols = m.ten_J_colind[:m.ten_J_rownnz.sum()].copy()
-        self._ten_j_rowadr = m.ten_J_rowadr.copy()
+        # The sparse tendon Jacobian (mjData.ten_J): each row's entries and their columns, for ten_J · qacc.
+        self._ten_j_cols_list = m.ten_J_colind[:m.ten_J_rownnz.sum()].tolist()
+        self._ten_j_rows_list = [range(a, a + k) for a, k in zip(m.ten_J_rowadr.tolist(), m.ten_J_rownnz.tolist())]
         self.short_steps = 0
         m.opt.timestep = self._dt / self._substeps
         self._current_substeps = self._substeps
@@ -399,11 +396,15 @@ class Plant:
         if self._jump:
             return True
         span = span_s + self._dt
-        accel = np.add.reduceat(d.ten_J * d.qacc[self._ten_j_cols], self._ten_j_rowadr).tolist()
-        speed = d.ten_velocity.tolist()
-        extra = self._jump_accel_m_s2
+        # Summed in order in plain floats: twin/device/native/board_loop.cpp does the same sums
+        # in the same order, so both take the same steps.
+        ten_j, qacc, speed = d.ten_J.tolist(), d.qacc.tolist(), d.ten_velocity.tolist()
+        cols, extra = self._ten_j_cols_list, self._jump_accel_m_s2
         for i in near:
-            a = max(accel[i], 0.0) + extra
+            acc = 0.0
+            for k in self._ten_j_rows_list[i]:
+                acc += ten_j[k] * qacc[cols[k]]
+            a = max(acc, 0.0) + extra
             v = max(speed[i], 0.0)
             if v + a * span > self._engage_speed_m_s and stretch[i] + (v + 0.5 * a * span) * span > 0.0:
                 return True

@@ -17,7 +17,7 @@
 
 #include <mujoco/mujoco.h>
 
-#define BL_ABI_VERSION 2
+#define BL_ABI_VERSION 3
 #define BL_CHANNELS 4
 
 extern "C" {
@@ -43,7 +43,8 @@ enum bl_reason {
 struct bl_state {
   // inputs (constant for a plant and board)
   double m_per_count;          // tendon per encoder count (m)
-  double engage_stretch_m;     // a tendon stretched less than this needs the plant's check
+  double engage_stretch_m;     // a tendon stretched less than this gets the engagement check
+  double engage_speed_m_s;     // closing speed at which a full step's spike is too large
   double supply_voltage_v;
   double stall_force_n;
   double reflected_mass_kg;
@@ -116,6 +117,23 @@ static void apply_pwm(const mjModel* m, mjData* d, bl_state* s) {
   }
 }
 
+// Plant._engage_risk for a chunk of one step, with the same float operations in the same order.
+static bool engage_risk(const mjModel* m, const mjData* d, const bl_state* s) {
+  double span = s->tick_s + s->tick_s;
+  for (int i = 0; i < BL_CHANNELS; ++i) {
+    double stretch = d->ten_length[i] - s->slack_length_m[i];
+    if (!(stretch < s->engage_stretch_m)) continue;
+    double acc = 0.0;
+    int start = m->ten_J_rowadr[i], end = start + m->ten_J_rownnz[i];
+    for (int k = start; k < end; ++k) acc += d->ten_J[k] * d->qacc[m->ten_J_colind[k]];
+    // Python's max(x, 0.0): x unless 0.0 is larger.
+    double a = (0.0 > acc ? 0.0 : acc) + s->jump_accel_m_s2;
+    double v = 0.0 > d->ten_velocity[i] ? 0.0 : d->ten_velocity[i];
+    if (v + a * span > s->engage_speed_m_s && stretch + (v + 0.5 * a * span) * span > 0.0) return true;
+  }
+  return false;
+}
+
 int bl_run(const mjModel* m, mjData* d, void* fw, bl_tick_fn tick, bl_pending_fn pending, bl_step_fn step,
            bl_state* s, int32_t max_ticks) {
   s->ticks = 0;
@@ -151,10 +169,9 @@ int bl_run(const mjModel* m, mjData* d, void* fw, bl_tick_fn tick, bl_pending_fn
       s->applied_changed = 1;
     }
     if (pending(fw) > 0) return BL_TX;
-    // EmulatedBoard.advance: Plant.step(TICK_S), one physics step, when no tendon is near slack
-    for (int i = 0; i < BL_CHANNELS; ++i) {
-      if (d->ten_length[i] - s->slack_length_m[i] < s->engage_stretch_m) return BL_ADVANCE;
-    }
+    // EmulatedBoard.advance: Plant.step(TICK_S), one physics step; when the engagement check
+    // asks for short steps, Python takes them.
+    if (engage_risk(m, d, s)) return BL_ADVANCE;
     step(m, d);
     s->jump_accel_m_s2 = 0.0;
     int total = warnings_total(d);
