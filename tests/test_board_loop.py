@@ -36,7 +36,8 @@ def test_a_sweep_is_the_same_with_the_native_loop_and_without(tmp_path):
     assert loop_py is None and ticks == ticks_py
     # Most ticks ran natively, and every way back to Python was taken.
     assert loop.native_ticks > 0.8 * ticks
-    for reason in (Reason.KEEPALIVE, Reason.APPLY, Reason.TX, Reason.ADVANCE, Reason.SAMPLE, Reason.PYTHON):
+    for reason in (Reason.KEEPALIVE, Reason.APPLY, Reason.TX, Reason.ADVANCE, Reason.SAMPLE, Reason.DONE,
+                   Reason.PYTHON):
         assert loop.returns.get(reason, 0) > 0, (reason, loop.returns)
     assert np.array_equal(qpos, qpos_py) and np.array_equal(qvel, qvel_py)
     assert data.columns.keys() == data_py.columns.keys()

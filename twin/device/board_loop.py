@@ -34,7 +34,7 @@ __all__ = ["BoardLoop", "Reason", "available", "build_library"]
 
 SOURCE = Path(__file__).parent / "native" / "board_loop.cpp"
 LIB_PATH = Path(__file__).parent / "native" / "build" / "libboardloop.so"
-ABI_VERSION = 3
+ABI_VERSION = 4
 _CHANNELS = codec.CHANNELS
 
 
@@ -48,7 +48,8 @@ class Reason:
     ADVANCE = 4
     WARNING = 5
     SAMPLE = 6
-    PYTHON = 7  # not from the C side: the tick needs Python from its start
+    DONE = 7
+    PYTHON = 8  # not from the C side: the tick needs Python from its start
 
 
 class _State(ctypes.Structure):
@@ -79,6 +80,7 @@ class _State(ctypes.Structure):
         ("have_applied", ctypes.c_int32),
         ("ticks", ctypes.c_int32),
         ("applied_changed", ctypes.c_int32),
+        ("resume", ctypes.c_int32),
         ("applied_duty", ctypes.c_float * _CHANNELS),
         ("duty", ctypes.c_float * _CHANNELS),
         ("applied_drive", ctypes.c_uint8 * _CHANNELS),
@@ -188,14 +190,18 @@ class BoardLoop:
         plant = self.board.plant
         return plant._friction is None and plant._substeps == 1 and plant.timestep_s == tick_s
 
-    def run(self, deadline_s: float, last_write_s: float, keepalive_s: float | None, max_ticks: int = 1 << 20) -> int:
+    def run(self, deadline_s: float, last_write_s: float, keepalive_s: float | None, *, resume: bool = False,
+            max_ticks: int = 1 << 20) -> int:
         """Tick until a :class:`Reason` to return; the board and plant are left where the
         Python path would be at that point. :data:`Reason.PYTHON`: this tick needs Python from
-        its start (the plant just had a jump, or is taking short steps)."""
+        its start (the plant just had a jump, or is taking short steps). ``resume``: start at the
+        advance of the current tick (after :data:`Reason.TX` and the delivery) and return
+        :data:`Reason.DONE` when the tick is complete."""
         board, plant, s = self.board, self.board.plant, self._state
         if plant._jump or plant._current_substeps != 1:
             self.returns[Reason.PYTHON] = self.returns.get(Reason.PYTHON, 0) + 1
             return Reason.PYTHON
+        s.resume = resume
         s.power_up_s = board._power_up_s
         s.next_sample_s = min(plant._next_loadcell_s, plant._next_tracker_s)
         s.deadline_s = deadline_s

@@ -86,17 +86,20 @@ class SimTransport(Transport):
         """Ticks in native code up to the first that needs Python, then the rest of that tick
         as :meth:`_step` would do it. Bytes reach the inbox only in :meth:`_deliver`, so the
         wait's predicate cannot change during the native ticks."""
-        board = self.board
-        reason = self._loop.run(deadline_s, self._last_write_s, self._keepalive_s)
-        if reason == Reason.DEADLINE:
+        board, loop = self.board, self._loop
+        reason = loop.run(deadline_s, self._last_write_s, self._keepalive_s)
+        if reason == Reason.TX:
+            # Deliver, then the tick's advance natively too where it can be.
+            self._deliver()
+            reason = loop.run(deadline_s, self._last_write_s, self._keepalive_s, resume=True)
+            if reason == Reason.PYTHON:
+                reason = Reason.ADVANCE
+        if reason in (Reason.DEADLINE, Reason.DONE):
             return
         if reason in (Reason.KEEPALIVE, Reason.PYTHON):
             self._step()
         elif reason == Reason.APPLY:
-            board._apply(*self._loop.outputs())
-            self._deliver()
-            board.advance()
-        elif reason == Reason.TX:
+            board._apply(*loop.outputs())
             self._deliver()
             board.advance()
         elif reason == Reason.ADVANCE:

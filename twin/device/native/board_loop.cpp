@@ -17,7 +17,7 @@
 
 #include <mujoco/mujoco.h>
 
-#define BL_ABI_VERSION 3
+#define BL_ABI_VERSION 4
 #define BL_CHANNELS 4
 
 extern "C" {
@@ -36,6 +36,7 @@ enum bl_reason {
   BL_ADVANCE = 4,     // ticked, applied, nothing to deliver; the plant step needs Python
   BL_WARNING = 5,     // stepped; MuJoCo raised a warning
   BL_SAMPLE = 6,      // stepped; a load-cell or tracker sample is due
+  BL_DONE = 7,        // resumed at the advance of a tick and stepped: the tick is complete
 };
 
 // Shared with Python (twin.device.board_loop._State): inputs, state carried across calls,
@@ -70,6 +71,7 @@ struct bl_state {
   int32_t have_applied;        // 1 when applied_duty/applied_drive are what the plant has
   int32_t ticks;               // out: ticks run in the call
   int32_t applied_changed;     // out: 1 when the call gave the plant new motor outputs
+  int32_t resume;              // in: 1 to start at the advance of a tick Python delivered for
   float applied_duty[BL_CHANNELS];
   float duty[BL_CHANNELS];     // out: the last tick's outputs
   uint8_t applied_drive[BL_CHANNELS];
@@ -138,7 +140,11 @@ int bl_run(const mjModel* m, mjData* d, void* fw, bl_tick_fn tick, bl_pending_fn
            bl_state* s, int32_t max_ticks) {
   s->ticks = 0;
   s->applied_changed = 0;
+  bool resume = s->resume != 0;
+  s->resume = 0;
   while (s->ticks < max_ticks) {
+    if (resume) goto advance;
+    {
     double board_s = d->time - s->power_up_s;
     if (board_s >= s->deadline_s) return BL_DEADLINE;
     // The same expression as SimTransport._step, so the PING falls on the same tick.
@@ -169,6 +175,8 @@ int bl_run(const mjModel* m, mjData* d, void* fw, bl_tick_fn tick, bl_pending_fn
       s->applied_changed = 1;
     }
     if (pending(fw) > 0) return BL_TX;
+    }
+  advance:
     // EmulatedBoard.advance: Plant.step(TICK_S), one physics step; when the engagement check
     // asks for short steps, Python takes them.
     if (engage_risk(m, d, s)) return BL_ADVANCE;
@@ -177,6 +185,8 @@ int bl_run(const mjModel* m, mjData* d, void* fw, bl_tick_fn tick, bl_pending_fn
     int total = warnings_total(d);
     if (total != s->warnings_total) return BL_WARNING;
     if (d->time >= s->next_sample_s - 1e-9) return BL_SAMPLE;
+    // After a delivery the wait's predicate must be looked at before the next tick.
+    if (resume) return BL_DONE;
   }
   return BL_DEADLINE;
 }
