@@ -18,12 +18,12 @@ from __future__ import annotations
 import ctypes
 import fcntl
 import functools
+import importlib.util
 import math
 import subprocess
 import warnings
 from pathlib import Path
 
-import mujoco
 import numpy as np
 
 from twin.device import codec
@@ -35,6 +35,9 @@ __all__ = ["BoardLoop", "Reason", "available", "build_library"]
 SOURCE = Path(__file__).parent / "native" / "board_loop.cpp"
 LIB_PATH = Path(__file__).parent / "native" / "build" / "libboardloop.so"
 ABI_VERSION = 4
+# Where the mujoco wheel lives (headers, libmujoco), found without importing it: MuJoCo picks its
+# GL backend on first import, which twin.sim arranges for (headless EGL).
+_MUJOCO_DIR = Path(importlib.util.find_spec("mujoco").submodule_search_locations[0])
 _CHANNELS = codec.CHANNELS
 
 
@@ -98,7 +101,7 @@ def build_library(*, force: bool = False) -> Path:
     with open(LIB_PATH.parent / ".lock", "w") as lock:
         fcntl.flock(lock, fcntl.LOCK_EX)
         if force or not LIB_PATH.exists() or LIB_PATH.stat().st_mtime < SOURCE.stat().st_mtime:
-            include = Path(mujoco.__file__).parent / "include"
+            include = _MUJOCO_DIR / "include"
             tmp = LIB_PATH.with_suffix(".tmp")
             # -ffp-contract=off: no fused multiply-adds, so the sums round as Python's do.
             command = ["g++", "-std=c++17", "-O2", "-ffp-contract=off", "-Wall", "-Wextra", "-Werror",
@@ -127,7 +130,7 @@ def _load() -> tuple[ctypes.CDLL, int, int, int] | None:
         lib.bl_run.restype = ctypes.c_int
         lib.bl_run.argtypes = [ctypes.c_void_p, ctypes.c_void_p, ctypes.c_void_p, ctypes.c_void_p, ctypes.c_void_p,
                                ctypes.c_void_p, ctypes.POINTER(_State), ctypes.c_int32]
-        mujoco_lib = ctypes.CDLL(str(next(Path(mujoco.__file__).parent.glob("libmujoco.so*"))))
+        mujoco_lib = ctypes.CDLL(str(next(_MUJOCO_DIR.glob("libmujoco.so*"))))
         firmware = load_firmware_library()
         pointers = tuple(ctypes.cast(f, ctypes.c_void_p).value for f in
                          (firmware.twinfw_tick, firmware.twinfw_tx_pending, mujoco_lib.mj_step))
