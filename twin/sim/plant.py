@@ -31,7 +31,7 @@ from twin.params import Params, load_params
 from twin.pose import HORIZONTAL
 from twin.sim.effects import FRICTION_MAX_STEP_S, TendonFriction
 from twin.sim.model import ACTUATOR_GROUPS, SPOOL_TRAVEL_M, Layout, build_model, tendon_stiffness_n_per_m
-from twin.sim.motor import MotorConstants, duty_to_voltage_v, encoder_counts
+from twin.sim.motor import MotorConstants, duty_to_voltage_v
 from twin.sim.sensors import LoadCells, LoadCellSample, Tracker, TrackerSample
 
 __all__ = ["ENGAGE_MAX_STEP_S", "MODES", "Plant", "SettleResult", "SimulationError"]
