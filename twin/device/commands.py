@@ -3,7 +3,8 @@
 from __future__ import annotations
 
 import argparse
-import time
+import signal
+import threading
 
 from twin.cliargs import add_param_args, add_pose_args, params_from_args, rotation_from_args
 
@@ -13,7 +14,7 @@ __all__ = ["register"]
 def register(subparsers) -> None:
     p = subparsers.add_parser(
         "emulate",
-        help="run the emulated board (firmware core + MuJoCo twin) on a pseudo-terminal until Ctrl-C",
+        help="run the emulated board (firmware core + MuJoCo twin) on a pseudo-terminal until Ctrl-C or SIGTERM",
     )
     p.add_argument("--seed", type=int, default=0, help="sensor-noise seed of the twin")
     p.add_argument("--link", metavar="PATH", default=None,
@@ -24,20 +25,29 @@ def register(subparsers) -> None:
 
 
 def run_emulate(args: argparse.Namespace) -> int:
-    """Start the board, print its port and device URL, run in real time until Ctrl-C."""
+    """Start the board, print its port and device URL, run in real time until Ctrl-C or SIGTERM.
+
+    SIGTERM is the way for scripts and services: a job a non-interactive shell starts in the
+    background, or a child of a process that is inside system(3), inherits SIGINT ignored.
+    """
     from twin.device.board import TICK_S
     from twin.device.pty_board import PtyBoard
 
-    board = PtyBoard(params_from_args(args), seed=args.seed, base_rotation=rotation_from_args(args),
-                     link_path=args.link)
-    with board:
-        print(f"port: {board.port}", flush=True)
-        print(f"url:  {board.url}", flush=True)
-        try:
-            while True:
-                time.sleep(1.0)
-        except KeyboardInterrupt:
-            pass
-        print(f"stopped after {board.ticks} ticks ({board.ticks * TICK_S:.1f} s of board time), "
-              f"{board.overruns} overruns, {board.tx_dropped_bytes} bytes dropped", flush=True)
+    stop = threading.Event()
+    previous = signal.signal(signal.SIGTERM, lambda signum, frame: stop.set())
+    try:
+        board = PtyBoard(params_from_args(args), seed=args.seed, base_rotation=rotation_from_args(args),
+                         link_path=args.link)
+        with board:
+            print(f"port: {board.port}", flush=True)
+            print(f"url:  {board.url}", flush=True)
+            try:
+                while not stop.wait(1.0):
+                    pass
+            except KeyboardInterrupt:
+                pass
+            print(f"stopped after {board.ticks} ticks ({board.ticks * TICK_S:.1f} s of board time), "
+                  f"{board.overruns} overruns, {board.tx_dropped_bytes} bytes dropped", flush=True)
+    finally:
+        signal.signal(signal.SIGTERM, previous)
     return 0
