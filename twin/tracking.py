@@ -254,18 +254,9 @@ def _angle_floats(u, v) -> float:
     return math.atan2(cross, ux * vx + uy * vy + uz * vz)
 
 
-def _wahba(world: np.ndarray, body: np.ndarray, weights: np.ndarray) -> np.ndarray:
-    """Rotation R (body → world) minimising Σ w_i |world_i − R body_i|² (Markley 1988, SVD).
-
-    Args:
-        world, body: (n, 3) unit directions in each frame.
-        weights: (n,) non-negative weights.
-    """
-    return _wahba_svd((weights[:, None] * world).T @ body)
-
-
 def _wahba_svd(b: np.ndarray) -> np.ndarray:
-    """The rotation nearest to B = Σ w_i world_i body_iᵀ: U diag(1, 1, det U det V) Vᵀ."""
+    """Rotation R (body → world) minimising Σ w_i |world_i − R body_i|² (Markley 1988, SVD),
+    from B = Σ w_i world_i body_iᵀ: U diag(1, 1, det U det V) Vᵀ."""
     u, _, vt = np.linalg.svd(b)
     # The sign fix keeps det R = +1: without it a noisy or planar set can yield a reflection.
     d = math.copysign(1.0, _det3(u.tolist()) * _det3(vt.tolist()))
@@ -374,7 +365,7 @@ def fuse(
     world = np.array([axis_a, axis_b, [x / distance_m for x in baseline]])
     baseline_noise_rad = math.sqrt(2.0) * settings.position_noise_m / cap.distance_m
     weights = np.array([settings.axis_noise_rad, settings.axis_noise_rad, baseline_noise_rad]) ** -2.0
-    # B = Σ w_i world_i body_iᵀ, the matrix whose SVD solves Wahba's problem (_wahba).
+    # B = Σ w_i world_i body_iᵀ, the matrix whose SVD solves Wahba's problem (_wahba_svd).
     rotation = _wahba_svd((world.T * weights) @ cap.body)
     # The mean over both probes of p_i − R c_i.
     position_m = 0.5 * (np.array(pa) + np.array(pb) - rotation @ cap.probe_sum_m)

@@ -167,7 +167,7 @@ class BoardLoop:
         plant = board.plant
         s = self._state = _State()
         motor = plant._motor
-        s.m_per_count = plant._m_per_count
+        s.m_per_count = plant.params.rig.tendon_m_per_count
         s.engage_stretch_m = plant._engage_stretch_m
         s.engage_speed_m_s = plant._engage_speed_m_s
         s.supply_voltage_v = motor.supply_voltage_v

@@ -105,8 +105,7 @@ class SimTransport(Transport):
         elif reason == Reason.ADVANCE:
             board.advance()
         elif reason in (Reason.WARNING, Reason.SAMPLE):
-            board.plant._check_warnings()
-            board.plant._take_due_samples()
+            board.plant._end_chunk()
         else:
             raise RuntimeError(f"board loop returned {reason!r}")
 

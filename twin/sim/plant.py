@@ -31,7 +31,7 @@ from twin.params import Params, load_params
 from twin.pose import HORIZONTAL
 from twin.sim.effects import FRICTION_MAX_STEP_S, TendonFriction
 from twin.sim.model import ACTUATOR_GROUPS, SPOOL_TRAVEL_M, Layout, build_model, tendon_stiffness_n_per_m
-from twin.sim.motor import MotorConstants, duty_to_voltage_v
+from twin.sim.motor import MotorConstants, duty_to_voltage_v, encoder_counts
 from twin.sim.sensors import LoadCells, LoadCellSample, Tracker, TrackerSample
 
 __all__ = ["ENGAGE_MAX_STEP_S", "MODES", "Plant", "SettleResult", "SimulationError"]
@@ -102,7 +102,6 @@ class Plant:
         m, n = self.model, self.params.tendons.count
         self.tendon_count = n
         self._motor = MotorConstants.from_rig(self.params.rig)
-        self._m_per_count = self.params.rig.tendon_m_per_count
         self._spool_joints = np.array([m.joint(f"spool{i}").id for i in range(n)])
         self._spool_q = m.jnt_qposadr[self._spool_joints]
         self._spool_v = m.jnt_dofadr[self._spool_joints]
@@ -265,8 +264,7 @@ class Plant:
                     self._friction.apply(self.model, self.data, self.true_tensions_n())
                     mujoco.mj_step(self.model, self.data)
             remaining -= chunk
-            self._check_warnings()
-            self._take_due_samples()
+            self._end_chunk()
 
     def step_until(self, time_s: float) -> None:
         """Advance to simulation time ``time_s`` (to the first step at or after it)."""
@@ -300,10 +298,7 @@ class Plant:
     # ----------------------------------------------------------------------------- sensors
     def encoder_counts(self) -> np.ndarray:
         """(n,) int64 quadrature counts of the motor encoders (0 at reset, up = paid out)."""
-        # The quantiser of twin.sim.motor.encoder_counts, on plain floats: called every 5 ms tick.
-        per_count = self._m_per_count
-        return np.array([math.floor(x / per_count + 1e-9) for x in self.data.qpos[self._spool_q].tolist()],
-                        dtype=np.int64)
+        return encoder_counts(self.data.qpos[self._spool_q], self.params.rig)
 
     def loadcell_sample(self) -> LoadCellSample:
         """The latest load-cell sample (raw HX711 counts), held between 80 Hz samples."""
@@ -410,8 +405,14 @@ class Plant:
                 return True
         return False
 
+    def _end_chunk(self) -> None:
+        """After a chunk of physics steps (here, or natively in twin.device.board_loop): raise on
+        a MuJoCo warning, then take the samples that have come due."""
+        self._check_warnings()
+        self._take_due_samples()
+
     def _take_due_samples(self) -> None:
-        """Sample the load cells and the tracker if their time has come (after each chunk)."""
+        """Sample the load cells and the tracker if their time has come."""
         now_s = self.data.time
         if now_s >= self._next_loadcell_s - 1e-9:
             self._loadcell = self._sample_loadcells(self._loadcell.index + 1)

@@ -100,9 +100,9 @@ class Tracker:
     def __init__(self, params: Params, rng: np.random.Generator, cap: CapCalibration | None = None):
         cap = cap or CapCalibration()
         offset = np.asarray(params.effects.tracker_offset_m, dtype=float)
-        self._positions = np.array([cap.position_a_m, cap.position_b_m]) + offset
-        self._axes = np.array([cap.axis_a, cap.axis_b])
-        self._positions_list, self._axes_list = self._positions.tolist(), self._axes.tolist()
+        # Probe positions and axes in the tip frame, as plain floats for read().
+        self._positions_list = (np.array([cap.position_a_m, cap.position_b_m]) + offset).tolist()
+        self._axes_list = [list(cap.axis_a), list(cap.axis_b)]
         self._noise_m = params.sensors.tracker_noise_m
         self._noise_rad = params.sensors.tracker_noise_rad
         self._rng = rng
