@@ -92,20 +92,18 @@ class SimTransport(Transport):
             # Deliver, then the tick's advance natively too where it can be.
             self._deliver()
             reason = loop.run(deadline_s, self._last_write_s, self._keepalive_s, resume=True)
-            if reason == Reason.PYTHON:
-                reason = Reason.ADVANCE
         if reason in (Reason.DEADLINE, Reason.DONE):
             return
-        if reason in (Reason.KEEPALIVE, Reason.PYTHON):
+        if reason == Reason.KEEPALIVE:
             self._step()
         elif reason == Reason.APPLY:
             board._apply(*loop.outputs())
             self._deliver()
             board.advance()
-        elif reason == Reason.ADVANCE:
-            board.advance()
-        elif reason in (Reason.WARNING, Reason.SAMPLE):
+        elif reason == Reason.WARNING:
             board.plant._end_chunk()
+        elif reason == Reason.NOISE:
+            board.plant._noise.refill()
         else:
             raise RuntimeError(f"board loop returned {reason!r}")
 

@@ -32,7 +32,7 @@ from twin.pose import HORIZONTAL
 from twin.sim.effects import FRICTION_MAX_STEP_S, TendonFriction
 from twin.sim.model import ACTUATOR_GROUPS, SPOOL_TRAVEL_M, Layout, build_model, tendon_stiffness_n_per_m
 from twin.sim.motor import MotorConstants, duty_to_voltage_v, encoder_counts
-from twin.sim.sensors import LoadCells, LoadCellSample, Tracker, TrackerSample
+from twin.sim.sensors import LoadCells, LoadCellSample, NoiseStream, Tracker, TrackerSample
 
 __all__ = ["ENGAGE_MAX_STEP_S", "MODES", "Plant", "SettleResult", "SimulationError"]
 
@@ -142,9 +142,9 @@ class Plant:
         if seed is not None:
             self._seed = seed
         mujoco.mj_resetData(self.model, self.data)
-        self._rng = np.random.default_rng(self._seed)
-        self._loadcells = LoadCells(self.params, self._rng)
-        self._tracker = Tracker(self.params, self._rng)
+        self._noise = NoiseStream(np.random.default_rng(self._seed))
+        self._loadcells = LoadCells(self.params, self._noise)
+        self._tracker = Tracker(self.params, self._noise)
         if self._friction is not None:
             self._friction.reset()
         self._tip_mass_kg = 0.0

@@ -16,7 +16,7 @@ import numpy as np
 from twin.params import Params
 from twin.tracking import CapCalibration
 
-__all__ = ["HX711_RANGE_COUNTS", "LoadCellSample", "LoadCells", "Tracker", "TrackerSample"]
+__all__ = ["HX711_RANGE_COUNTS", "LoadCellSample", "LoadCells", "NoiseStream", "Tracker", "TrackerSample"]
 
 # The HX711 outputs 24-bit two's complement: readings saturate at these codes.
 HX711_RANGE_COUNTS = (-(2**23), 2**23 - 1)
@@ -54,6 +54,42 @@ class TrackerSample:
     time_s: float
 
 
+class NoiseStream:
+    """The sensors' standard normal draws, in the order they are drawn, through a buffer.
+
+    :class:`LoadCells` and :class:`Tracker` take their noise from here rather than from the
+    generator directly, so that the native tick loop (:mod:`twin.device.board_loop`) can sample
+    the sensors too: it reads :attr:`buffer` from :attr:`cursor` on and moves the cursor on, and
+    both take the same draws in the same order. A generator's normals do not depend on how
+    many are drawn at once, so the buffer does not change them.
+
+    Args:
+        rng: the generator the draws come from.
+        size: draws held at a time.
+    """
+
+    def __init__(self, rng: np.random.Generator, size: int = 4096):
+        self._rng = rng
+        self.buffer = rng.standard_normal(size)
+        self.cursor = 0
+
+    def take(self, n: int) -> list[float]:
+        """The next ``n`` standard normal draws."""
+        if self.cursor + n > self.buffer.size:
+            self.refill()
+        start = self.cursor
+        self.cursor += n
+        return self.buffer[start:self.cursor].tolist()
+
+    def refill(self) -> None:
+        """Move the draws not taken yet to the front (in place: the native loop holds the
+        buffer's address) and draw new ones behind them."""
+        left = self.buffer.size - self.cursor
+        self.buffer[:left] = self.buffer[self.cursor:]
+        self._rng.standard_normal(out=self.buffer[left:])
+        self.cursor = 0
+
+
 class LoadCells:
     """Tension → raw HX711 counts: ``offset + gain · ((1 + e_g) T + e_o + noise)``.
 
@@ -61,30 +97,33 @@ class LoadCells:
     host calibration (:mod:`twin.calibration`) recovers; ``effects.tension_gain_error`` and
     ``effects.tension_offset_error_n`` are a load cell that reads differently from what its
     calibration would say — a drifted zero or a cell loaded off its axis; the noise is Gaussian,
-    ``sensors.loadcell_noise_n`` RMS, drawn from the plant's seeded generator.
+    ``sensors.loadcell_noise_n`` RMS, drawn from the plant's seeded :class:`NoiseStream`.
+    ``native/board_loop.cpp`` does the same sums in the same order.
     """
 
-    def __init__(self, params: Params, rng: np.random.Generator):
+    def __init__(self, params: Params, noise: NoiseStream):
         s, e = params.sensors, params.effects
-        self._gain = s.loadcell_gain_counts_per_n
-        self._offset = np.asarray(s.loadcell_offset_counts, dtype=float)
-        self._gain_error = np.asarray(e.tension_gain_error, dtype=float)
-        self._offset_error = np.asarray(e.tension_offset_error_n, dtype=float)
-        self._noise = s.loadcell_noise_n
-        self._rng = rng
+        self.gain_counts_per_n = float(s.loadcell_gain_counts_per_n)
+        self.offset_counts = [float(x) for x in s.loadcell_offset_counts]
+        self.gain_error = [float(x) for x in e.tension_gain_error]
+        self.offset_error_n = [float(x) for x in e.tension_offset_error_n]
+        self.noise_n = float(s.loadcell_noise_n)
+        self._noise = noise
 
     def read(self, tensions_n) -> np.ndarray:
         """Raw counts (int64, clipped to the 24-bit range) for true tensions (N)."""
-        t = np.asarray(tensions_n, dtype=float)
-        sensed = (1.0 + self._gain_error) * t + self._offset_error
-        if self._noise > 0:
-            sensed += self._rng.normal(0.0, self._noise, t.shape)
-        # Plain floats from here (round() rounds half to even, as np.rint): on four channels
-        # they are several times faster than numpy's calls.
+        # Plain floats (round() rounds half to even, as np.rint): on four channels they are
+        # several times faster than numpy's calls.
+        t = np.asarray(tensions_n, dtype=float).tolist()
+        z = self._noise.take(len(t)) if self.noise_n > 0 else None
         low, high = HX711_RANGE_COUNTS
-        gain = self._gain
-        return np.array([min(max(round(o + gain * x), low), high)
-                         for o, x in zip(self._offset.tolist(), sensed.tolist())], dtype=np.int64)
+        gain, counts = self.gain_counts_per_n, []
+        for i, (o, e_g, e_o) in enumerate(zip(self.offset_counts, self.gain_error, self.offset_error_n)):
+            sensed = (1.0 + e_g) * t[i] + e_o
+            if z is not None:
+                sensed = sensed + self.noise_n * z[i]
+            counts.append(min(max(round(o + gain * sensed), low), high))
+        return np.array(counts, dtype=np.int64)
 
 
 class Tracker:
@@ -97,25 +136,26 @@ class Tracker:
     turned by a small random rotation of ``sensors.tracker_noise_rad`` RMS per component.
     """
 
-    def __init__(self, params: Params, rng: np.random.Generator, cap: CapCalibration | None = None):
+    def __init__(self, params: Params, noise: NoiseStream, cap: CapCalibration | None = None):
         cap = cap or CapCalibration()
         offset = np.asarray(params.effects.tracker_offset_m, dtype=float)
-        # Probe positions and axes in the tip frame, as plain floats for read().
-        self._positions_list = (np.array([cap.position_a_m, cap.position_b_m]) + offset).tolist()
-        self._axes_list = [list(cap.axis_a), list(cap.axis_b)]
-        self._noise_m = params.sensors.tracker_noise_m
-        self._noise_rad = params.sensors.tracker_noise_rad
-        self._rng = rng
+        # Probe positions (m) and unit axes in the tip frame, as plain floats for read().
+        self.positions_m = (np.array([cap.position_a_m, cap.position_b_m]) + offset).tolist()
+        self.axes = [[float(x) for x in cap.axis_a], [float(x) for x in cap.axis_b]]
+        self.noise_m = float(params.sensors.tracker_noise_m)
+        self.noise_rad = float(params.sensors.tracker_noise_rad)
+        self._noise = noise
 
     def read(self, tip_position_m, tip_rotation) -> tuple[np.ndarray, np.ndarray]:
         """(positions (2, 3) m, unit axes (2, 3)) in the world frame for a tip pose."""
         # Plain floats: on two 3-vectors they are several times faster than numpy's calls.
         (r00, r01, r02), (r10, r11, r12), (r20, r21, r22) = np.asarray(tip_rotation, dtype=float).tolist()
         px, py, pz = np.asarray(tip_position_m, dtype=float).tolist()
-        noise_m = self._rng.normal(0.0, self._noise_m, 6).tolist() if self._noise_m > 0 else [0.0] * 6
-        noise_rad = self._rng.normal(0.0, self._noise_rad, 6).tolist() if self._noise_rad > 0 else None
+        # The same sums in the same order as native/board_loop.cpp.
+        noise_m = [self.noise_m * z for z in self._noise.take(6)] if self.noise_m > 0 else [0.0] * 6
+        noise_rad = [self.noise_rad * z for z in self._noise.take(6)] if self.noise_rad > 0 else None
         positions, axes = [], []
-        for k, ((x, y, z), (u, v, w)) in enumerate(zip(self._positions_list, self._axes_list)):
+        for k, ((x, y, z), (u, v, w)) in enumerate(zip(self.positions_m, self.axes)):
             positions.append([px + r00 * x + r01 * y + r02 * z + noise_m[3 * k],
                               py + r10 * x + r11 * y + r12 * z + noise_m[3 * k + 1],
                               pz + r20 * x + r21 * y + r22 * z + noise_m[3 * k + 2]])
