@@ -20,6 +20,7 @@ from twin.tracking import (
     fuse,
     fuse_frame,
 )
+from twin.tracking import _wahba
 
 CAL = CapCalibration()
 
@@ -107,6 +108,46 @@ def test_non_perpendicular_probes_still_give_a_proper_rotation():
     assert_proper_rotation(result.pose.rotation)
     np.testing.assert_allclose(result.pose.rotation, rotation, atol=1e-12)
     np.testing.assert_allclose(result.pose.position_m, position, atol=1e-14)
+
+
+def _wahba_by_svd(b):
+    u, _, vt = np.linalg.svd(b)
+    u[:, 2] *= np.sign(np.linalg.det(u) * np.linalg.det(vt))
+    return u @ vt
+
+
+@pytest.mark.parametrize("case", ["noisy", "reflection", "equal weights", "two directions", "parallel"])
+def test_the_wahba_solution_is_the_svd_one(case):
+    """The eigenvector form gives Markley's SVD solution: for noisy direction sets, a B whose
+    polar factor is a reflection, a repeated singular value, a rank-2 B, and (the fallback)
+    all directions parallel."""
+    rng = np.random.default_rng(7)
+    for _ in range(200):
+        rotation = random_rotation(rng)
+        body = rng.normal(size=(3, 3))
+        body /= np.linalg.norm(body, axis=1, keepdims=True)
+        weights = rng.uniform(0.1, 10.0, 3)
+        if case == "equal weights":
+            body, weights = np.eye(3), np.full(3, 2.5e5)
+        if case == "two directions":
+            weights[2] = 0.0
+        if case == "parallel":
+            body[:] = body[0]
+        world = body @ rotation.T + rng.normal(scale=0.05, size=(3, 3))
+        if case == "reflection":
+            world = -world
+        b = (world.T * weights) @ body
+        expected = _wahba_by_svd(b)
+        if case in ("two directions", "parallel"):
+            # R is not unique there: compare the cost, not the rotation.
+            cost = lambda r: np.sum(weights * np.sum((world - body @ r.T) ** 2, axis=1))
+            r = np.array(_wahba(b.tolist()))
+            assert_proper_rotation(r)
+            assert cost(r) <= cost(expected) * (1 + 1e-9) + 1e-12
+            continue
+        r = np.array(_wahba(b.tolist()))
+        assert_proper_rotation(r)
+        np.testing.assert_allclose(r, expected, atol=1e-11)
 
 
 def test_axes_measured_off_perpendicular_give_the_best_fit_rotation():

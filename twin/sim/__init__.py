@@ -5,17 +5,11 @@ Model generation (:mod:`twin.sim.model`), the plant the device layer wraps
 (:mod:`twin.sim.effects`), rendering, the cross-check against the predictor and the benchmark.
 """
 
-import os
-
-if not os.environ.get("DISPLAY"):
-    # Without a display GLFW cannot render; MuJoCo picks its GL backend when it is first
-    # imported, so choose headless EGL here, before any twin.sim module imports mujoco.
-    os.environ.setdefault("MUJOCO_GL", "egl")
-
-from twin.sim.bench import bench_sim  # noqa: E402
-from twin.sim.model import Layout, build_model, build_spec, model_xml  # noqa: E402
-from twin.sim.plant import MODES, Plant, SettleResult, SimulationError  # noqa: E402
-from twin.sim.sensors import LoadCellSample, TrackerSample  # noqa: E402
+# twin/__init__.py has chosen MuJoCo's headless GL backend before anything here imports mujoco.
+from twin.sim.bench import bench_sim
+from twin.sim.model import Layout, build_model, build_spec, model_xml
+from twin.sim.plant import MODES, Plant, SettleResult, SimulationError
+from twin.sim.sensors import LoadCellSample, TrackerSample
 
 __all__ = [
     "MODES",

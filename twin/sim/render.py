@@ -1,7 +1,7 @@
 """Headless pictures of the twin for reports (EGL or OSMesa; GLFW needs a display).
 
 MuJoCo picks its OpenGL backend from ``MUJOCO_GL`` when ``mujoco`` is first imported; without a
-display :mod:`twin.sim` defaults it to ``egl`` (set ``MUJOCO_GL=osmesa`` yourself for OSMesa).
+display :mod:`twin` defaults it to ``egl`` (set ``MUJOCO_GL=osmesa`` yourself for OSMesa).
 :func:`render_png` raises :class:`RenderError` naming what to install or set when no backend works.
 """
 
