@@ -84,12 +84,13 @@ class SimTransport(Transport):
 
     def _run_native(self, deadline_s: float) -> None:
         """Ticks in native code up to the first that needs Python, then the rest of that tick
-        as :meth:`_step` would do it. Bytes reach the inbox only in :meth:`_deliver`, so the
-        wait's predicate cannot change during the native ticks."""
+        as :meth:`_step` would do it (or, before a tick, the noise refill). Bytes reach the
+        inbox only in :meth:`_deliver`, so the wait's predicate cannot change during the
+        native ticks."""
         board, loop = self.board, self._loop
         reason = loop.run(deadline_s, self._last_write_s, self._keepalive_s)
         if reason == Reason.TX:
-            # Deliver, then the tick's advance natively too where it can be.
+            # Deliver, then the tick's advance natively.
             self._deliver()
             reason = loop.run(deadline_s, self._last_write_s, self._keepalive_s, resume=True)
         if reason in (Reason.DEADLINE, Reason.DONE):
