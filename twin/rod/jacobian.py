@@ -63,11 +63,6 @@ class TipJacobian:
         return self.matrix[3:, self.tendon_count + 3 :]
 
 
-def _rotation_vector(delta: np.ndarray) -> np.ndarray:
-    """Small-angle rotation vector of δR (world frame): vee of the skew part."""
-    return 0.5 * np.array([delta[2, 1] - delta[1, 2], delta[0, 2] - delta[2, 0], delta[1, 0] - delta[0, 1]])
-
-
 def tip_jacobian(model: RodModel, solution: RodSolution) -> TipJacobian:
     """The tip-pose Jacobian at a converged ``solution`` of ``model``.
 
@@ -86,60 +81,29 @@ def tip_jacobian(model: RodModel, solution: RodSolution) -> TipJacobian:
     r_ref = solution.tip_rotation
     scale = model.moment_scale_nm
 
-    # The kernel's arguments are built once; each perturbation is made in place and undone.
+    # The kernel perturbs the tendon table and the tip force in place: both are copies here.
     args = list(kernel_args(model, load, states, strains))
-    tendons = args[6]  # a copy of the model's tendon table with this load's tensions
-    force = args[9] = load.tip_force_n.copy()
-    column = kernel.T_TAU
-
-    def run(m0_, tendon: int | None = None, force_axis: int | None = None, h: float = 0.0):
-        if tendon is not None:
-            tendons[tendon, column] += h
-        if force_axis is not None:
-            force[force_axis] += h
-        ok, res = kernel.integrate(np.array(m0_, dtype=float), *args)
-        if tendon is not None:
-            tendons[tendon, column] = load.tensions_n[tendon]
-        if force_axis is not None:
-            force[force_axis] = load.tip_force_n[force_axis]
-        if not ok:
-            raise ValueError("tip_jacobian: a perturbed integration failed; the solution is on a singular branch")
-        dpose = np.concatenate([states[-1, 0:3] - p_ref,
-                                _rotation_vector(states[-1, 3:12].reshape(3, 3) @ r_ref.T)])
-        return res.copy(), dpose
-
+    args[9] = load.tip_force_n.copy()
     # ∂r/∂m0 and ∂T/∂m0 by central differences: the implicit-function step amplifies their
-    # error by the conditioning of ∂r/∂m0, so they get the second-order scheme.
+    # error by the conditioning of ∂r/∂m0, so they get the second-order scheme. The others are
+    # forward differences against an integration of the unperturbed case in the same call, so
+    # that no difference in how the reference was reached leaks in as O(eps/h).
     h_m = 1e-5 * scale
+    h_tau = 1e-6 * max(1.0, float(np.max(load.tensions_n)))
+    h_f = 1e-6 * max(0.1, float(np.max(np.abs(load.tip_force_n))))
+    ncol = nt + 6
     dr_dm = np.empty((3, 3))
     dt_dm = np.empty((6, 3))
-    for j in range(3):
-        e = np.zeros(3)
-        e[j] = h_m
-        res_p, pose_p = run(m0 + e)
-        res_m, pose_m = run(m0 - e)
-        dr_dm[:, j] = (res_p - res_m) / (2 * h_m)
-        dt_dm[:, j] = (pose_p - pose_m) / (2 * h_m)
-    # Forward differences are taken against an integration of the unperturbed case in this very
-    # routine, so that no difference in how the reference was reached leaks in as O(eps/h).
-    res_0, pose_0 = run(m0)
-    ncol = nt + 6
     dr_dth = np.zeros((3, ncol))
     dt_dth = np.zeros((6, ncol))
     # The tip moment enters only the boundary residual r = m(L) − M_e (kernel.integrate): at a
     # fixed m0 the shape does not move, so ∂r/∂M_e = −I and ∂T/∂M_e = 0, exactly.
     dr_dth[:, nt + 3:] = -np.eye(3)
-    h_tau = 1e-6 * max(1.0, float(np.max(load.tensions_n)))
-    h_f = 1e-6 * max(0.1, float(np.max(np.abs(load.tip_force_n))))
-    for j in range(nt + 3):
-        if j < nt:
-            h = h_tau
-            res, dpose = run(m0, tendon=j, h=h)
-        else:
-            h = h_f
-            res, dpose = run(m0, force_axis=j - nt, h=h)
-        dr_dth[:, j] = (res - res_0) / h
-        dt_dth[:, j] = (dpose - pose_0) / h
+    # One compiled call for all 7 + nt + 3 integrations: from Python each cost 25 µs of
+    # overhead on top of its 65 (twin bench predictor).
+    if not kernel.tip_sensitivities(np.asarray(m0, dtype=float), h_m, h_tau, h_f, np.asarray(p_ref, dtype=float),
+                                    np.asarray(r_ref, dtype=float), *args, dr_dm, dt_dm, dr_dth, dt_dth):
+        raise ValueError("tip_jacobian: a perturbed integration failed; the solution is on a singular branch")
     dm0 = -np.linalg.solve(dr_dm, dr_dth)
     return TipJacobian(matrix=dt_dth + dt_dm @ dm0, tendon_count=nt)
 

@@ -462,3 +462,94 @@ def shoot(m0, p0, r0, nodes, intervals, kse, kbt, tendons, length, mu, tip_force
         # The last accepted trial left states at m0.
         return 0, norm, max_iter, calls
     return 1, norm, max_iter, calls
+
+
+@njit(cache=True)
+def _tip_change(states, p_ref, r_ref, out):
+    """Tip pose of the last integration against (p_ref, r_ref): position change (m) and the
+    world-frame rotation vector of R r_refᵀ (rad, small-angle: half the vee of its skew part)."""
+    last = states.shape[0] - 1
+    for i in range(3):
+        out[i] = states[last, i] - p_ref[i]
+    d = np.empty((3, 3))
+    for i in range(3):
+        for j in range(3):
+            acc = 0.0
+            for k in range(3):
+                acc += states[last, 3 + 3 * i + k] * r_ref[j, k]
+            d[i, j] = acc
+    out[3] = 0.5 * (d[2, 1] - d[1, 2])
+    out[4] = 0.5 * (d[0, 2] - d[2, 0])
+    out[5] = 0.5 * (d[1, 0] - d[0, 1])
+
+
+@njit(cache=True)
+def tip_sensitivities(m0, h_m, h_tau, h_f, p_ref, r_ref, p0, r0, nodes, intervals, kse, kbt, tendons, length,
+                      mu, tip_force, tip_moment, grav, line_mass, pm_s, pm_m, states, strains,
+                      dr_dm, dt_dm, dr_dth, dt_dth):
+    """The partial derivatives twin.rod.jacobian.tip_jacobian combines, from single integrations
+    at the converged base moment m0 (7 + nt + 3 of them, in one compiled call).
+
+    ∂r/∂m0 (3, 3) and ∂T/∂m0 (6, 3) by central differences of step ``h_m`` (N·m); ∂r/∂θ and ∂T/∂θ
+    for θ = each tension (step ``h_tau``, N) then each tip force component (``h_f``, N) by forward
+    differences against an integration at m0, written into the first nt + 3 columns of
+    ``dr_dth`` (3, ·) and ``dt_dth`` (6, ·). T is the tip pose change against (p_ref, r_ref):
+    position (m) and rotation vector (rad). ``tendons`` and ``tip_force`` are perturbed in place
+    and restored.
+
+    Returns:
+        False when a perturbed integration failed (the outputs are then incomplete).
+    """
+    nt = tendons.shape[0]
+    trial = np.empty(3)
+    pose_p = np.empty(6)
+    pose_m = np.empty(6)
+    pose_0 = np.empty(6)
+    pose = np.empty(6)
+    for j in range(3):
+        for i in range(3):
+            trial[i] = m0[i]
+        trial[j] = m0[j] + h_m
+        ok, res_p = integrate(trial, p0, r0, nodes, intervals, kse, kbt, tendons, length, mu, tip_force,
+                              tip_moment, grav, line_mass, pm_s, pm_m, states, strains)
+        if not ok:
+            return False
+        _tip_change(states, p_ref, r_ref, pose_p)
+        trial[j] = m0[j] - h_m
+        ok, res_m = integrate(trial, p0, r0, nodes, intervals, kse, kbt, tendons, length, mu, tip_force,
+                              tip_moment, grav, line_mass, pm_s, pm_m, states, strains)
+        if not ok:
+            return False
+        _tip_change(states, p_ref, r_ref, pose_m)
+        for i in range(3):
+            dr_dm[i, j] = (res_p[i] - res_m[i]) / (2 * h_m)
+        for i in range(6):
+            dt_dm[i, j] = (pose_p[i] - pose_m[i]) / (2 * h_m)
+    ok, res_0 = integrate(m0, p0, r0, nodes, intervals, kse, kbt, tendons, length, mu, tip_force,
+                          tip_moment, grav, line_mass, pm_s, pm_m, states, strains)
+    if not ok:
+        return False
+    _tip_change(states, p_ref, r_ref, pose_0)
+    for j in range(nt + 3):
+        if j < nt:
+            h = h_tau
+            saved = tendons[j, T_TAU]
+            tendons[j, T_TAU] = saved + h
+        else:
+            h = h_f
+            saved = tip_force[j - nt]
+            tip_force[j - nt] = saved + h
+        ok, res = integrate(m0, p0, r0, nodes, intervals, kse, kbt, tendons, length, mu, tip_force,
+                            tip_moment, grav, line_mass, pm_s, pm_m, states, strains)
+        if j < nt:
+            tendons[j, T_TAU] = saved
+        else:
+            tip_force[j - nt] = saved
+        if not ok:
+            return False
+        _tip_change(states, p_ref, r_ref, pose)
+        for i in range(3):
+            dr_dth[i, j] = (res[i] - res_0[i]) / h
+        for i in range(6):
+            dt_dth[i, j] = (pose[i] - pose_0[i]) / h
+    return True
