@@ -217,6 +217,16 @@ def _internal_force(s, mid, length, tip_force, grav, line_mass, pm_s, pm_m, n):
 
 
 @njit(cache=True)
+def internal_forces(nodes, intervals, length, tip_force, grav, line_mass, pm_s, pm_m, out):
+    """n(s) at every station (N, world) into ``out`` (K+1, 3): :func:`_internal_force` with each
+    station's interval (the last station takes the last interval's)."""
+    last = intervals.shape[0] - 1
+    for k in range(nodes.shape[0]):
+        _internal_force(nodes[k], intervals[min(k, last)], length, tip_force, grav, line_mass, pm_s, pm_m, out[k])
+    return out
+
+
+@njit(cache=True)
 def _deriv(y, s, mid, vu, kse, kbt, tendons, nt, length, mu, tip_force, grav, line_mass,
            pm_s, pm_m, dy, work6, jac, rhs, dx, r, rp, q, work, routes):
     """dy/ds of the state; updates the strains vu in place. Returns False if the local solve failed."""
