@@ -101,6 +101,14 @@ def test_wrong_format_or_version_is_refused(tmp_path):
         read_dataset(tmp_path / "nowhere")
 
 
+def test_a_validate_run_folder_reads_as_its_dataset(tmp_path):
+    with writer(tmp_path / "run" / "dataset") as w:
+        w.write(row(0))
+    assert read_dataset(tmp_path / "run").columns["config"].tolist() == [0]
+    with pytest.raises(DatasetError, match="missing"):
+        read_dataset(tmp_path)
+
+
 def test_header_lists_the_documented_columns(tmp_path):
     with writer(tmp_path) as w:
         w.write(row(0))

@@ -19,7 +19,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         "candidate effect (twin.effects) on a training split, rank them on held-out rows, and name the "
         "winner (greedy, until nothing beats noise).",
     )
-    p.add_argument("dataset", metavar="DATASET", help="dataset folder (as written by twin validate)")
+    p.add_argument("dataset", metavar="DATASET", help="dataset folder, or the run folder of twin validate")
     p.add_argument("--params", metavar="FILE",
                    help="parameter file of the model to test (default: the one recorded with the dataset)")
     p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",

@@ -98,7 +98,7 @@ def _run_folder(args, name: str) -> Path:
 
 def run_validate(args: argparse.Namespace) -> int:
     from twin.experiments.analysis import analyse_validation
-    from twin.experiments.dataset import read_dataset
+    from twin.experiments.dataset import RUN_DATASET, read_dataset
     from twin.device.errors import DeviceError
     from twin.experiments.protocols import ProtocolError, run_validation
     from twin.experiments.report import write_validation_report
@@ -117,15 +117,15 @@ def run_validate(args: argparse.Namespace) -> int:
     device = _open(args, params)
     try:
         calibration = _calibration(args, params, device)
-        run_validation(device, folder / "dataset", params, grid=grid, calibration=calibration)
+        run_validation(device, folder / RUN_DATASET, params, grid=grid, calibration=calibration)
     except (ProtocolError, DeviceError, SimulationError) as exc:
         print(f"twin validate: stopped: {type(exc).__name__}: {exc}. Every measurement so far is in "
-              f"{folder / 'dataset'}; continue with --resume {folder}", file=sys.stderr)
+              f"{folder / RUN_DATASET}; continue with --resume {folder}", file=sys.stderr)
         return 4
     finally:
         device.close()
     sweep_s = time.perf_counter() - start
-    dataset = read_dataset(folder / "dataset")
+    dataset = read_dataset(folder / RUN_DATASET)
     result = analyse_validation(dataset, params, progress=True)
     picture = _picture(args, params, folder)
     path = write_validation_report(result, folder, picture=picture,
@@ -160,7 +160,7 @@ def _picture(args, params, folder: Path) -> Path | None:
 
 
 def run_stiffness_cmd(args: argparse.Namespace) -> int:
-    from twin.experiments.dataset import read_dataset
+    from twin.experiments.dataset import RUN_DATASET, read_dataset
     from twin.experiments.protocols import run_stiffness
     from twin.experiments.stiffness import fit_stiffness, plot_error_surface
 
@@ -169,10 +169,10 @@ def run_stiffness_cmd(args: argparse.Namespace) -> int:
     device = _open(args, params)
     try:
         _calibration(args, params, device)
-        run_stiffness(device, folder / "dataset", params)
+        run_stiffness(device, folder / RUN_DATASET, params)
     finally:
         device.close()
-    result = fit_stiffness(read_dataset(folder / "dataset"), params)
+    result = fit_stiffness(read_dataset(folder / RUN_DATASET), params)
     plot_error_surface(result, folder / "error_surface.png")
     result.fit.params.save(folder / "fitted_params.toml")
     for row in result.fit.table():

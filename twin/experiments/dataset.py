@@ -61,6 +61,8 @@ VERSION = 1
 TENDONS = 4
 MEASUREMENTS = "measurements.csv"
 METADATA = "metadata.json"
+# Where a ``twin validate`` run folder keeps its dataset.
+RUN_DATASET = "dataset"
 
 _INT_COLUMNS = ("config", "repeat")
 _STR_COLUMNS = ("experiment",)
@@ -236,7 +238,8 @@ class DatasetWriter:
 
 
 def read_dataset(folder: str | Path) -> Dataset:
-    """Read and check a dataset folder (or a path to its ``measurements.csv``).
+    """Read and check a dataset folder (or a path to its ``measurements.csv``, or the run
+    folder of ``twin validate``, which keeps its dataset in ``dataset/``).
 
     Raises:
         DatasetError: missing files, wrong format/version, missing or malformed columns
@@ -245,6 +248,8 @@ def read_dataset(folder: str | Path) -> Dataset:
     folder = Path(folder)
     if folder.is_file():
         folder = folder.parent
+    if not (folder / METADATA).exists() and (folder / RUN_DATASET / METADATA).exists():
+        folder = folder / RUN_DATASET
     meta_path, csv_path = folder / METADATA, folder / MEASUREMENTS
     for path in (meta_path, csv_path):
         if not path.exists():
