@@ -438,24 +438,6 @@ def _raise_cobs_error(data: bytes) -> None:
     raise FrameError(f"invalid COBS frame of {n} bytes")
 
 
-def encode_payload(message: Message) -> bytes:
-    """The payload bytes of ``message`` (little-endian, fields in LAYOUT order)."""
-    flat: list = []
-    for name, code in message.LAYOUT:
-        value = getattr(message, name)
-        if code[0].isdigit():
-            count = int(code[:-1])
-            if len(value) != count:
-                raise CodecError(f"{type(message).__name__}.{name} = {value!r}: must have {count} entries")
-            flat.extend(value)
-        else:
-            flat.append(value)
-    try:
-        return _STRUCTS[message.TYPE].pack(*flat)
-    except (struct.error, OverflowError) as exc:
-        raise CodecError(f"{message!r} cannot be encoded: {exc}") from None
-
-
 def _fields_of(cls: type[Message]) -> tuple[tuple[str, int, int | None], ...]:
     """(name, index of its first value in the unpacked tuple, count or None for a scalar)."""
     fields, start = [], 0
@@ -467,6 +449,23 @@ def _fields_of(cls: type[Message]) -> tuple[tuple[str, int, int | None], ...]:
 
 
 _FIELDS = {t: _fields_of(cls) for t, cls in MESSAGE_TYPES.items()}
+
+
+def encode_payload(message: Message) -> bytes:
+    """The payload bytes of ``message`` (little-endian, fields in LAYOUT order)."""
+    flat: list = []
+    for name, _, count in _FIELDS[message.TYPE]:
+        value = getattr(message, name)
+        if count is None:
+            flat.append(value)
+        elif len(value) == count:
+            flat.extend(value)
+        else:
+            raise CodecError(f"{type(message).__name__}.{name} = {value!r}: must have {count} entries")
+    try:
+        return _STRUCTS[message.TYPE].pack(*flat)
+    except (struct.error, OverflowError) as exc:
+        raise CodecError(f"{message!r} cannot be encoded: {exc}") from None
 
 
 def decode_payload(msg_type: int, payload: bytes) -> Message:
