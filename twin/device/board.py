@@ -38,14 +38,15 @@ class EmulatedBoard:
         params: parameter set of the plant (default ``models/endoscope.toml``).
         seed: seed of the plant's sensor noise.
         base_rotation: clamp orientation, 3×3 (default horizontal, the thesis set-up).
+        native: let the plant step in native code (:class:`twin.sim.plant.Plant`'s ``native``).
 
     Attributes:
         plant: the :class:`twin.sim.plant.Plant`; fixtures act on it directly.
         firmware: the :class:`FirmwareLib` of the current power-up.
     """
 
-    def __init__(self, params: Params | None = None, *, seed: int = 0, base_rotation=HORIZONTAL):
-        self.plant = Plant(params, base_rotation=base_rotation, seed=seed)
+    def __init__(self, params: Params | None = None, *, seed: int = 0, base_rotation=HORIZONTAL, native: bool = True):
+        self.plant = Plant(params, base_rotation=base_rotation, seed=seed, native=native)
         self.firmware = FirmwareLib()
         self._power_up_s = self.plant.time_s
         self._last_loadcell_index = -1

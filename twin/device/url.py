@@ -3,8 +3,8 @@ on a pseudo-terminal).
 
 ``sim://[?seed=N][&pose=horizontal|up][&native=1|0]``
     The emulated board (:class:`twin.device.board.EmulatedBoard`) in simulated time.
-    ``native=0`` ticks it in Python only, not in :mod:`twin.device.board_loop` (same results,
-    slower; for checking the two against each other).
+    ``native=0`` ticks it and steps its plant in Python only, not in :mod:`twin.device.board_loop`
+    and :mod:`twin.sim.native_loop` (same results, slower; for checking the two against each other).
 ``serial://<path>[?igtl=host:port]``
     A board on a serial port: ``serial:///dev/ttyACM0``, or the pseudo-terminal printed by
     ``twin emulate``. ``igtl`` names the OpenIGTLink server of the EM tracker (PLUS); without
@@ -92,10 +92,11 @@ def open_device(
         from twin.device.board import EmulatedBoard
         from twin.device.sim_transport import SimTransport
 
+        native = _flag(url, options, "native", True)
         board = EmulatedBoard(params, seed=_seed(url, options, seed),
-                              base_rotation=_pose(url, options.get("pose", "horizontal")))
+                              base_rotation=_pose(url, options.get("pose", "horizontal")), native=native)
         device = Device(
-            SimTransport(board, url=url, native_loop=_flag(url, options, "native", True)),
+            SimTransport(board, url=url, native_loop=native),
             tracker=TipTracker(lambda: sim_probe_source(board.plant), settings=settings),
             **device_args,
         )

@@ -29,6 +29,7 @@ import numpy as np
 
 from twin.params import Params, load_params
 from twin.pose import HORIZONTAL
+from twin.sim import native_loop
 from twin.sim.effects import FRICTION_MAX_STEP_S, TendonFriction
 from twin.sim.model import ACTUATOR_GROUPS, SPOOL_TRAVEL_M, Layout, build_model, tendon_stiffness_n_per_m
 from twin.sim.motor import MotorConstants, duty_to_voltage_v, encoder_counts
@@ -85,6 +86,8 @@ class Plant:
         seed: seed of the sensor-noise generator.
         elements: override of ``sim.elements``.
         tendon_sites: override of ``sim.tendon_routing``; see :class:`twin.sim.model.Layout`.
+        native: step in native code (:mod:`twin.sim.native_loop`; same numbers, several times
+            less overhead) where it can: four tendons, no tendon friction, g++ at hand.
 
     Attributes:
         short_steps: physics steps of ``sim.timestep_s`` taken as shorter ones to take up a
@@ -92,7 +95,7 @@ class Plant:
     """
 
     def __init__(self, params: Params | None = None, *, base_rotation=HORIZONTAL, seed: int = 0,
-                 elements: int | None = None, tendon_sites: str | None = None):
+                 elements: int | None = None, tendon_sites: str | None = None, native: bool = True):
         self.params = params if params is not None else load_params()
         self.base_rotation = np.asarray(base_rotation, dtype=float)
         self.model = build_model(self.params, base_rotation=self.base_rotation, elements=elements,
@@ -134,6 +137,9 @@ class Plant:
         m.opt.timestep = self._dt / self._substeps
         self._current_substeps = self._substeps
         self.reset(seed)
+        # Friction is updated from Python between steps: that plant steps in Python.
+        usable = native and self._friction is None and n == native_loop.CHANNELS
+        self._native = native_loop.PlantLoop(self) if usable and native_loop.available() else None
 
     # ----------------------------------------------------------------------------- state
     def reset(self, seed: int | None = None) -> None:
@@ -246,6 +252,9 @@ class Plant:
         if not (math.isfinite(duration_s) and duration_s >= 0):
             raise ValueError(f"duration_s = {duration_s!r}: must be finite and >= 0")
         remaining = max(1, round(duration_s / self._dt)) if duration_s > 0 else 0
+        if remaining and self._native is not None:
+            self._native.run(remaining)
+            return
         model, data = self.model, self.data
         while remaining > 0:
             chunk = min(remaining, self._steps_until(min(self._next_loadcell_s, self._next_tracker_s)))
@@ -391,7 +400,7 @@ class Plant:
         if self._jump:
             return True
         span = span_s + self._dt
-        # Summed in order in plain floats: twin/device/native/board_loop.cpp does the same sums
+        # Summed in order in plain floats: twin/sim/native/loop.cpp does the same sums
         # in the same order, so both take the same steps.
         ten_j, qacc, speed = d.ten_J.tolist(), d.qacc.tolist(), d.ten_velocity.tolist()
         cols, extra = self._ten_j_cols_list, self._jump_accel_m_s2

@@ -98,7 +98,7 @@ class LoadCells:
     ``effects.tension_offset_error_n`` are a load cell that reads differently from what its
     calibration would say — a drifted zero or a cell loaded off its axis; the noise is Gaussian,
     ``sensors.loadcell_noise_n`` RMS, drawn from the plant's seeded :class:`NoiseStream`.
-    ``native/board_loop.cpp`` does the same sums in the same order.
+    ``native/loop.cpp`` does the same sums in the same order.
     """
 
     def __init__(self, params: Params, noise: NoiseStream):
@@ -151,7 +151,7 @@ class Tracker:
         # Plain floats: on two 3-vectors they are several times faster than numpy's calls.
         (r00, r01, r02), (r10, r11, r12), (r20, r21, r22) = np.asarray(tip_rotation, dtype=float).tolist()
         px, py, pz = np.asarray(tip_position_m, dtype=float).tolist()
-        # The same sums in the same order as native/board_loop.cpp.
+        # The same sums in the same order as native/loop.cpp.
         noise_m = [self.noise_m * z for z in self._noise.take(6)] if self.noise_m > 0 else [0.0] * 6
         noise_rad = [self.noise_rad * z for z in self._noise.take(6)] if self.noise_rad > 0 else None
         positions, axes = [], []

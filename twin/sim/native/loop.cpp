@@ -1,17 +1,20 @@
-// The emulated board's tick loop in C++: what twin.device.sim_transport does per 5 ms tick
-// (firmware tick, motor outputs into the plant, the plant's physics step and its sensor
-// samples), for the ticks where nothing needs Python. It returns to Python, at the exact point
-// of the tick where the Python path would do it, whenever something does: bytes for the host,
-// a drive the plant must switch mode for, a MuJoCo warning, the keepalive, the deadline, or the
-// sensor noise buffer running low. Run to run it takes the same steps with the same numbers as
-// the Python path (tests/test_board_loop.py checks them bit for bit): the plant's engagement
-// check and short steps (twin.sim.plant.Plant.step), its load cells and tracker
-// (twin.sim.sensors) are done here with the same float operations in the same order.
+// The twin's stepping loops in C++, for the steps where nothing needs Python.
+//
+// bl_plant_run is twin.sim.plant.Plant.step: chunks of physics steps up to the next sensor
+// sample, the engagement check and its short steps, the load cells and the tracker.
+// bl_run is what twin.device.sim_transport does per 5 ms board tick: the firmware's tick, its
+// motor outputs into the plant, then the plant's step as above.
+//
+// Both return to Python, at the exact point where the Python path would do it, whenever it has
+// work: bytes for the host, a drive the plant must switch mode for, a MuJoCo warning, the
+// keepalive, the deadline, or the sensor noise buffer running low. Run to run they take the
+// same steps with the same numbers as the Python path (tests/test_board_loop.py and
+// tests/test_sim_native.py check them bit for bit): the same float operations in the same order.
 //
 // No link-time dependency: the firmware's tick and mj_step come in as function pointers from
 // the libraries Python has already loaded; MuJoCo's headers give the mjModel/mjData layout.
 //
-// Build: twin.device.board_loop.build_library() (g++ -O2 -ffp-contract=off -shared -fPIC
+// Build: twin.sim.native_loop.build_library() (g++ -O2 -ffp-contract=off -shared -fPIC
 // -I<mujoco>/include).
 
 #include <math.h>
@@ -20,7 +23,7 @@
 
 #include <mujoco/mujoco.h>
 
-#define BL_ABI_VERSION 5
+#define BL_ABI_VERSION 6
 #define BL_CHANNELS 4
 // Normal draws a tick can take: four load cells, then six position and six axis components of
 // the tracker's two probes.
@@ -41,7 +44,8 @@ enum bl_reason {
   BL_TX = 3,          // ticked and applied; bytes for the host: deliver, then resume
   BL_WARNING = 4,     // stepped; MuJoCo raised a warning (Python raises it, then samples)
   BL_NOISE = 5,       // before a tick: too few noise draws left; Python refills the buffer
-  BL_DONE = 6,        // resumed at the advance of a tick and stepped: the tick is complete
+  BL_DONE = 6,        // bl_run: resumed at the advance of a tick and stepped: the tick is
+                      // complete; bl_plant_run: all the steps are taken
 };
 
 // Shared with Python (twin.device.board_loop._State): inputs, state carried across calls,
@@ -90,7 +94,7 @@ struct bl_state {
   int32_t engage_substeps;     // steps a tick is cut into while a tendon could engage
   int32_t current_substeps;    // what mjModel.opt.timestep is cut to now
   int32_t jump;                // 1 after a change the engagement check cannot bound
-  int32_t short_steps;         // out: ticks taken in short steps in the call
+  int32_t short_steps;         // out: steps taken as short ones in the call
   int32_t spool_qpos[BL_CHANNELS];
   int32_t pwm_ctrl[BL_CHANNELS];
   int32_t raw_counts[BL_CHANNELS];
@@ -101,7 +105,7 @@ struct bl_state {
   int32_t plant_pwm;           // 1 while the plant is in PWM mode
   int32_t held;                // 1 while the fixture holds the tensions (outputs ignored)
   int32_t have_applied;        // 1 when applied_duty/applied_drive are what the plant has
-  int32_t ticks;               // out: ticks run in the call
+  int32_t ticks;               // out: ticks (bl_run) or steps (bl_plant_run) taken in the call
   int32_t applied_changed;     // out: 1 when the call gave the plant new motor outputs
   int32_t resume;              // in: 1 to start at the advance of a tick Python delivered for
   float applied_duty[BL_CHANNELS];
@@ -153,9 +157,9 @@ static void apply_pwm(mjData* d, bl_state* s) {
   }
 }
 
-// Plant._engage_risk for a chunk of one step, with the same float operations in the same order.
-static bool engage_risk(const mjModel* m, const mjData* d, const bl_state* s) {
-  double span = s->tick_s + s->tick_s;
+// Plant._engage_risk for a chunk of ``chunk`` steps, with the same float operations in the same order.
+static bool engage_risk(const mjModel* m, const mjData* d, const bl_state* s, int chunk) {
+  double span = chunk * s->tick_s + s->tick_s;
   for (int i = 0; i < BL_CHANNELS; ++i) {
     double stretch = d->ten_length[i] - s->slack_length_m[i];
     if (!(stretch < s->engage_stretch_m)) continue;
@@ -228,6 +232,47 @@ static void sample_tracker(const mjData* d, bl_state* s) {
   s->next_tracker_s = (double)(s->tracker_index + 1) / s->tracker_rate_hz;
 }
 
+// One chunk of Plant.step: ``chunk`` physics steps (as shorter ones where the engagement check
+// asks), then Plant._end_chunk (warning check, due samples). Returns 0, or BL_WARNING before
+// sampling.
+static int plant_chunk(mjModel* m, mjData* d, bl_step_fn step, bl_state* s, int chunk) {
+  int substeps = 1;
+  if (s->engage_substeps > 1 && engage_risk(m, d, s, chunk)) {
+    substeps = s->engage_substeps;
+    s->short_steps += chunk;
+  }
+  s->jump = 0;
+  s->jump_accel_m_s2 = 0.0;
+  if (substeps != s->current_substeps) {
+    m->opt.timestep = s->tick_s / substeps;
+    s->current_substeps = substeps;
+  }
+  for (int k = 0; k < chunk * substeps; ++k) step(m, d);
+  if (warnings_total(d) != s->warnings_total) return BL_WARNING;
+  if (d->time >= s->next_loadcell_s - 1e-9) sample_loadcells(d, s);
+  if (d->time >= s->next_tracker_s - 1e-9) sample_tracker(d, s);
+  return 0;
+}
+
+// Plant.step(steps · tick_s) without friction: chunks up to the next sensor sample.
+int bl_plant_run(mjModel* m, mjData* d, bl_step_fn step, bl_state* s, int32_t steps) {
+  s->ticks = 0;
+  s->short_steps = 0;
+  while (s->ticks < steps) {
+    if (s->noise_size - s->noise_cursor < BL_NOISE_PER_TICK) return BL_NOISE;
+    // Plant._steps_until(min(next load-cell sample, next tracker frame))
+    double next_s = s->next_tracker_s < s->next_loadcell_s ? s->next_tracker_s : s->next_loadcell_s;
+    int until = (int)ceil((next_s - d->time) / s->tick_s - 1e-9);
+    int chunk = steps - s->ticks;
+    if (until < 1) until = 1;
+    if (until < chunk) chunk = until;
+    s->ticks += chunk;
+    int reason = plant_chunk(m, d, step, s, chunk);
+    if (reason) return reason;
+  }
+  return BL_DONE;
+}
+
 int bl_run(mjModel* m, mjData* d, void* fw, bl_tick_fn tick, bl_pending_fn pending, bl_step_fn step,
            bl_state* s, int32_t max_ticks) {
   s->ticks = 0;
@@ -272,24 +317,9 @@ int bl_run(mjModel* m, mjData* d, void* fw, bl_tick_fn tick, bl_pending_fn pendi
     }
   advance:
     {
-    // EmulatedBoard.advance: Plant.step(TICK_S), one physics step, cut into engage_substeps
-    // shorter ones while a tendon near slack could engage with too large a spike.
-    int substeps = 1;
-    if (s->engage_substeps > 1 && engage_risk(m, d, s)) {
-      substeps = s->engage_substeps;
-      s->short_steps += 1;
-    }
-    s->jump = 0;
-    s->jump_accel_m_s2 = 0.0;
-    if (substeps != s->current_substeps) {
-      m->opt.timestep = s->tick_s / substeps;
-      s->current_substeps = substeps;
-    }
-    for (int k = 0; k < substeps; ++k) step(m, d);
-    // Plant._end_chunk
-    if (warnings_total(d) != s->warnings_total) return BL_WARNING;
-    if (d->time >= s->next_loadcell_s - 1e-9) sample_loadcells(d, s);
-    if (d->time >= s->next_tracker_s - 1e-9) sample_tracker(d, s);
+    // EmulatedBoard.advance: Plant.step(TICK_S), one chunk of one step.
+    int reason = plant_chunk(m, d, step, s, 1);
+    if (reason) return reason;
     // After a delivery the wait's predicate must be looked at before the next tick.
     if (resume) return BL_DONE;
     }
