@@ -168,3 +168,19 @@ def test_swing_damping_lets_the_integral_hold_the_tip_on_a_twin_unlike_the_model
     assert feedforward > 1.0
     assert integral > feedforward
     assert damped < 0.3 * feedforward
+
+
+def test_the_tracking_stage_retunes_the_tension_integral_the_step_rollout_starves():
+    """The PID stage's step rollout picks a slow tension integral (ki ~0.05); under the tip tracker
+    that costs millimetres, so the tracking stage tunes ki alongside its own two gains."""
+    from twin.control.tuning import tracking_cost, tune_tracking_gains
+
+    tracker = {"gain": 0.0165, "velocity_gain_s": 0.16}
+    slow = dict(TUNED_TENSION_GAINS, kp=0.0077, output_limit=0.030, ki=0.045)  # what `twin tune --quick` finds
+    faster = dict(slow, ki=0.15)
+    assert tracking_cost(tracker, tension_gains=faster, seeds=(2, 3)) < 0.5 * tracking_cost(tracker, tension_gains=slow,
+                                                                                          seeds=(2, 3))
+    result = tune_tracking_gains(tension_gains=slow, evaluations=6, seeds=(1,))
+    assert set(result.after) == {"gain", "velocity_gain_s", "tension_ki"}
+    assert result.after["tension_ki"] > slow["ki"]
+    assert result.cost_after < 0.5 * result.cost_before

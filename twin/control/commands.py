@@ -35,7 +35,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     add_param_args(p)
     p.set_defaults(func=run_cocontraction)
 
-    p = sub.add_parser("tune", help="tune the tension PID and the tip-tracking gain on env rollouts")
+    p = sub.add_parser("tune", help="tune the tension PID, then the tip tracker's gains with the tension integral, on env rollouts")
     from twin.control.tuning import add_arguments
 
     add_arguments(p)
