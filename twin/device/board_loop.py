@@ -66,7 +66,8 @@ class BoardLoop:
         self._tick, self._pending = _firmware_pointers()
         self.board = board
         plant = board.plant
-        self._plant_loop = PlantLoop(plant)
+        # One state per plant: the plant's own loop where it has one (a plant with friction has none).
+        self._plant_loop = plant._native or PlantLoop(plant)
         self._lib, self._step = self._plant_loop.lib, self._plant_loop.mj_step
         s = self._state = self._plant_loop.state
         motor = plant._motor

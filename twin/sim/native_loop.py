@@ -36,7 +36,6 @@ ABI_VERSION = 6
 _MUJOCO_DIR = Path(importlib.util.find_spec("mujoco").submodule_search_locations[0])
 # Tendons (motors, load cells) the native code handles: BL_CHANNELS.
 CHANNELS = 4
-_CHANNELS = CHANNELS
 
 
 class Reason:
@@ -51,7 +50,7 @@ class Reason:
     DONE = 6
 
 
-_Channels = ctypes.c_double * _CHANNELS
+_Channels = ctypes.c_double * CHANNELS
 _Probes = ctypes.c_double * 6
 
 
@@ -99,9 +98,9 @@ class State(ctypes.Structure):
         ("current_substeps", ctypes.c_int32),
         ("jump", ctypes.c_int32),
         ("short_steps", ctypes.c_int32),
-        ("spool_qpos", ctypes.c_int32 * _CHANNELS),
-        ("pwm_ctrl", ctypes.c_int32 * _CHANNELS),
-        ("raw_counts", ctypes.c_int32 * _CHANNELS),
+        ("spool_qpos", ctypes.c_int32 * CHANNELS),
+        ("pwm_ctrl", ctypes.c_int32 * CHANNELS),
+        ("raw_counts", ctypes.c_int32 * CHANNELS),
         ("loadcell_index", ctypes.c_int32),
         ("last_loadcell_index", ctypes.c_int32),
         ("tracker_index", ctypes.c_int32),
@@ -112,10 +111,10 @@ class State(ctypes.Structure):
         ("ticks", ctypes.c_int32),
         ("applied_changed", ctypes.c_int32),
         ("resume", ctypes.c_int32),
-        ("applied_duty", ctypes.c_float * _CHANNELS),
-        ("duty", ctypes.c_float * _CHANNELS),
-        ("applied_drive", ctypes.c_uint8 * _CHANNELS),
-        ("drive", ctypes.c_uint8 * _CHANNELS),
+        ("applied_duty", ctypes.c_float * CHANNELS),
+        ("duty", ctypes.c_float * CHANNELS),
+        ("applied_drive", ctypes.c_uint8 * CHANNELS),
+        ("drive", ctypes.c_uint8 * CHANNELS),
     ]
 
 

@@ -58,7 +58,7 @@ class NoiseStream:
     """The sensors' standard normal draws, in the order they are drawn, through a buffer.
 
     :class:`LoadCells` and :class:`Tracker` take their noise from here rather than from the
-    generator directly, so that the native tick loop (:mod:`twin.device.board_loop`) can sample
+    generator directly, so that the native loop (:mod:`twin.sim.native_loop`) can sample
     the sensors too: it reads :attr:`buffer` from :attr:`cursor` on and moves the cursor on, and
     both take the same draws in the same order. A generator's normals do not depend on how
     many are drawn at once, so the buffer does not change them.
