@@ -17,6 +17,7 @@ from __future__ import annotations
 import binascii
 import dataclasses
 import enum
+import functools
 import struct
 from typing import ClassVar, Iterable, Sequence
 
@@ -31,6 +32,7 @@ __all__ = [
     "Drive",
     "NackError",
     "Fault",
+    "enum_member",
     "CodecError",
     "FrameError",
     "MessageError",
@@ -110,8 +112,11 @@ class Drive(enum.IntEnum):
     BRAKE = 2
 
 
-# Drive members by value: a lookup costs a tenth of the enum call, four per telemetry sample.
-_DRIVES = {member.value: member for member in Drive}
+@functools.lru_cache(maxsize=512)
+def enum_member(enum_cls: type[enum.Enum], value: int) -> enum.Enum:
+    """``enum_cls(value)``, cached: an enum call costs ~1 µs (an IntFlag's 3 µs, composing the
+    members), and each telemetry sample makes seven. A value the enum refuses still raises."""
+    return enum_cls(value)
 
 
 class NackError(enum.IntEnum):
@@ -347,8 +352,7 @@ class Telemetry(Message):
 
     def drives(self) -> tuple[Drive, ...]:
         """The Drive of each motor, unpacked from ``drive_modes``."""
-        codes = [(self.drive_modes >> (2 * i)) & 0b11 for i in range(CHANNELS)]
-        return tuple(_DRIVES[c] if c in _DRIVES else Drive(c) for c in codes)
+        return tuple(enum_member(Drive, (self.drive_modes >> (2 * i)) & 0b11) for i in range(CHANNELS))
 
 
 MESSAGE_TYPES: dict[int, type[Message]] = {

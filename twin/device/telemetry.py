@@ -8,25 +8,12 @@
 from __future__ import annotations
 
 import dataclasses
-import functools
 
 import numpy as np
 
 from twin.device import codec
 
 __all__ = ["DeviceInfo", "Telemetry"]
-
-# The enum members by value: a lookup costs a tenth of the enum call (an unknown value still
-# goes to the enum, which raises).
-_STATES = {member.value: member for member in codec.State}
-_MODES = {member.value: member for member in codec.Mode}
-
-
-@functools.lru_cache(maxsize=256)
-def _fault(flags: int) -> codec.Fault:
-    # An IntFlag call composes the members each time (3 µs); a board reports few combinations.
-    return codec.Fault(flags)
-
 
 @dataclasses.dataclass(frozen=True, eq=False)
 class Telemetry:
@@ -83,9 +70,9 @@ class Telemetry:
             targets=np.array(message.targets, dtype=float),
             motor_commands=np.array(message.duty, dtype=float),
             drives=message.drives(),
-            state=_STATES[message.state] if message.state in _STATES else codec.State(message.state),
-            mode=_MODES[message.mode] if message.mode in _MODES else codec.Mode(message.mode),
-            fault_flags=_fault(message.fault_flags),
+            state=codec.enum_member(codec.State, message.state),
+            mode=codec.enum_member(codec.Mode, message.mode),
+            fault_flags=codec.enum_member(codec.Fault, message.fault_flags),
             stale_mask=message.stale_mask,
             rx_bad_frames=message.rx_bad_frames,
             tx_dropped_frames=message.tx_dropped_frames,
