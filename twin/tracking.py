@@ -249,10 +249,9 @@ def _angle(u: np.ndarray, v: np.ndarray) -> float:
 
 def _angle_floats(u, v) -> float:
     # atan2 of |u×v| and u·v stays accurate near 0 and π where arccos of the dot product does not.
-    # Written out for two 3-vectors: np.cross costs ten times as much, once per fused frame.
-    (ux, uy, uz), (vx, vy, vz) = u, v
-    cross = math.sqrt((uy * vz - uz * vy) ** 2 + (uz * vx - ux * vz) ** 2 + (ux * vy - uy * vx) ** 2)
-    return math.atan2(cross, ux * vx + uy * vy + uz * vz)
+    # On plain floats (_cross): np.cross costs ten times as much, once per fused frame.
+    cx, cy, cz = _cross(u, v)
+    return math.atan2(math.sqrt(cx * cx + cy * cy + cz * cz), u[0] * v[0] + u[1] * v[1] + u[2] * v[2])
 
 
 def _wahba(b: list[list[float]]) -> list[list[float]]:
@@ -400,7 +399,7 @@ def fuse(
     b = [[d0[i] * c0[j] + d1[i] * c1[j] + d2[i] * c2[j] for j in range(3)] for i in range(3)]
     r = _wahba(b)
     # The mean over both probes of p_i − R c_i.
-    c = cap.probe_sum_rows
+    c = cap.probe_sum_m
     position_m = np.array([0.5 * (pa[i] + pb[i] - (r[i][0] * c[0] + r[i][1] * c[1] + r[i][2] * c[2]))
                            for i in range(3)])
     rotation = np.array(r)
@@ -415,7 +414,7 @@ class _CapGeometry:
     """What :func:`fuse` needs of a calibration, computed once per calibration."""
 
     body_rows: list  # rows: axis A, axis B, the unit baseline A → B, in the tip frame
-    probe_sum_rows: list  # c_A + c_B (m)
+    probe_sum_m: list  # c_A + c_B (m)
     distance_m: float
     angle_rad: float
 
