@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from twin import load_params
-from twin.experiments.dataset import write_dataset
+from twin.data.dataset import write_dataset
 from twin.pose import HORIZONTAL
 from twin.rod import RodModel, solve
 

@@ -9,7 +9,7 @@ from envs.reach import EndoscopeReachEnv
 from twin import load_params
 from twin.device import open_device
 from twin.device.board_loop import Reason, available
-from twin.experiments.dataset import read_dataset
+from twin.data.dataset import read_dataset
 from twin.experiments.protocols import nominal_calibration, run_validation
 from twin.pcc import validation_grid
 

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from twin import load_params
-from twin.experiments.dataset import COLUMNS, DatasetError, DatasetWriter, read_dataset
+from twin.data.dataset import COLUMNS, DatasetError, DatasetWriter, read_dataset
 from twin.pose import HORIZONTAL
 
 

@@ -13,8 +13,8 @@ from twin.discrepancy import (candidate_library, find_discrepancy, run_discrepan
                               synthetic_validation_dataset, write_report)
 from twin.discrepancy.candidates import UNTESTABLE_EFFECTS, Candidate
 from twin.effects import EFFECTS
-from twin.experiments.prediction import predict_dataset
-from twin.fitting import FitParameter
+from twin.data.prediction import predict_dataset
+from twin.data.fitting import FitParameter
 from twin.pcc import validation_grid
 
 NOMINAL = load_params()

@@ -13,7 +13,7 @@ import pytest
 from twin import load_params
 from twin.device import open_device
 from twin.discrepancy import find_discrepancy, run_discrepancy
-from twin.experiments.dataset import read_dataset
+from twin.data.dataset import read_dataset
 from twin.experiments.protocols import nominal_calibration, run_validation
 from twin.pcc import validation_grid
 

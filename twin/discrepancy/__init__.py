@@ -2,7 +2,7 @@
 add it to the parameter set, and show the gap shrink on held-out data (issue 7).
 
 Example:
-    >>> from twin.experiments.dataset import read_dataset
+    >>> from twin.data.dataset import read_dataset
     >>> from twin.discrepancy import run_discrepancy, write_report
     >>> result = run_discrepancy(read_dataset("runs/validate"), progress=True)
     >>> result.effect, result.parameters()

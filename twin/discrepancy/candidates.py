@@ -1,5 +1,5 @@
 """The candidate library: each effect of :data:`twin.effects.EFFECTS` as a model extension with few
-parameters, fitted with :func:`twin.fitting.fit_parameters`.
+parameters, fitted with :func:`twin.data.fitting.fit_parameters`.
 
 What is fitted, and why no more than that:
 
@@ -32,8 +32,8 @@ from typing import Callable
 import numpy as np
 
 from twin.effects import EFFECTS
-from twin.experiments.dataset import Dataset
-from twin.fitting import FitParameter
+from twin.data.dataset import Dataset
+from twin.data.fitting import FitParameter
 from twin.params import Params
 
 __all__ = ["Candidate", "candidate_library", "UNTESTABLE_EFFECTS"]

@@ -37,7 +37,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run_discrepancy_command(args: argparse.Namespace) -> int:
     from twin.discrepancy.report import write_report
     from twin.discrepancy.workflow import run_discrepancy
-    from twin.experiments.dataset import DatasetError, read_dataset
+    from twin.data.dataset import DatasetError, read_dataset
 
     try:
         dataset = read_dataset(args.dataset)

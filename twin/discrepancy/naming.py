@@ -43,9 +43,9 @@ from tqdm import tqdm
 
 from twin.discrepancy.candidates import Candidate
 from twin.discrepancy.noise import configuration_keys
-from twin.experiments.dataset import Dataset
-from twin.experiments.prediction import predict_rows
-from twin.fitting import ParameterFit, fit_parameters
+from twin.data.dataset import Dataset
+from twin.data.prediction import predict_rows
+from twin.data.fitting import ParameterFit, fit_parameters
 from twin.params import Params
 
 __all__ = ["NAME_ALPHA", "MIN_HELDOUT_GAIN", "CandidateScore", "Round", "split_rows", "row_errors", "rank_candidates"]
@@ -53,7 +53,7 @@ __all__ = ["NAME_ALPHA", "MIN_HELDOUT_GAIN", "CandidateScore", "Round", "split_r
 NAME_ALPHA = 1e-3
 # Smallest relative drop of the held-out RMS that names an effect (see the module rule).
 MIN_HELDOUT_GAIN = 0.10
-# Error (m per axis) charged for a held-out row the model cannot predict; as in twin.fitting.
+# Error (m per axis) charged for a held-out row the model cannot predict; as in twin.data.fitting.
 FAILED_ROW_PENALTY_M = 0.05
 
 
@@ -169,7 +169,7 @@ def rank_candidates(dataset: Dataset, params: Params, candidates: Sequence[Candi
         candidates: what to try.
         train, test: row masks.
         source: provenance written for fitted keys (the effect's name is appended).
-        max_evaluations: optimiser iterations per candidate (see :func:`twin.fitting.fit_parameters`).
+        max_evaluations: optimiser iterations per candidate (see :func:`twin.data.fitting.fit_parameters`).
         progress: show a progress bar on stderr.
         label: the progress bar's title.
     """

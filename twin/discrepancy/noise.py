@@ -21,8 +21,8 @@ import dataclasses
 
 import numpy as np
 
-from twin.experiments.dataset import Dataset
-from twin.experiments.prediction import predict_rows
+from twin.data.dataset import Dataset
+from twin.data.prediction import predict_rows
 from twin.params import Params
 
 __all__ = ["NoiseEstimate", "estimate_noise", "configuration_keys"]

@@ -24,8 +24,8 @@ import numpy as np
 from scipy import stats
 
 from twin.discrepancy.noise import NoiseEstimate, estimate_noise
-from twin.experiments.dataset import Dataset
-from twin.experiments.prediction import Predictions, predict_dataset
+from twin.data.dataset import Dataset
+from twin.data.prediction import Predictions, predict_dataset
 from twin.params import Params
 
 __all__ = ["STRUCTURE_ALPHA", "StructureTest", "ResidualMap", "find_discrepancy", "structure_test",

@@ -12,7 +12,7 @@ and rig behave as the *true* parameter set says, while the dataset's metadata re
 * the sensors report as :mod:`twin.sim.sensors` does: load cells (1 + g) τ + o plus noise,
   encoders quantised to one count, the tracker at its offset from the tip plus noise.
 
-The prediction side (:mod:`twin.experiments.prediction`) undoes exactly this measurement model
+The prediction side (:mod:`twin.data.prediction`) undoes exactly this measurement model
 when it is given the true parameters, so a perfect fit leaves only noise.
 """
 
@@ -24,7 +24,7 @@ from typing import Iterable
 import numpy as np
 
 from twin import effects
-from twin.experiments.dataset import Dataset, write_dataset
+from twin.data.dataset import Dataset, write_dataset
 from twin.params import Params
 from twin.pcc import tendon_length_changes_m, validation_grid
 from twin.pose import HORIZONTAL

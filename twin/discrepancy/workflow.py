@@ -1,7 +1,7 @@
 """The discrepancy workflow: find → name → add → show, on one dataset.
 
 Example:
-    >>> from twin.experiments.dataset import read_dataset
+    >>> from twin.data.dataset import read_dataset
     >>> result = run_discrepancy(read_dataset("runs/validate"))
     >>> print(result.effect, result.parameters(), result.rms_before_m, result.rms_after_m)
     >>> result.params_after.save("endoscope-fitted.toml")
@@ -17,8 +17,8 @@ import numpy as np
 from twin.discrepancy.candidates import UNTESTABLE_EFFECTS, candidate_library
 from twin.discrepancy.naming import Round, row_errors, rank_candidates, split_rows
 from twin.discrepancy.residuals import ResidualMap, find_discrepancy, thesis_signature
-from twin.experiments.dataset import Dataset
-from twin.fitting import ParameterFit, fit_parameters
+from twin.data.dataset import Dataset
+from twin.data.fitting import ParameterFit, fit_parameters
 from twin.params import Params
 
 __all__ = ["DiscrepancyResult", "run_discrepancy"]

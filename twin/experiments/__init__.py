@@ -1,1 +1,2 @@
-"""The thesis's experimental programme on any device: datasets, protocols, analyses, reports."""
+"""The thesis's experimental programme on any device: protocols, analyses, reports (the datasets
+they write and the predictions and fits over them are :mod:`twin.data`)."""

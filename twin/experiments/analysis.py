@@ -1,6 +1,6 @@
 """Validation-sweep analysis (thesis §8.3, §9.2): errors per configuration, axis, plane and load.
 
-Everything here works on a dataset and its :class:`~twin.experiments.prediction.Predictions`;
+Everything here works on a dataset and its :class:`~twin.data.prediction.Predictions`;
 :func:`plot_validation` draws the thesis's Figs. 17–22 (error magnitude and per-axis error over
 the bending plane, grouped by curvature, one panel per tip mass; front views with error circles).
 """
@@ -12,8 +12,8 @@ from pathlib import Path
 
 import numpy as np
 
-from twin.experiments.dataset import Dataset
-from twin.experiments.prediction import Predictions, predict_dataset
+from twin.data.dataset import Dataset
+from twin.data.prediction import Predictions, predict_dataset
 from twin.params import Params
 
 __all__ = ["ValidationResult", "analyse_validation", "plot_validation"]

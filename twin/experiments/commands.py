@@ -98,7 +98,7 @@ def _run_folder(args, name: str) -> Path:
 
 def run_validate(args: argparse.Namespace) -> int:
     from twin.experiments.analysis import analyse_validation
-    from twin.experiments.dataset import RUN_DATASET, read_dataset
+    from twin.data.dataset import RUN_DATASET, read_dataset
     from twin.device.errors import DeviceError
     from twin.experiments.protocols import ProtocolError, run_validation
     from twin.experiments.report import write_validation_report
@@ -160,7 +160,7 @@ def _picture(args, params, folder: Path) -> Path | None:
 
 
 def run_stiffness_cmd(args: argparse.Namespace) -> int:
-    from twin.experiments.dataset import RUN_DATASET, read_dataset
+    from twin.data.dataset import RUN_DATASET, read_dataset
     from twin.experiments.protocols import run_stiffness
     from twin.experiments.stiffness import fit_stiffness, plot_error_surface
 

@@ -15,7 +15,7 @@ import numpy as np
 from tqdm import tqdm
 
 from twin.calibration import Calibration, run_calibration
-from twin.experiments.dataset import DatasetWriter
+from twin.data.dataset import DatasetWriter
 from twin.params import Params
 from twin.pcc import tendon_length_changes_m, validation_grid
 from twin.pose import HORIZONTAL, matrix_to_quat

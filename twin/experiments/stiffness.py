@@ -12,9 +12,9 @@ import dataclasses
 
 import numpy as np
 
-from twin.experiments.dataset import Dataset
-from twin.experiments.prediction import predict_rows
-from twin.fitting import FitParameter, ParameterFit, fit_parameters
+from twin.data.dataset import Dataset
+from twin.data.prediction import predict_rows
+from twin.data.fitting import FitParameter, ParameterFit, fit_parameters
 from twin.params import Params
 
 __all__ = ["STIFFNESS_MASSES_KG", "STIFFNESS_REPEATS", "StiffnessResult", "fit_stiffness", "error_surface",

@@ -15,8 +15,8 @@ from typing import Sequence
 import numpy as np
 from scipy.optimize import least_squares
 
-from twin.experiments.dataset import Dataset
-from twin.experiments.prediction import predict_rows
+from twin.data.dataset import Dataset
+from twin.data.prediction import predict_rows
 from twin.params import Params
 
 __all__ = ["FitParameter", "ParameterFit", "fit_parameters", "apply_values"]

@@ -14,7 +14,7 @@ import numpy as np
 from tqdm import tqdm
 
 from twin import effects
-from twin.experiments.dataset import Dataset
+from twin.data.dataset import Dataset
 from twin.params import Params
 from twin.rod import Predictor, RodModel
 
