@@ -7,7 +7,8 @@ from twin import load_params
 from twin.control.cocontraction import run_cocontraction_study
 from twin.control.compensation import compensate_tensions, correct_tensions, hold_tensions
 from twin.control.compensation_trial import GOAL_REDUCTION_PCT, run_compensation_trial, tension_ceiling_n
-from twin.control.tuning import DEFAULT_TENSION_GAINS, TUNED_TENSION_GAINS, tension_cost
+from twin.control.gains import DEFAULT_TENSION_GAINS, TUNED_TENSION_GAINS
+from twin.tuning import tension_cost
 from twin.device import open_device
 from twin.pose import HORIZONTAL
 from twin.rod import RodModel, solve
@@ -133,7 +134,7 @@ def test_tuned_tension_gains_beat_the_firmware_defaults_on_the_step_rollout():
 def test_tip_tracker_integral_action_removes_a_model_error_feedforward_keeps():
     """The tracking controller on a stand-in plant: the predictor with tendon 1's load cell 8% off.
     Feed-forward alone (gain 0) keeps the miss; the Jacobian integral action removes most of it."""
-    from twin.control.tuning import TipTracker
+    from twin.tuning import TipTracker
     from twin.pcc import arc_tip_position_m
     from twin.rod.grid import GRAVITY_TIP_FORCE_N
 
@@ -159,7 +160,7 @@ def test_swing_damping_lets_the_integral_hold_the_tip_on_a_twin_unlike_the_model
     """On a twin with the spreads of a real rig (stiffness, weight, load-cell errors, latency),
     feed-forward alone misses by millimetres; the integral alone feeds the swing of the tip in
     tension mode; with the swing damped the integral holds the tip within half a millimetre."""
-    from twin.control.tuning import tracking_cost
+    from twin.tuning import tracking_cost
 
     def cost(gain, velocity_gain_s):
         return tracking_cost({"gain": gain, "velocity_gain_s": velocity_gain_s}, seeds=(1,))
@@ -173,7 +174,7 @@ def test_swing_damping_lets_the_integral_hold_the_tip_on_a_twin_unlike_the_model
 def test_the_tracking_stage_retunes_the_tension_integral_the_step_rollout_starves():
     """The PID stage's step rollout picks a slow tension integral (ki ~0.05); under the tip tracker
     that costs millimetres, so the tracking stage tunes ki alongside its own two gains."""
-    from twin.control.tuning import tracking_cost, tune_tracking_gains
+    from twin.tuning import tracking_cost, tune_tracking_gains
 
     tracker = {"gain": 0.0165, "velocity_gain_s": 0.16}
     slow = dict(TUNED_TENSION_GAINS, kp=0.0077, output_limit=0.030, ki=0.045)  # what `twin tune --quick` finds

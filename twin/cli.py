@@ -19,6 +19,7 @@ COMMAND_MODULES = [
     "twin.experiments.commands",
     "twin.discrepancy.commands",
     "twin.control.commands",
+    "twin.tuning",
     "twin.bench",
     "twin.demo",
 ]

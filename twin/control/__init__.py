@@ -1,5 +1,6 @@
 """Control on top of the device interface: load compensation from the Cosserat predictor, the
-length-vs-tension study of an antagonistic pair, and controller tuning against the env.
+length-vs-tension study of an antagonistic pair and the tension PID gains (tuned against the env
+by :mod:`twin.tuning`, which sits above the env).
 
 Example:
     >>> from twin import load_params

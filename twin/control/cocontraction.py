@@ -25,7 +25,7 @@ import numpy as np
 
 from twin.control.compensation import hold_tensions
 from twin.control.pretension import pretension_straight
-from twin.control.tuning import TUNED_TENSION_GAINS
+from twin.control.gains import TUNED_TENSION_GAINS
 from twin.experiments.protocols import measure, settle
 from twin.experiments.report import markdown_table
 from twin.params import Params

@@ -1,4 +1,5 @@
-"""``twin compensate``, ``twin cocontraction`` and ``twin tune``: the control studies from the shell."""
+"""``twin compensate`` and ``twin cocontraction``: the control studies from the shell (``twin tune`` is
+:mod:`twin.tuning`'s, above the env)."""
 
 from __future__ import annotations
 
@@ -35,13 +36,6 @@ def register(sub: argparse._SubParsersAction) -> None:
     add_param_args(p)
     p.set_defaults(func=run_cocontraction)
 
-    p = sub.add_parser("tune", help="tune the tension PID, then the tip tracker's gains with the tension integral, on env rollouts")
-    from twin.control.tuning import add_arguments
-
-    add_arguments(p)
-    add_param_args(p)
-    p.set_defaults(func=run_tune)
-
 
 def run_compensate(args: argparse.Namespace) -> int:
     from twin.control.compensation_trial import QUICK_CONFIGS, run_compensation_trial
@@ -70,9 +64,3 @@ def run_cocontraction(args: argparse.Namespace) -> int:
     print(json.dumps(study.summary(), indent=1))
     print(f"report: {path}")
     return 0
-
-
-def run_tune(args: argparse.Namespace) -> int:
-    from twin.control.tuning import run
-
-    return run(args, params_from_args(args))

@@ -41,7 +41,7 @@ import numpy as np
 
 from twin.control.compensation import correct_tensions, hold_tensions
 from twin.control.pretension import pretension_straight
-from twin.control.tuning import TUNED_TENSION_GAINS
+from twin.control.gains import TUNED_TENSION_GAINS
 from twin.device import CommandRejected
 from twin.experiments.protocols import ProtocolError, measure, settle
 from twin.experiments.report import markdown_table
@@ -240,7 +240,7 @@ def run_compensation_trial(device, params: Params, *, configs: Sequence[tuple[fl
             is in every miss of the configuration, and every correction would chase it.
         settle_timeout_s: longest wait for the at-rest check (device s).
         tension_gains: ``{"kp", "ki", "kd", "output_limit"}`` of the board's tension mode;
-            default :data:`twin.control.tuning.TUNED_TENSION_GAINS`.
+            default :data:`twin.control.gains.TUNED_TENSION_GAINS`.
         progress: called with a one-line status after each configuration, or None.
     """
     model = RodModel.from_params(params)

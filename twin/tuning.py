@@ -17,8 +17,9 @@ model-based tip-tracking controller on top of it.
    tuned alongside by 0.6–0.7 mm. Episodes are independent, so they run in parallel
    processes (``workers``).
 
-``python -m twin.control.tuning`` (or ``twin tune``) runs both and prints the metrics before and
-after.
+``python -m twin.tuning`` (or ``twin tune``) runs both and prints the metrics before and
+after. The tuning drives the env, so it sits above both :mod:`envs` and :mod:`twin.control`; the
+controllers take its result from :mod:`twin.control.gains`.
 """
 
 from __future__ import annotations
@@ -35,23 +36,16 @@ from scipy.optimize import minimize
 
 from envs.reach import EndoscopeReachEnv
 from envs.randomization import Randomization, TipLoads
+from twin.cliargs import add_param_args, params_from_args
 from twin.control.compensation import compensate_tensions
+from twin.control.gains import DEFAULT_TENSION_GAINS, TUNED_TENSION_GAINS
 from twin.params import Params, load_params
 from twin.pose import HORIZONTAL
 from twin.rod import Predictor, RodModel, tip_jacobian
 from twin.rod.grid import GRAVITY_TIP_FORCE_N
 
-__all__ = ["DEFAULT_TENSION_GAINS", "TUNED_TENSION_GAINS", "TipTracker", "TuningResult", "tension_cost",
-           "tracking_cost", "tune_tension_gains", "tune_tracking_gains", "main"]
-
-# The firmware's defaults (firmware/core/controller.cpp).
-DEFAULT_TENSION_GAINS = {"kp": 0.003, "ki": 0.3, "kd": 0.0, "output_limit": 0.2}
-# ``python -m twin.control.tuning --quick`` (nominal twin, seed 0) moves the duty clamp from 0.2
-# to ~0.037 (the step rollout's 10 N fault cost → 0.66 N RMS); kp was then lowered to 0.001 by
-# hand, because at the 1 N floor of the compensation trial kp 0.003 still drove the slack ↔ taut
-# limit cycles that tripped the limit. A clamp of 0.035 bounds the stall pull at ~5.4 N, under the
-# 6 N limit.
-TUNED_TENSION_GAINS = {"kp": 0.001, "ki": 0.3, "kd": 0.0, "output_limit": 0.035}
+__all__ = ["TipTracker", "TuningResult", "tension_cost", "tracking_cost", "tune_tension_gains", "tune_tracking_gains",
+           "main", "register"]
 
 # Cost of a rollout the board faulted in (N RMS or mm): above any error a working loop has.
 _FAULT_COST = 10.0
@@ -263,7 +257,7 @@ def tune_tracking_gains(*, params: Params | None = None, start: dict | None = No
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m twin.control.tuning", description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(prog="python -m twin.tuning", description=__doc__.splitlines()[0])
     add_arguments(parser)
     return run(parser.parse_args(argv))
 
@@ -271,6 +265,15 @@ def main(argv: list[str] | None = None) -> int:
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--quick", action="store_true", help="few rollouts (a minute): the worked example")
     parser.add_argument("--workers", type=int, default=2, help="processes for the tracking episodes")
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    """Add ``twin tune`` to the ``twin`` command's subparsers."""
+    p = sub.add_parser("tune", help="tune the tension PID, then the tip tracker's gains with the tension integral, "
+                                    "on env rollouts")
+    add_arguments(p)
+    add_param_args(p)
+    p.set_defaults(func=lambda args: run(args, params_from_args(args)))
 
 
 def run(args: argparse.Namespace, params: Params | None = None) -> int:

@@ -1,0 +1,145 @@
+"""The packages form layers that only point down: no import cycle between them.
+
+Every import under ``twin/`` and ``envs/`` counts, including relative imports and imports inside
+functions (a lazy import is still a dependency). Each subpackage of ``twin`` is one node
+(``twin.device``, ``twin.data``, ...), each top-level module of ``twin`` is its own node
+(``twin.params``, ``twin.tuning``, ...), and ``envs`` is one node.
+"""
+
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+PACKAGES = ("twin", "envs")
+
+
+def _module_name(path: Path) -> str:
+    parts = list(path.relative_to(ROOT).with_suffix("").parts)
+    if parts[-1] == "__init__":
+        parts.pop()
+    return ".".join(parts)
+
+
+def _modules() -> dict[str, Path]:
+    return {_module_name(path): path for package in PACKAGES for path in sorted((ROOT / package).rglob("*.py"))}
+
+
+def _node(module: str) -> str | None:
+    """The layer ``module`` belongs to, or None outside the project."""
+    parts = module.split(".")
+    if parts[0] == "envs":
+        return "envs"
+    if parts[0] != "twin":
+        return None
+    if len(parts) == 1:
+        return "twin"
+    return "twin." + parts[1]
+
+
+def _imported_modules(name: str, path: Path, modules: dict[str, Path]) -> set[str]:
+    is_package = path.name == "__init__.py"
+    package = name if is_package else name.rpartition(".")[0]
+    found = set()
+    for node in ast.walk(ast.parse(path.read_text(), str(path))):
+        if isinstance(node, ast.Import):
+            found.update(alias.name for alias in node.names)
+        elif isinstance(node, ast.ImportFrom):
+            if node.level:
+                base = package.split(".")
+                base = base[:len(base) - (node.level - 1)]
+                target = ".".join(base + ([node.module] if node.module else []))
+            else:
+                target = node.module
+            # ``from twin import effects`` imports the module twin.effects, not only twin.
+            submodules = {f"{target}.{alias.name}" for alias in node.names} & modules.keys()
+            found.update(submodules or {target})
+    return found
+
+
+def import_graph() -> dict[str, dict[str, list[str]]]:
+    """Layer → layer it imports → the importing modules (for the failure message)."""
+    modules = _modules()
+    graph: dict[str, dict[str, list[str]]] = {}
+    for name, path in modules.items():
+        source = _node(name)
+        edges = graph.setdefault(source, {})
+        for imported in _imported_modules(name, path, modules):
+            target = _node(imported)
+            if target is not None and target != source:
+                edges.setdefault(target, []).append(name)
+    return graph
+
+
+def find_cycle(graph: dict[str, dict[str, list[str]]]) -> list[str] | None:
+    """One cycle of the graph as a closed path [a, b, ..., a], or None."""
+    state: dict[str, str] = {}
+    stack: list[str] = []
+
+    def visit(node: str) -> list[str] | None:
+        state[node] = "open"
+        stack.append(node)
+        for target in sorted(graph.get(node, {})):
+            if state.get(target) == "open":
+                return stack[stack.index(target):] + [target]
+            if target not in state:
+                cycle = visit(target)
+                if cycle:
+                    return cycle
+        stack.pop()
+        state[node] = "done"
+        return None
+
+    for node in sorted(graph):
+        if node not in state:
+            cycle = visit(node)
+            if cycle:
+                return cycle
+    return None
+
+
+def test_no_import_cycle_between_packages():
+    graph = import_graph()
+    cycle = find_cycle(graph)
+    if cycle:
+        steps = [f"{a} -> {b} (in {', '.join(sorted(set(graph[a][b])))})" for a, b in zip(cycle, cycle[1:])]
+        pytest.fail("import cycle between packages: " + " -> ".join(cycle) + "\n  " + "\n  ".join(steps))
+
+
+# Layers that must not import each other in this direction (lower → higher).
+_MUST_NOT_IMPORT = {
+    "twin.data": ("twin.experiments", "twin.discrepancy", "twin.control", "twin.tuning", "envs"),
+    "twin.experiments": ("twin.discrepancy", "twin.control", "twin.tuning", "envs"),
+    "twin.discrepancy": ("twin.control", "twin.tuning", "envs"),
+    "twin.control": ("twin.tuning", "envs"),
+    "envs": ("twin.tuning",),
+    "twin.device": ("twin.data", "twin.experiments", "twin.discrepancy", "twin.control", "twin.tuning", "envs"),
+}
+
+
+@pytest.mark.parametrize("lower", sorted(_MUST_NOT_IMPORT))
+def test_lower_layers_do_not_import_higher_ones(lower):
+    graph = import_graph()
+    assert lower in graph, f"{lower} has no modules"
+    upward = {target: graph[lower][target] for target in _MUST_NOT_IMPORT[lower] if target in graph[lower]}
+    assert not upward, f"{lower} imports layers above it: {upward}"
+
+
+def test_the_graph_sees_relative_and_function_level_imports(tmp_path, monkeypatch):
+    """The parser maps what a cycle hides in: a relative import and an import inside a function."""
+    for package in ("twin/low", "twin/high", "envs"):
+        (tmp_path / package).mkdir(parents=True)
+        (tmp_path / package / "__init__.py").write_text("")
+    (tmp_path / "twin" / "__init__.py").write_text("")
+    (tmp_path / "twin" / "low" / "a.py").write_text("def f():\n    from twin.high import b\n")
+    (tmp_path / "twin" / "high" / "b.py").write_text("from ..low import a\n")
+    (tmp_path / "twin" / "high" / "c.py").write_text("from twin import params\n")
+    (tmp_path / "twin" / "params.py").write_text("")
+    monkeypatch.setitem(globals(), "ROOT", tmp_path)
+    graph = import_graph()
+    assert set(graph["twin.low"]) == {"twin.high"}
+    assert set(graph["twin.high"]) == {"twin.low", "twin.params"}
+    assert find_cycle(graph) in (["twin.high", "twin.low", "twin.high"], ["twin.low", "twin.high", "twin.low"])
