@@ -1,4 +1,4 @@
-"""EM tracker fusion: two 5-DOF probes in the tip cap → one 6-DOF tip pose (SPEC §2).
+"""EM tracker fusion: two 5-DOF probes in the tip cap → one 6-DOF tip pose.
 
 The rig's NDI tracker follows two 5-DOF needle probes mounted perpendicular in a cap on the
 tip. A 5-DOF probe gives a position and the direction of its axis but no roll about that axis;
@@ -24,11 +24,17 @@ import math
 import time
 from typing import Callable
 
-import mujoco
 import numpy as np
 
 from twin.params import Params
 from twin.pose import matrix_to_quat
+
+try:
+    # MuJoCo's 3×3 symmetric eigensolver, for the fusion's rotation (see _wahba).
+    from mujoco import mju_eig3 as _mju_eig3
+except ImportError:
+    # A host that only talks to the rig need not install MuJoCo: numpy's eigh does the same.
+    _mju_eig3 = None
 
 __all__ = [
     "CapCalibration",
@@ -262,7 +268,8 @@ def _wahba(b: list[list[float]]) -> list[list[float]]:
     eigenvectors v₁, v₂ of BᵀB (Horn, Hilden & Negahdaripour 1988): u_k = B v_k / σ_k and
     R = u₁v₁ᵀ + u₂v₂ᵀ + (u₁×u₂)(v₁×v₂)ᵀ, a proper rotation by construction. Any orthonormal
     pair spanning a repeated eigenvalue's space gives the same R. MuJoCo's 3×3 eigensolver
-    takes 2 µs where numpy's SVD takes 20 (``twin bench env``: once per tracker frame).
+    takes 2 µs where numpy's SVD takes 20 (``twin bench env``: once per tracker frame); without
+    MuJoCo installed numpy's ``eigh`` stands in for it.
 
     Falls back to the SVD when the directions are all (nearly) parallel (σ₂ < 10⁻⁶ σ₁), where
     u₂ would be rounding error and R is not determined anyway.
@@ -275,14 +282,19 @@ def _wahba(b: list[list[float]]) -> list[list[float]]:
     s11 = b01 * b01 + b11 * b11 + b21 * b21
     s12 = b01 * b02 + b11 * b12 + b21 * b22
     s22 = b02 * b02 + b12 * b12 + b22 * b22
-    eigval, eigvec = np.empty(3), np.empty(9)
-    mujoco.mju_eig3(eigval, eigvec, np.empty(4), np.array([s00, s01, s02, s01, s11, s12, s02, s12, s22]))
-    l1, l2, _ = eigval.tolist()  # descending
+    if _mju_eig3 is not None:
+        eigval, eigvec = np.empty(3), np.empty(9)
+        _mju_eig3(eigval, eigvec, np.empty(4), np.array([s00, s01, s02, s01, s11, s12, s02, s12, s22]))
+        l1, l2, _ = eigval.tolist()  # descending
+        e = eigvec.tolist()  # row-major; the columns are the eigenvectors
+    else:
+        eigval, eigvec = np.linalg.eigh(np.array([[s00, s01, s02], [s01, s11, s12], [s02, s12, s22]]))
+        _, l2, l1 = eigval.tolist()  # ascending
+        e = eigvec[:, ::-1].ravel().tolist()  # columns in descending order, as MuJoCo's
     if not l2 > 1e-12 * l1:
         u, _, vt = np.linalg.svd(np.array(b))
         u[:, 2] *= math.copysign(1.0, np.linalg.det(u) * np.linalg.det(vt))
         return (u @ vt).tolist()
-    e = eigvec.tolist()  # row-major; the columns are the eigenvectors
     v1, v2 = (e[0], e[3], e[6]), (e[1], e[4], e[7])
     u1, u2 = [], []
     for (row0, row1, row2) in b:
