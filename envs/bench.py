@@ -1,8 +1,7 @@
 """Env throughput on one core (``twin bench env``): steps of the default env per wall second.
 
 One step is one 40 Hz control period, 25 ms of device time: on ``sim://`` five 5 ms firmware
-ticks of the MuJoCo twin (run natively by :mod:`twin.device.board_loop` where they need no
-Python), so the figure is bounded by the twin's real-time factor × 40. The bench also times those
+ticks of the MuJoCo twin (run by the plant loop, ``twin/sim/native/loop.cpp``), so the figure is bounded by the twin's real-time factor × 40. The bench also times those
 25 ms of device time alone, so the env's own share is visible.
 """
 

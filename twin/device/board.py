@@ -2,62 +2,62 @@
 
 This is the rig without the rig: :class:`twin.device.firmware_lib.FirmwareLib` runs the same
 PID, safety state machine and codec as the Teensy, ticked every 5 ms of simulated time like the
-Teensy's IntervalTimer; its PWM drives :meth:`twin.sim.plant.Plant.set_motor_pwm`, and it reads
-the plant's encoders and, on each new 80 Hz sample, its HX711 counts. Bytes go in with
-:meth:`EmulatedBoard.receive` and come out of :meth:`EmulatedBoard.take_tx`, exactly as on the
-wire. The board does not keep time itself: :mod:`twin.device.sim_transport` steps it as fast as
-possible, :mod:`twin.device.pty_board` in step with the wall clock.
+Teensy's IntervalTimer; its PWM drives the plant's motors, and it reads the plant's encoders and,
+on each new load-cell sample, its HX711 counts. The ticks run in the plant loop
+(``bl_board_run`` in ``twin/sim/native/loop.cpp``, through :attr:`twin.sim.plant.Plant.loop`).
+Bytes go in with :meth:`EmulatedBoard.receive` and come out of :meth:`EmulatedBoard.take_tx`,
+exactly as on the wire. The board does not keep time itself: :mod:`twin.device.sim_transport`
+steps it as fast as possible, :mod:`twin.device.pty_board` in step with the wall clock.
 """
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from twin.device import codec
-from twin.device.firmware_lib import FirmwareLib
+from twin.device.firmware_lib import FirmwareLib, tick_entry_points
 from twin.params import Params
 from twin.pose import HORIZONTAL
+from twin.sim.native_loop import Reason
 from twin.sim.plant import Plant
 
-__all__ = ["TICK_S", "EmulatedBoard"]
+__all__ = ["TICK_S", "EmulatedBoard", "Reason"]
 
 # The Teensy layer ticks the core at 200 Hz: the GCD of 100 Hz control and 40 Hz telemetry.
 TICK_S = 0.005
-# The firmware's drive modes (uint8 per motor) when all four motors coast.
-_ALL_COAST = bytes([codec.Drive.COAST] * codec.CHANNELS)
 
 
 class EmulatedBoard:
-    """Firmware core + plant, stepped by the caller in two halves per 5 ms period.
-
-    :meth:`tick` runs the firmware at the current plant time and applies its motor outputs;
-    :meth:`advance` then moves the plant on by :data:`TICK_S`. Whoever steps the board takes the
-    outgoing bytes in between, so a telemetry sample reaches the host at its own device time.
+    """Firmware core + plant, ticked by the caller.
 
     Args:
         params: parameter set of the plant (default ``models/endoscope.toml``).
         seed: seed of the plant's sensor noise.
         base_rotation: clamp orientation, 3×3 (default horizontal, the thesis set-up).
-        native: let the plant step in native code (:class:`twin.sim.plant.Plant`'s ``native``).
 
     Attributes:
         plant: the :class:`twin.sim.plant.Plant`; fixtures act on it directly.
         firmware: the :class:`FirmwareLib` of the current power-up.
     """
 
-    def __init__(self, params: Params | None = None, *, seed: int = 0, base_rotation=HORIZONTAL, native: bool = True):
-        self.plant = Plant(params, base_rotation=base_rotation, seed=seed, native=native)
-        self.firmware = FirmwareLib()
-        self._power_up_s = self.plant.time_s
-        self._last_loadcell_index = -1
+    def __init__(self, params: Params | None = None, *, seed: int = 0, base_rotation=HORIZONTAL):
+        self.plant = Plant(params, base_rotation=base_rotation, seed=seed)
+        if self.plant.tendon_count != codec.CHANNELS:
+            raise ValueError(f"tendons = {self.plant.tendon_count}: the firmware drives {codec.CHANNELS} motors")
+        self._loop = self.plant.loop
+        s = self._loop.state
+        s.tick_fn, s.pending_fn = tick_entry_points()
+        s.tick_steps = max(1, round(TICK_S / self.plant.timestep_s))
         self._held_tensions_n: np.ndarray | None = None
-        # The motor outputs last given to the plant (see _apply); None forces the next.
-        self._applied: tuple[bytes, bytes] | None = None
+        self.firmware: FirmwareLib
+        self._power_up()
 
     @property
     def time_s(self) -> float:
         """Board time (s since power-up): what telemetry reports as ``time_us``."""
-        return self.plant.time_s - self._power_up_s
+        return self.plant.time_s - self._loop.state.power_up_s
 
     def receive(self, data: bytes) -> None:
         """Host → board bytes; commands are acted on (and answered) at once."""
@@ -67,28 +67,51 @@ class EmulatedBoard:
         """Board → host bytes queued since the last call."""
         return self.firmware.take_tx()
 
-    def tick(self) -> None:
-        """One firmware step at the current time, with the plant's sensors; applies its outputs."""
-        sample = self.plant.loadcell_sample()
-        new_mask = 0b1111 if sample.index != self._last_loadcell_index else 0
-        self._last_loadcell_index = sample.index
-        duty = self.firmware.tick(
-            round(self.time_s * 1e6), self.plant.encoder_counts(), sample.raw_counts, new_mask
-        )
-        self._apply(duty, self.firmware.drive_modes)
+    def run(self, *, deadline_s: float = math.inf, last_write_s: float = -math.inf,
+            keepalive_s: float | None = None, max_ticks: int = 1 << 20, resume: bool = False) -> Reason:
+        """Tick until there is work for the host, at most ``max_ticks`` ticks.
 
-    def advance(self) -> None:
-        """Move the plant on by one tick period (:data:`TICK_S`)."""
-        self.plant.step(TICK_S)
+        Each tick runs the firmware at the current board time, gives its outputs to the motors
+        and advances the plant by :data:`TICK_S`.
+
+        Args:
+            deadline_s: board time (s) before which the host's wait ends: no tick starts at or after it.
+            last_write_s: board time (s) of the host's last write, for the keepalive.
+            keepalive_s: the host's keepalive period (s), or None.
+            max_ticks: ticks at most.
+            resume: finish the tick whose bytes were just taken (after :data:`Reason.TX`).
+
+        Returns:
+            :data:`Reason.DONE` (ticks taken; with ``resume``, the tick finished),
+            :data:`Reason.DEADLINE`, :data:`Reason.KEEPALIVE` (a PING is due before the next
+            tick) or :data:`Reason.TX` (bytes to take before the tick's advance).
+
+        Raises:
+            twin.sim.plant.SimulationError: the simulation diverged.
+        """
+        s = self._loop.state
+        s.deadline_s = deadline_s
+        s.last_write_s = last_write_s
+        s.keepalive_s = math.inf if keepalive_s is None else keepalive_s
+        s.resume = resume
+        reason = self._loop.board_run(max_ticks)
+        if reason == Reason.WARNING:
+            self.plant.raise_warnings()
+        return reason
+
+    def run_tick(self) -> bytes:
+        """One whole tick; returns the bytes it sent the host."""
+        sent = b""
+        if self.run(max_ticks=1) == Reason.TX:
+            sent = self.take_tx()
+            self.run(resume=True)
+        return sent
 
     def power_cycle(self) -> None:
         """A fresh firmware (power-up state: disabled, no handshake, counters at 0) on the same
         plant, as after unplugging a USB-powered Teensy and plugging it back."""
         self.firmware.close()
-        self.firmware = FirmwareLib()
-        self._power_up_s = self.plant.time_s
-        self._last_loadcell_index = -1
-        self._applied = None
+        self._power_up()
 
     def hold_tensions(self, tensions_n) -> None:
         """Pull the tendons with ideal tension sources (N) instead of the motors, until
@@ -101,10 +124,12 @@ class EmulatedBoard:
         tensions = np.asarray(tensions_n, dtype=float)
         self.plant.set_tensions(tensions)
         self._held_tensions_n = tensions
+        self._loop.state.held = 1
 
     def release_tensions(self) -> None:
         """Give the spools back to the firmware's motor outputs (applied at the next tick)."""
         self._held_tensions_n = None
+        self._loop.state.held = 0
 
     @property
     def held_tensions_n(self) -> np.ndarray | None:
@@ -114,20 +139,10 @@ class EmulatedBoard:
     def close(self) -> None:
         self.firmware.close()
 
-    def _apply(self, duty: np.ndarray, drives: np.ndarray) -> None:
-        if self._held_tensions_n is not None:
-            self._applied = None
-            return
-        # The control loop runs at 100 Hz and the board ticks at 200 Hz: every other tick
-        # repeats the outputs, and the plant already has them (the plant's drive is changed only
-        # here, by hold_tensions, and by a reset that comes with power_cycle).
-        outputs = (duty.tobytes(), drives.tobytes())
-        if outputs == self._applied:
-            return
-        self._applied = outputs
-        if outputs[1] == _ALL_COAST:
-            self.plant.coast()
-        else:
-            # Duty 0 in the plant shorts the motor (brake). The plant coasts all motors or none;
-            # the firmware's safety states also act on all four, so a mix does not occur.
-            self.plant.set_motor_pwm(np.where(drives == codec.Drive.DRIVE, duty, 0.0))
+    def _power_up(self) -> None:
+        self.firmware = FirmwareLib()
+        s = self._loop.state
+        s.firmware = self.firmware.handle
+        s.power_up_s = self.plant.time_s
+        s.last_loadcell_index = -1
+        s.have_applied = 0

@@ -33,6 +33,7 @@ __all__ = [
     "FirmwareBuildError",
     "build_library",
     "load_library",
+    "tick_entry_points",
     "FirmwareLib",
     "FirmwareFrameDecoder",
 ]
@@ -124,6 +125,14 @@ def load_library() -> ctypes.CDLL:
     return lib
 
 
+@functools.lru_cache(maxsize=1)
+def tick_entry_points() -> tuple[int, int]:
+    """Addresses of ``twinfw_tick`` and ``twinfw_tx_pending``, for a native loop that ticks a
+    :attr:`FirmwareLib.handle` itself (the emulated board's, :mod:`twin.device.board`)."""
+    lib = load_library()
+    return tuple(ctypes.cast(f, ctypes.c_void_p).value for f in (lib.twinfw_tick, lib.twinfw_tx_pending))
+
+
 _INT32_MIN, _INT32_MAX = -(2**31), 2**31 - 1
 
 
@@ -196,6 +205,12 @@ class FirmwareLib:
         counts, raw, duty, drive = self._pointers
         self._lib.twinfw_tick(self._fw, now_us, counts, raw, new_mask, duty, drive)
         return self._duty.astype(np.float64)
+
+    @property
+    def handle(self) -> int:
+        """The firmware core's C handle, for :func:`tick_entry_points`' functions."""
+        self._check_open()
+        return self._fw
 
     @property
     def drive_modes(self) -> np.ndarray:

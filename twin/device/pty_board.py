@@ -152,9 +152,7 @@ class PtyBoard:
             now_s = time.monotonic()
             if now_s < next_tick_s:
                 continue
-            self.board.tick()
-            self._write(master, self.board.take_tx())
-            self.board.advance()
+            self._write(master, self.board.run_tick())
             self.ticks += 1
             next_tick_s += TICK_S
             if now_s - next_tick_s > _MAX_LAG_S:

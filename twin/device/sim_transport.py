@@ -12,9 +12,7 @@ from __future__ import annotations
 import math
 from typing import Callable
 
-from twin.device import board_loop
-from twin.device.board import TICK_S, EmulatedBoard
-from twin.device.board_loop import BoardLoop, Reason
+from twin.device.board import EmulatedBoard, Reason
 from twin.device.inbox import Inbox
 from twin.device.transport import Transport
 
@@ -34,11 +32,9 @@ class SimTransport(Transport):
 
     clock = "simulated"
 
-    def __init__(self, board: EmulatedBoard, *, url: str = "sim://", native_loop: bool = True):
+    def __init__(self, board: EmulatedBoard, *, url: str = "sim://"):
         self.board = board
         self.url = url
-        # The ticks in native code where they need no Python (twin.device.board_loop).
-        self._loop = BoardLoop(board) if native_loop and board_loop.available() else None
         self._inbox: Inbox | None = None
         self._keepalive_s: float | None = None
         self._ping: Callable[[], None] | None = None
@@ -54,15 +50,17 @@ class SimTransport(Transport):
         self._deliver()
 
     def wait_until(self, predicate: Callable[[], bool], timeout_s: float) -> bool:
-        # Whole ticks: a wait ends at the first tick boundary at or after the deadline.
-        deadline_s = self.board.time_s + timeout_s - 1e-9
+        # Whole ticks: a wait ends at the first tick boundary at or after the deadline. Bytes
+        # reach the inbox only in _deliver, so the predicate cannot change while the board ticks.
+        board = self.board
+        deadline_s = board.time_s + timeout_s - 1e-9
         while not predicate():
-            if self.board.time_s >= deadline_s:
+            if board.time_s >= deadline_s:
                 return False
-            if self._loop is not None and self._loop.usable(TICK_S):
-                self._run_native(deadline_s)
-            else:
-                self._step()
+            if self._run(deadline_s) == Reason.KEEPALIVE:
+                # The PING, then the tick it came before.
+                self._ping()
+                self._run(deadline_s, max_ticks=1)
         return True
 
     def time_s(self) -> float:
@@ -75,38 +73,16 @@ class SimTransport(Transport):
         self._inbox = None
         self._keepalive_s = None
 
-    def _step(self) -> None:
-        if self._keepalive_s is not None and self.board.time_s - self._last_write_s >= self._keepalive_s - 1e-9:
-            self._ping()
-        self.board.tick()
-        self._deliver()
-        self.board.advance()
-
-    def _run_native(self, deadline_s: float) -> None:
-        """Ticks in native code up to the first that needs Python, then the rest of that tick
-        as :meth:`_step` would do it (or, before a tick, the noise refill). Bytes reach the
-        inbox only in :meth:`_deliver`, so the wait's predicate cannot change during the
-        native ticks."""
-        board, loop = self.board, self._loop
-        reason = loop.run(deadline_s, self._last_write_s, self._keepalive_s)
+    def _run(self, deadline_s: float, max_ticks: int = 1 << 20) -> Reason:
+        """Ticks up to the deadline, the keepalive or bytes for the host; bytes are delivered
+        and their tick finished."""
+        board = self.board
+        reason = board.run(deadline_s=deadline_s, last_write_s=self._last_write_s, keepalive_s=self._keepalive_s,
+                           max_ticks=max_ticks)
         if reason == Reason.TX:
-            # Deliver, then the tick's advance natively.
             self._deliver()
-            reason = loop.run(deadline_s, self._last_write_s, self._keepalive_s, resume=True)
-        if reason in (Reason.DEADLINE, Reason.DONE):
-            return
-        if reason == Reason.KEEPALIVE:
-            self._step()
-        elif reason == Reason.APPLY:
-            board._apply(*loop.outputs())
-            self._deliver()
-            board.advance()
-        elif reason == Reason.WARNING:
-            board.plant._end_chunk()
-        elif reason == Reason.NOISE:
-            board.plant._noise.refill()
-        else:
-            raise RuntimeError(f"board loop returned {reason!r}")
+            board.run(resume=True)
+        return reason
 
     def _deliver(self) -> None:
         data = self.board.take_tx()

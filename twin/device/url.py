@@ -1,10 +1,8 @@
 """Device URLs → devices: ``sim://`` (the twin) and ``serial://`` (the rig, or an emulated board
 on a pseudo-terminal).
 
-``sim://[?seed=N][&pose=horizontal|up][&native=1|0]``
+``sim://[?seed=N][&pose=horizontal|up]``
     The emulated board (:class:`twin.device.board.EmulatedBoard`) in simulated time.
-    ``native=0`` ticks it and steps its plant in Python only, not in :mod:`twin.device.board_loop`
-    and :mod:`twin.sim.native_loop` (same results, slower; for checking the two against each other).
 ``serial://<path>[?igtl=host:port]``
     A board on a serial port: ``serial:///dev/ttyACM0``, or the pseudo-terminal printed by
     ``twin emulate``. ``igtl`` names the OpenIGTLink server of the EM tracker (PLUS); without
@@ -19,6 +17,7 @@ from typing import Callable
 from twin.device.device import Device
 from twin.device.fixture import OperatorFixture, SimFixture
 from twin.device.serial_transport import SerialTransport
+from twin.device.sim_twin import SimTwin
 from twin.device.tracker import TipTracker, sim_probe_source
 from twin.params import Params, load_params
 from twin.pose import base_rotation_from
@@ -27,7 +26,7 @@ from twin.tracking import FusionSettings, OpenIGTLinkSource
 __all__ = ["SCHEMES", "open_device"]
 
 SCHEMES = ("sim", "serial")
-_QUERY_KEYS = {"sim": ("seed", "pose", "native"), "serial": ("igtl",)}
+_QUERY_KEYS = {"sim": ("seed", "pose"), "serial": ("igtl",)}
 
 
 def _query(url: str, scheme: str, query: str) -> dict[str, str]:
@@ -40,15 +39,6 @@ def _query(url: str, scheme: str, query: str) -> dict[str, str]:
             f"{scheme}:// takes {', '.join(_QUERY_KEYS[scheme])}"
         )
     return options
-
-
-def _flag(url: str, options: dict[str, str], key: str, default: bool) -> bool:
-    value = options.get(key)
-    if value is None:
-        return default
-    if value not in ("0", "1"):
-        raise ValueError(f"device URL {url!r}: {key}={value!r}; use {key}=1 or {key}=0")
-    return value == "1"
 
 
 def open_device(
@@ -92,16 +82,17 @@ def open_device(
         from twin.device.board import EmulatedBoard
         from twin.device.sim_transport import SimTransport
 
-        native = _flag(url, options, "native", True)
         board = EmulatedBoard(params, seed=_seed(url, options, seed),
-                              base_rotation=_pose(url, options.get("pose", "horizontal")), native=native)
+                              base_rotation=_pose(url, options.get("pose", "horizontal")))
+        # The fixture settles through the device so the firmware keeps ticking meanwhile.
+        fixture = SimFixture(board, settle=lambda duration_s: device.wait(duration_s))
         device = Device(
-            SimTransport(board, url=url, native_loop=native),
+            SimTransport(board, url=url),
+            fixture=fixture,
             tracker=TipTracker(lambda: sim_probe_source(board.plant), settings=settings),
+            twin=SimTwin(board, fixture),
             **device_args,
         )
-        # The fixture settles through the device so the firmware keeps ticking meanwhile.
-        device.fixture = SimFixture(board, settle=device.wait)
         return device
 
     path = parts.netloc + parts.path

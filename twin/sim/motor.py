@@ -30,7 +30,7 @@ import numpy as np
 
 from twin.params import Rig
 
-__all__ = ["MotorConstants", "duty_to_voltage_v", "encoder_counts", "spool_position_m"]
+__all__ = ["MotorConstants", "spool_position_m"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -75,27 +75,8 @@ class MotorConstants:
         )
 
 
-def duty_to_voltage_v(duty, supply_voltage_v: float) -> np.ndarray:
-    """Mean H-bridge terminal voltage (V) for PWM duties, clipped to [−1, 1]."""
-    # minimum/maximum rather than np.clip: a third of the cost on four duties, every 10 ms.
-    return np.minimum(np.maximum(np.asarray(duty, dtype=float), -1.0), 1.0) * supply_voltage_v
-
-
-def encoder_counts(spool_position_m, rig: Rig) -> np.ndarray:
-    """Quadrature counts (int64) of the motor-shaft encoders for tendon paid out (m).
-
-    A counter changes at each edge, so the count is the floor of the angle over the edge
-    spacing: 2π / (4·1024) rad of motor shaft, 9.4e-7 m of tendon (``Rig.tendon_m_per_count``).
-    """
-    # On plain floats: the emulated board reads four of them every 5 ms tick, and numpy's
-    # floor and cast cost three times as much there.
-    x = np.asarray(spool_position_m, dtype=float)
-    per_count = rig.tendon_m_per_count
-    return np.array([math.floor(v / per_count + 1e-9) for v in x.ravel().tolist()],
-                    dtype=np.int64).reshape(x.shape)
-
-
 def spool_position_m(counts, rig: Rig) -> np.ndarray:
-    """Tendon paid out (m) at the lower edge of each encoder count: the inverse of
-    :func:`encoder_counts`."""
+    """Tendon paid out (m) at the lower edge of each encoder count: the inverse of the plant's
+    quadrature counter (:meth:`twin.sim.plant.Plant.encoder_counts`, the floor of the tendon
+    paid out over ``Rig.tendon_m_per_count``: 2π / (4·1024) rad of motor shaft, 9.4e-7 m)."""
     return np.asarray(counts, dtype=float) * rig.tendon_m_per_count

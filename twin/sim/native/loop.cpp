@@ -1,21 +1,18 @@
-// The twin's stepping loops in C++, for the steps where nothing needs Python.
+// The twin's plant loop: the one implementation of how the simulated rig is driven, stepped and
+// sensed, and of the emulated board's 5 ms tick around the firmware core.
 //
-// bl_plant_run is twin.sim.plant.Plant.step: chunks of physics steps up to the next sensor
-// sample, the engagement check and its short steps, the load cells and the tracker.
-// bl_run is what twin.device.sim_transport does per 5 ms board tick: the firmware's tick, its
-// motor outputs into the plant, then the plant's step as above.
+// twin.sim.plant.Plant and twin.device.board.EmulatedBoard are thin bindings on these functions
+// (twin.sim.native_loop); they keep only what needs Python: building the model, the sensors'
+// random draws (a numpy generator fills the noise buffer), per-step effect hooks, raising
+// errors, and carrying bytes to the host. Each call returns a bl_reason saying what Python must
+// do before calling again.
 //
-// Both return to Python, at the exact point where the Python path would do it, whenever it has
-// work: bytes for the host, a drive the plant must switch mode for, a MuJoCo warning, the
-// keepalive, the deadline, or the sensor noise buffer running low. Run to run they take the
-// same steps with the same numbers as the Python path (tests/test_board_loop.py and
-// tests/test_sim_native.py check them bit for bit): the same float operations in the same order.
-//
-// No link-time dependency: the firmware's tick and mj_step come in as function pointers from
-// the libraries Python has already loaded; MuJoCo's headers give the mjModel/mjData layout.
+// No link-time dependency: mj_step and mj_forward, the firmware's tick and the
+// per-step hook come in as function pointers from the libraries Python has already loaded;
+// MuJoCo's headers give the mjModel/mjData layout.
 //
 // Build: twin.sim.native_loop.build_library() (g++ -O2 -ffp-contract=off -shared -fPIC
-// -I<mujoco>/include).
+// -I<mujoco>/include). No fused multiply-adds: the sums round the same on every machine.
 
 #include <math.h>
 #include <stddef.h>
@@ -23,102 +20,157 @@
 
 #include <mujoco/mujoco.h>
 
-#define BL_ABI_VERSION 6
-#define BL_CHANNELS 4
-// Normal draws a tick can take: four load cells, then six position and six axis components of
-// the tracker's two probes.
-#define BL_NOISE_PER_TICK 16
+#define BL_ABI_VERSION 7
+// Tendons (spools, motors, load cells) a plant can have.
+#define BL_MAX_CHANNELS 12
+// The tracker's two probes: three position and three axis components each.
+#define BL_PROBE_VALUES 6
 
 extern "C" {
 
 typedef void (*bl_tick_fn)(void* fw, uint64_t now_us, const int32_t* encoder_counts, const int32_t* raw_counts,
                            uint32_t new_sample_mask, float* duty_out, uint8_t* drive_out);
-typedef void (*bl_step_fn)(const mjModel* m, mjData* d);
 typedef size_t (*bl_pending_fn)(const void* fw);
+typedef void (*bl_mj_fn)(const mjModel* m, mjData* d);
+typedef void (*bl_hook_fn)(void);
 
-// Why bl_run returned; the tick's state is then exactly what the Python path has at that point.
+// Why a call returned.
 enum bl_reason {
-  BL_DEADLINE = 0,    // time reached the deadline before a tick: wait_until returns False
-  BL_KEEPALIVE = 1,   // a keepalive PING is due before the next tick: Python runs the tick
-  BL_APPLY = 2,       // ticked; the outputs need Python (coast, or the plant not in PWM mode)
-  BL_TX = 3,          // ticked and applied; bytes for the host: deliver, then resume
-  BL_WARNING = 4,     // stepped; MuJoCo raised a warning (Python raises it, then samples)
-  BL_NOISE = 5,       // before a tick: too few noise draws left; Python refills the buffer
-  BL_DONE = 6,        // bl_run: resumed at the advance of a tick and stepped: the tick is
-                      // complete; bl_plant_run: all the steps are taken
+  BL_DONE = 0,       // the steps (bl_plant_run) or ticks (bl_board_run) asked for are taken
+  BL_DEADLINE = 1,   // bl_board_run: board time reached the deadline before a tick
+  BL_KEEPALIVE = 2,  // bl_board_run: the host's keepalive PING is due before the next tick
+  BL_TX = 3,         // bl_board_run: ticked, bytes for the host; deliver, then call with resume
+  BL_WARNING = 4,    // MuJoCo raised a warning: the simulation diverged
+  BL_NOISE = 5,      // too few noise draws left for the next step or tick; refill the buffer
 };
 
-// Shared with Python (twin.device.board_loop._State): inputs, state carried across calls,
-// and outputs. Pointers and doubles first, then 32-bit fields, then bytes, so ctypes lays it
-// out the same.
+// Drive modes of the spools (twin.sim.plant.MODES, in order).
+enum bl_mode { BL_PWM = 0, BL_COAST = 1, BL_TENSION = 2, BL_LENGTH = 3 };
+
+// The firmware's drive per motor (twin.device.codec.Drive).
+enum { BL_DRIVE_COAST = 0, BL_DRIVE_ON = 1 };
+
+// The state shared with Python, declared once: twin.sim.native_loop builds its ctypes structure
+// from bl_state_fields(), which lists these fields with their offsets. S(kind, name) is a scalar,
+// A(kind, name, count) an array. Pointers and doubles first, then 32-bit fields, then bytes.
+#define BL_STATE(S, A)                                                                                   \
+  /* function pointers and buffers (set once per plant or power-up) */                                  \
+  S(f64p, noise)                /* the sensors' standard normal draws (twin.sim.sensors.NoiseStream) */ \
+  S(ptr, step_fn)               /* mj_step */                                                           \
+  S(ptr, forward_fn)            /* mj_forward */                                                        \
+  S(ptr, hook_fn)               /* called before every physics step when set (effects) */               \
+  S(ptr, firmware)              /* the firmware core's handle */                                        \
+  S(ptr, tick_fn)               /* the firmware's tick */                                               \
+  S(ptr, pending_fn)            /* the firmware's count of bytes queued for the host */                 \
+  /* plant constants */                                                                                 \
+  S(f64, step_s)                /* physics step sim.timestep_s (s) */                                   \
+  S(f64, engage_stretch_m)      /* a tendon stretched less than this gets the engagement check */       \
+  S(f64, engage_speed_m_s)      /* closing speed at which a full step's spike is too large */           \
+  S(f64, supply_voltage_v)                                                                              \
+  S(f64, stall_force_n)         /* the motor's stall force at the tendon (N) */                         \
+  S(f64, reflected_mass_kg)     /* rotor inertia reflected to the tendon (kg) */                        \
+  S(f64, tendon_stiffness_n_per_m)                                                                      \
+  S(f64, loadcell_gain_counts_per_n)                                                                    \
+  S(f64, loadcell_noise_n)      /* RMS (N) */                                                           \
+  S(f64, loadcell_rate_hz)                                                                              \
+  S(f64, tracker_noise_m)       /* RMS per axis (m) */                                                  \
+  S(f64, tracker_noise_rad)     /* RMS per axis component (rad) */                                      \
+  S(f64, tracker_rate_hz)                                                                               \
+  S(f64, m_per_count)           /* tendon per encoder count (m) */                                      \
+  A(f64, slack_length_m, BL_MAX_CHANNELS)                                                               \
+  A(f64, loadcell_offset_counts, BL_MAX_CHANNELS)                                                       \
+  A(f64, loadcell_gain, BL_MAX_CHANNELS)      /* a load cell senses gain · T + offset (effects) */     \
+  A(f64, loadcell_offset_n, BL_MAX_CHANNELS)                                                            \
+  A(f64, probe_position_m, BL_PROBE_VALUES)   /* probes A and B in the tip frame (m) */                \
+  A(f64, probe_axis, BL_PROBE_VALUES)         /* their unit axes in the tip frame */                   \
+  /* board inputs, refreshed before each bl_board_run */                                                \
+  S(f64, power_up_s)            /* plant time of the firmware's power-up (s) */                         \
+  S(f64, deadline_s)            /* board time at which the host's wait gives up (s) */                  \
+  S(f64, last_write_s)          /* board time of the host's last write (s) */                           \
+  S(f64, keepalive_s)           /* keepalive period (s); +inf for none */                               \
+  /* carried across calls */                                                                            \
+  S(f64, next_loadcell_s)       /* plant time of the next load-cell sample (s) */                       \
+  S(f64, next_tracker_s)        /* plant time of the next tracker frame (s) */                          \
+  S(f64, loadcell_time_s)       /* plant time of the latest load-cell sample (s) */                     \
+  S(f64, tracker_time_s)        /* plant time of the latest tracker frame (s) */                        \
+  A(f64, tracker_positions_m, BL_PROBE_VALUES)  /* the latest frame's probe positions, world (m) */    \
+  A(f64, tracker_axes, BL_PROBE_VALUES)         /* and unit axes */                                    \
+  A(f64, pwm_v, BL_MAX_CHANNELS)                /* voltages last given to the motors (V) */            \
+  S(f64, jump_accel_m_s2)       /* spool acceleration step since the last physics step */               \
+  S(i32, channels)              /* tendons of the plant */                                              \
+  S(i32, noise_size)            /* draws in the buffer */                                               \
+  S(i32, noise_cursor)          /* the next draw to take */                                             \
+  S(i32, tip_site)                                                                                      \
+  S(i32, base_substeps)         /* physics steps each step is cut into always (effects' stability) */  \
+  S(i32, engage_substeps)       /* ... while a tendon could engage */                                   \
+  S(i32, current_substeps)      /* what mjModel.opt.timestep is cut to now */                           \
+  S(i32, tick_steps)            /* physics steps per board tick */                                      \
+  S(i32, jump)                  /* 1 after a change the engagement check cannot bound */                \
+  S(i32, short_steps)           /* steps taken as short ones since the plant was built */               \
+  S(i32, mode)                  /* bl_mode; -1 before the first */                                      \
+  S(i32, ctrl_pwm)              /* first actuator of each block: PWM motors, tension, length */         \
+  S(i32, ctrl_tension)                                                                                  \
+  S(i32, ctrl_length)                                                                                   \
+  S(i32, group_pwm)             /* actuator group of each block */                                      \
+  S(i32, group_tension)                                                                                 \
+  S(i32, group_length)                                                                                  \
+  A(i32, spool_qpos, BL_MAX_CHANNELS)                                                                   \
+  A(i32, spool_dof, BL_MAX_CHANNELS)                                                                    \
+  A(i32, raw_counts, BL_MAX_CHANNELS)           /* the latest load-cell sample (HX711 codes) */        \
+  S(i32, loadcell_index)        /* index of the latest load-cell sample */                              \
+  S(i32, tracker_index)         /* index of the latest tracker frame */                                 \
+  S(i32, warnings_total)        /* sum of the MuJoCo warning counters seen */                           \
+  S(i32, last_loadcell_index)   /* the board's: the sample the firmware has seen */                     \
+  S(i32, held)                  /* 1 while the fixture holds the tensions (outputs ignored) */          \
+  S(i32, have_applied)          /* 1 when applied_duty/applied_drive are what the plant has */          \
+  S(i32, ticks)                 /* out: steps (bl_plant_run) or ticks (bl_board_run) in the call */     \
+  S(i32, resume)                /* in: 1 to continue with the advance of a tick whose bytes went out */ \
+  A(f32, applied_duty, BL_MAX_CHANNELS)                                                                 \
+  A(f32, duty, BL_MAX_CHANNELS)                 /* the last tick's outputs */                          \
+  A(u8, applied_drive, BL_MAX_CHANNELS)                                                                 \
+  A(u8, drive, BL_MAX_CHANNELS)
+
+typedef void* bl_ptr;
+typedef double* bl_f64p;
+typedef double bl_f64;
+typedef int32_t bl_i32;
+typedef float bl_f32;
+typedef uint8_t bl_u8;
+
 struct bl_state {
-  double* noise;               // the sensors' standard normal draws (twin.sim.sensors.NoiseStream)
-  // inputs (constant for a plant and board)
-  double m_per_count;          // tendon per encoder count (m)
-  double engage_stretch_m;     // a tendon stretched less than this gets the engagement check
-  double engage_speed_m_s;     // closing speed at which a full step's spike is too large
-  double supply_voltage_v;
-  double stall_force_n;
-  double reflected_mass_kg;
-  double tick_s;
-  double tendon_stiffness_n_per_m;
-  double loadcell_gain_counts_per_n;
-  double loadcell_noise_n;     // RMS (N)
-  double loadcell_rate_hz;
-  double tracker_noise_m;      // RMS per axis (m)
-  double tracker_noise_rad;    // RMS per axis component (rad)
-  double tracker_rate_hz;
-  double slack_length_m[BL_CHANNELS];
-  double loadcell_offset_counts[BL_CHANNELS];
-  double loadcell_gain_error[BL_CHANNELS];
-  double loadcell_offset_error_n[BL_CHANNELS];
-  double probe_position_m[6];  // probes A and B in the tip frame (m)
-  double probe_axis[6];        // their unit axes in the tip frame
-  // inputs refreshed by Python before each call
-  double power_up_s;           // plant time of the firmware's power-up (s)
-  double deadline_s;           // board time at which wait_until gives up (s)
-  double last_write_s;         // board time of the host's last write (s)
-  double keepalive_s;          // keepalive period (s); +inf for none
-  // carried across calls (Python reads and writes them)
-  double next_loadcell_s;      // plant time of the next load-cell sample (s)
-  double next_tracker_s;       // plant time of the next tracker frame (s)
-  double loadcell_time_s;      // out: plant time of the latest load-cell sample (s)
-  double tracker_time_s;       // out: plant time of the latest tracker frame (s)
-  double tracker_positions_m[6];  // out: the latest frame's probe positions, world (m)
-  double tracker_axes[6];         // out: and unit axes
-  double pwm_v[BL_CHANNELS];   // voltages last given to the plant's motors
-  double jump_accel_m_s2;      // spool acceleration step since the last physics step
-  int32_t noise_size;          // draws in the buffer
-  int32_t noise_cursor;        // the next draw to take
-  int32_t tip_site;
-  int32_t engage_substeps;     // steps a tick is cut into while a tendon could engage
-  int32_t current_substeps;    // what mjModel.opt.timestep is cut to now
-  int32_t jump;                // 1 after a change the engagement check cannot bound
-  int32_t short_steps;         // out: steps taken as short ones in the call
-  int32_t spool_qpos[BL_CHANNELS];
-  int32_t pwm_ctrl[BL_CHANNELS];
-  int32_t raw_counts[BL_CHANNELS];
-  int32_t loadcell_index;      // index of the plant's current load-cell sample
-  int32_t last_loadcell_index; // the board's: the sample the firmware has seen
-  int32_t tracker_index;       // index of the plant's current tracker frame
-  int32_t warnings_total;      // sum of the warning counters the plant has seen
-  int32_t plant_pwm;           // 1 while the plant is in PWM mode
-  int32_t held;                // 1 while the fixture holds the tensions (outputs ignored)
-  int32_t have_applied;        // 1 when applied_duty/applied_drive are what the plant has
-  int32_t ticks;               // out: ticks (bl_run) or steps (bl_plant_run) taken in the call
-  int32_t applied_changed;     // out: 1 when the call gave the plant new motor outputs
-  int32_t resume;              // in: 1 to start at the advance of a tick Python delivered for
-  float applied_duty[BL_CHANNELS];
-  float duty[BL_CHANNELS];     // out: the last tick's outputs
-  uint8_t applied_drive[BL_CHANNELS];
-  uint8_t drive[BL_CHANNELS];
+#define BL_SCALAR(kind, name) bl_##kind name;
+#define BL_ARRAY(kind, name, count) bl_##kind name[count];
+  BL_STATE(BL_SCALAR, BL_ARRAY)
+#undef BL_SCALAR
+#undef BL_ARRAY
+};
+
+// One field of bl_state for the binding: its name, byte offset, kind and element count.
+struct bl_field {
+  const char* name;
+  uint32_t offset;
+  const char* kind;
+  uint32_t count;
+};
+
+static const bl_field FIELDS[] = {
+#define BL_SCALAR(kind, name) {#name, (uint32_t)offsetof(bl_state, name), #kind, 1},
+#define BL_ARRAY(kind, name, count) {#name, (uint32_t)offsetof(bl_state, name), #kind, count},
+    BL_STATE(BL_SCALAR, BL_ARRAY)
+#undef BL_SCALAR
+#undef BL_ARRAY
 };
 
 uint32_t bl_abi_version(void) { return BL_ABI_VERSION; }
 uint32_t bl_state_size(void) { return (uint32_t)sizeof(bl_state); }
+uint32_t bl_max_channels(void) { return BL_MAX_CHANNELS; }
+const bl_field* bl_state_fields(uint32_t* count) {
+  *count = (uint32_t)(sizeof(FIELDS) / sizeof(FIELDS[0]));
+  return FIELDS;
+}
 
-// Python's max(x, 0.0): x unless 0.0 is larger.
-static inline double py_max0(double x) { return 0.0 > x ? 0.0 : x; }
+// max(x, 0.0) that keeps x unless 0.0 is larger (so −0.0 and NaN pass through as they are).
+static inline double max0(double x) { return 0.0 > x ? 0.0 : x; }
 
 static int warnings_total(const mjData* d) {
   int total = 0;
@@ -126,64 +178,89 @@ static int warnings_total(const mjData* d) {
   return total;
 }
 
-static bool same_outputs(const bl_state* s) {
-  if (!s->have_applied) return false;
-  for (int i = 0; i < BL_CHANNELS; ++i) {
-    // Bytewise, as the Python path compares duty.tobytes().
-    uint32_t a, b;
-    __builtin_memcpy(&a, &s->duty[i], 4);
-    __builtin_memcpy(&b, &s->applied_duty[i], 4);
-    if (a != b || s->drive[i] != s->applied_drive[i]) return false;
+// Draws one load-cell sample and one tracker frame may take.
+static int noise_per_sample(const bl_state* s) { return s->channels + 2 * BL_PROBE_VALUES; }
+
+// ---------------------------------------------------------------------------------------- drive
+
+// Switch the spools' drive: enable the mode's actuator block, zero every control, give the
+// spools the motors' rotor inertia in pwm and coast. A new length servo starts where the
+// spools are, so switching modes does not jerk them.
+static void set_mode(mjModel* m, mjData* d, bl_state* s, int mode) {
+  if (s->mode == mode) return;
+  s->mode = mode;
+  int enabled = mode == BL_PWM ? s->group_pwm : mode == BL_TENSION ? s->group_tension
+              : mode == BL_LENGTH ? s->group_length : -1;
+  int groups[3] = {s->group_pwm, s->group_tension, s->group_length};
+  int disabled = 0;
+  for (int g : groups) {
+    if (g != enabled) disabled |= 1 << g;
   }
-  return true;
+  m->opt.disableactuator = disabled;
+  for (int i = 0; i < m->nu; ++i) d->ctrl[i] = 0.0;
+  s->jump = 1;
+  for (int i = 0; i < s->channels; ++i) s->pwm_v[i] = 0.0;
+  if (mode == BL_LENGTH) {
+    for (int i = 0; i < s->channels; ++i) d->ctrl[s->ctrl_length + i] = d->qpos[s->spool_qpos[i]];
+  }
+  double armature = mode == BL_PWM || mode == BL_COAST ? s->reflected_mass_kg : 0.0;
+  for (int i = 0; i < s->channels; ++i) m->dof_armature[s->spool_dof[i]] = armature;
 }
 
-// The PWM drive of twin.sim.plant.Plant.set_motor_pwm with twin.device.board's duty choice.
-static void apply_pwm(mjData* d, bl_state* s) {
-  double volts[BL_CHANNELS];
+// PWM duties (clipped to [−1, 1]) into the motors: H-bridge voltages, and the step in the spools'
+// acceleration the engagement check has to allow for.
+static void drive_pwm(mjModel* m, mjData* d, bl_state* s, const double* duty) {
+  set_mode(m, d, s, BL_PWM);
+  double volts[BL_MAX_CHANNELS];
   double largest = 0.0;
-  for (int i = 0; i < BL_CHANNELS; ++i) {
-    double x = s->drive[i] == 1 ? (double)s->duty[i] : 0.0;
-    x = fmin(fmax(x, -1.0), 1.0) * s->supply_voltage_v;
-    volts[i] = x;
-    double change = fabs(x - s->pwm_v[i]);
+  for (int i = 0; i < s->channels; ++i) {
+    volts[i] = fmin(fmax(duty[i], -1.0), 1.0) * s->supply_voltage_v;
+    double change = fabs(volts[i] - s->pwm_v[i]);
     if (change > largest) largest = change;
   }
   double step_n = s->stall_force_n / s->supply_voltage_v * largest;
   s->jump_accel_m_s2 += step_n / s->reflected_mass_kg;
-  for (int i = 0; i < BL_CHANNELS; ++i) {
+  for (int i = 0; i < s->channels; ++i) {
     s->pwm_v[i] = volts[i];
-    d->ctrl[s->pwm_ctrl[i]] = volts[i];
+    d->ctrl[s->ctrl_pwm + i] = volts[i];
   }
 }
 
-// Plant._engage_risk for a chunk of ``chunk`` steps, with the same float operations in the same order.
-static bool engage_risk(const mjModel* m, const mjData* d, const bl_state* s, int chunk) {
-  double span = chunk * s->tick_s + s->tick_s;
-  for (int i = 0; i < BL_CHANNELS; ++i) {
-    double stretch = d->ten_length[i] - s->slack_length_m[i];
-    if (!(stretch < s->engage_stretch_m)) continue;
-    // After a change it cannot bound, any tendon near slack counts.
-    if (s->jump) return true;
-    double acc = 0.0;
-    int start = m->ten_J_rowadr[i], end = start + m->ten_J_rownnz[i];
-    for (int k = start; k < end; ++k) acc += d->ten_J[k] * d->qacc[m->ten_J_colind[k]];
-    double a = py_max0(acc) + s->jump_accel_m_s2;
-    double v = py_max0(d->ten_velocity[i]);
-    if (v + a * span > s->engage_speed_m_s && stretch + (v + 0.5 * a * span) * span > 0.0) return true;
+// Plant.set_motor_pwm, coast, set_tensions and set_tendon_lengths: values are duties, unused,
+// tensions (N) or relative lengths (m).
+void bl_set_drive(mjModel* m, mjData* d, bl_state* s, int32_t mode, const double* values) {
+  if (mode == BL_PWM) {
+    drive_pwm(m, d, s, values);
+    return;
   }
-  return false;
+  set_mode(m, d, s, mode);
+  if (mode == BL_COAST) return;
+  int start = mode == BL_TENSION ? s->ctrl_tension : s->ctrl_length;
+  for (int i = 0; i < s->channels; ++i) d->ctrl[start + i] = values[i];
+  s->jump = 1;
 }
 
-// twin.sim.sensors.LoadCells.read of Plant.true_tensions_n.
+// ---------------------------------------------------------------------------------------- sensors
+
+// The motor encoders' quadrature counts: a counter changes at each edge, so the count is the
+// floor of the tendon paid out over the tendon per edge.
+static int32_t encoder_count(const mjData* d, const bl_state* s, int i) {
+  return (int32_t)floor(d->qpos[s->spool_qpos[i]] / s->m_per_count + 1e-9);
+}
+
+void bl_encoder_counts(const mjData* d, const bl_state* s, int32_t* counts) {
+  for (int i = 0; i < s->channels; ++i) counts[i] = encoder_count(d, s, i);
+}
+
+// Load cells: HX711 codes of offset + gain · (loadcell_gain · T + loadcell_offset_n + noise),
+// rounded to nearest (ties to even) and saturated at 24 bits; T is the tendon's spring tension.
 static void sample_loadcells(const mjData* d, bl_state* s) {
   const double* z = s->loadcell_noise_n > 0 ? s->noise + s->noise_cursor : nullptr;
-  if (z) s->noise_cursor += BL_CHANNELS;
-  for (int i = 0; i < BL_CHANNELS; ++i) {
-    double tension = py_max0(d->ten_length[i] - s->slack_length_m[i]) * s->tendon_stiffness_n_per_m;
-    double sensed = (1.0 + s->loadcell_gain_error[i]) * tension + s->loadcell_offset_error_n[i];
+  if (z) s->noise_cursor += s->channels;
+  for (int i = 0; i < s->channels; ++i) {
+    double tension = max0(d->ten_length[i] - s->slack_length_m[i]) * s->tendon_stiffness_n_per_m;
+    double sensed = s->loadcell_gain[i] * tension + s->loadcell_offset_n[i];
     if (z) sensed = sensed + s->loadcell_noise_n * z[i];
-    // Python's round(): to nearest, ties to even (the default rounding mode).
     double code = nearbyint(s->loadcell_offset_counts[i] + s->loadcell_gain_counts_per_n * sensed);
     s->raw_counts[i] = (int32_t)fmin(fmax(code, -8388608.0), 8388607.0);
   }
@@ -192,19 +269,20 @@ static void sample_loadcells(const mjData* d, bl_state* s) {
   s->next_loadcell_s = (double)(s->loadcell_index + 1) / s->loadcell_rate_hz;
 }
 
-// twin.sim.sensors.Tracker.read of Plant.tip_pose.
+// The EM tracker's two 5-DOF probes on the tip: positions with Gaussian noise per axis, axes
+// turned by a small random rotation each.
 static void sample_tracker(const mjData* d, bl_state* s) {
   const double* p = d->site_xpos + 3 * s->tip_site;
   const double* r = d->site_xmat + 9 * s->tip_site;
-  double noise_m[6] = {0, 0, 0, 0, 0, 0}, noise_rad[6];
+  double noise_m[BL_PROBE_VALUES] = {0, 0, 0, 0, 0, 0}, noise_rad[BL_PROBE_VALUES];
   if (s->tracker_noise_m > 0) {
-    for (int j = 0; j < 6; ++j) noise_m[j] = s->tracker_noise_m * s->noise[s->noise_cursor + j];
-    s->noise_cursor += 6;
+    for (int j = 0; j < BL_PROBE_VALUES; ++j) noise_m[j] = s->tracker_noise_m * s->noise[s->noise_cursor + j];
+    s->noise_cursor += BL_PROBE_VALUES;
   }
   bool turn = s->tracker_noise_rad > 0;
   if (turn) {
-    for (int j = 0; j < 6; ++j) noise_rad[j] = s->tracker_noise_rad * s->noise[s->noise_cursor + j];
-    s->noise_cursor += 6;
+    for (int j = 0; j < BL_PROBE_VALUES; ++j) noise_rad[j] = s->tracker_noise_rad * s->noise[s->noise_cursor + j];
+    s->noise_cursor += BL_PROBE_VALUES;
   }
   for (int k = 0; k < 2; ++k) {
     const double* x = s->probe_position_m + 3 * k;
@@ -232,99 +310,178 @@ static void sample_tracker(const mjData* d, bl_state* s) {
   s->next_tracker_s = (double)(s->tracker_index + 1) / s->tracker_rate_hz;
 }
 
-// One chunk of Plant.step: ``chunk`` physics steps (as shorter ones where the engagement check
-// asks), then Plant._end_chunk (warning check, due samples). Returns 0, or BL_WARNING before
-// sampling.
-static int plant_chunk(mjModel* m, mjData* d, bl_step_fn step, bl_state* s, int chunk) {
-  int substeps = 1;
-  if (s->engage_substeps > 1 && engage_risk(m, d, s, chunk)) {
+// ---------------------------------------------------------------------------------------- stepping
+
+// Could a tendon that is slack or nearly so engage within the next ``chunk`` steps with a full
+// step's spike over the limit? The closing speed is bounded from the last step: the tendon's
+// speed, plus its acceleration (ten_J · qacc, the last step's velocity change per second) and
+// the spools' acceleration step from a new PWM drive, over the span and the one step the
+// kinematics lag behind. After a change it cannot bound (jump), any tendon near slack counts.
+static bool engage_risk(const mjModel* m, const mjData* d, const bl_state* s, int chunk) {
+  double span = chunk * s->step_s + s->step_s;
+  for (int i = 0; i < s->channels; ++i) {
+    double stretch = d->ten_length[i] - s->slack_length_m[i];
+    if (!(stretch < s->engage_stretch_m)) continue;
+    if (s->jump) return true;
+    double acc = 0.0;
+    int start = m->ten_J_rowadr[i], end = start + m->ten_J_rownnz[i];
+    for (int k = start; k < end; ++k) acc += d->ten_J[k] * d->qacc[m->ten_J_colind[k]];
+    double a = max0(acc) + s->jump_accel_m_s2;
+    double v = max0(d->ten_velocity[i]);
+    if (v + a * span > s->engage_speed_m_s && stretch + (v + 0.5 * a * span) * span > 0.0) return true;
+  }
+  return false;
+}
+
+// ``chunk`` physics steps, cut into shorter ones where a tendon could engage, then the samples
+// that have come due. Returns 0, or BL_WARNING.
+static int plant_chunk(mjModel* m, mjData* d, bl_state* s, int chunk) {
+  bl_mj_fn step = (bl_mj_fn)s->step_fn;
+  bl_hook_fn hook = (bl_hook_fn)s->hook_fn;
+  int substeps = s->base_substeps;
+  if (s->engage_substeps > substeps && engage_risk(m, d, s, chunk)) {
     substeps = s->engage_substeps;
     s->short_steps += chunk;
   }
   s->jump = 0;
   s->jump_accel_m_s2 = 0.0;
   if (substeps != s->current_substeps) {
-    m->opt.timestep = s->tick_s / substeps;
+    m->opt.timestep = s->step_s / substeps;
     s->current_substeps = substeps;
   }
-  for (int k = 0; k < chunk * substeps; ++k) step(m, d);
-  if (warnings_total(d) != s->warnings_total) return BL_WARNING;
+  for (int k = 0; k < chunk * substeps; ++k) {
+    if (hook) hook();
+    step(m, d);
+  }
+  int total = warnings_total(d);
+  if (total != s->warnings_total) {
+    s->warnings_total = total;
+    return BL_WARNING;
+  }
   if (d->time >= s->next_loadcell_s - 1e-9) sample_loadcells(d, s);
   if (d->time >= s->next_tracker_s - 1e-9) sample_tracker(d, s);
   return 0;
 }
 
-// Plant.step(steps · tick_s) without friction: chunks up to the next sensor sample.
-int bl_plant_run(mjModel* m, mjData* d, bl_step_fn step, bl_state* s, int32_t steps) {
+// Physics steps up to the next sensor sample, at least one.
+static int steps_to_next_sample(const mjData* d, const bl_state* s) {
+  double next_s = s->next_tracker_s < s->next_loadcell_s ? s->next_tracker_s : s->next_loadcell_s;
+  int until = (int)ceil((next_s - d->time) / s->step_s - 1e-9);
+  return until < 1 ? 1 : until;
+}
+
+// Plant.step: ``steps`` physics steps in chunks that end at the sensor samples. s->ticks counts
+// the steps taken, also when it returns early for a noise refill or a warning.
+int bl_plant_run(mjModel* m, mjData* d, bl_state* s, int32_t steps) {
   s->ticks = 0;
-  s->short_steps = 0;
   while (s->ticks < steps) {
-    if (s->noise_size - s->noise_cursor < BL_NOISE_PER_TICK) return BL_NOISE;
-    // Plant._steps_until(min(next load-cell sample, next tracker frame))
-    double next_s = s->next_tracker_s < s->next_loadcell_s ? s->next_tracker_s : s->next_loadcell_s;
-    int until = (int)ceil((next_s - d->time) / s->tick_s - 1e-9);
+    if (s->noise_size - s->noise_cursor < noise_per_sample(s)) return BL_NOISE;
     int chunk = steps - s->ticks;
-    if (until < 1) until = 1;
+    int until = steps_to_next_sample(d, s);
     if (until < chunk) chunk = until;
     s->ticks += chunk;
-    int reason = plant_chunk(m, d, step, s, chunk);
+    int reason = plant_chunk(m, d, s, chunk);
     if (reason) return reason;
   }
   return BL_DONE;
 }
 
-int bl_run(mjModel* m, mjData* d, void* fw, bl_tick_fn tick, bl_pending_fn pending, bl_step_fn step,
-           bl_state* s, int32_t max_ticks) {
+// Plant.reset after mj_resetData: braked motors (pwm, duty 0), the model brought up to date,
+// the first samples taken at t = 0.
+int bl_plant_reset(mjModel* m, mjData* d, bl_state* s) {
+  s->mode = -1;
+  set_mode(m, d, s, BL_PWM);
+  s->jump_accel_m_s2 = 0.0;
+  ((bl_mj_fn)s->forward_fn)(m, d);
+  if (s->noise_size - s->noise_cursor < noise_per_sample(s)) return BL_NOISE;
+  s->loadcell_index = -1;
+  s->tracker_index = -1;
+  sample_loadcells(d, s);
+  sample_tracker(d, s);
+  s->warnings_total = warnings_total(d);
+  return BL_DONE;
+}
+
+// ---------------------------------------------------------------------------------------- board
+
+static bool same_outputs(const bl_state* s) {
+  if (!s->have_applied) return false;
+  for (int i = 0; i < s->channels; ++i) {
+    uint32_t a, b;
+    __builtin_memcpy(&a, &s->duty[i], 4);
+    __builtin_memcpy(&b, &s->applied_duty[i], 4);
+    if (a != b || s->drive[i] != s->applied_drive[i]) return false;
+  }
+  return true;
+}
+
+// The firmware's outputs into the plant. The control loop runs at 100 Hz and the board ticks at
+// 200 Hz, so every other tick repeats the outputs: the plant already has them. Duty 0 brakes
+// (H-bridge outputs shorted); all motors coasting opens the bridges. While the fixture holds the
+// tensions the outputs are ignored.
+static void apply_outputs(mjModel* m, mjData* d, bl_state* s) {
+  if (s->held) {
+    s->have_applied = 0;
+    return;
+  }
+  if (same_outputs(s)) return;
+  bool coast = true;
+  double duty[BL_MAX_CHANNELS];
+  for (int i = 0; i < s->channels; ++i) {
+    coast = coast && s->drive[i] == BL_DRIVE_COAST;
+    duty[i] = s->drive[i] == BL_DRIVE_ON ? (double)s->duty[i] : 0.0;
+  }
+  if (coast) {
+    set_mode(m, d, s, BL_COAST);
+  } else {
+    drive_pwm(m, d, s, duty);
+  }
+  for (int i = 0; i < s->channels; ++i) {
+    s->applied_duty[i] = s->duty[i];
+    s->applied_drive[i] = s->drive[i];
+  }
+  s->have_applied = 1;
+}
+
+// The emulated board, tick by tick (5 ms, the Teensy's IntervalTimer): the firmware runs at the
+// board time with the encoders and, on a new sample, the load cells; its outputs go to the
+// motors; then the plant advances by a tick. Returns before a tick when the host has work
+// (deadline, keepalive, noise) and after the firmware when it has queued bytes (BL_TX: the next
+// call with resume = 1 advances that tick and returns BL_DONE).
+int bl_board_run(mjModel* m, mjData* d, bl_state* s, int32_t max_ticks) {
   s->ticks = 0;
-  s->applied_changed = 0;
-  s->short_steps = 0;
   bool resume = s->resume != 0;
   s->resume = 0;
-  while (s->ticks < max_ticks) {
-    if (resume) goto advance;
-    {
-    double board_s = d->time - s->power_up_s;
-    if (board_s >= s->deadline_s) return BL_DEADLINE;
-    // The same expression as SimTransport._step, so the PING falls on the same tick.
-    if (board_s - s->last_write_s >= s->keepalive_s - 1e-9) return BL_KEEPALIVE;
-    if (s->noise_size - s->noise_cursor < BL_NOISE_PER_TICK) return BL_NOISE;
-    // EmulatedBoard.tick
-    int32_t counts[BL_CHANNELS];
-    for (int i = 0; i < BL_CHANNELS; ++i) {
-      counts[i] = (int32_t)floor(d->qpos[s->spool_qpos[i]] / s->m_per_count + 1e-9);
+  while (resume || s->ticks < max_ticks) {
+    if (!resume) {
+      double board_s = d->time - s->power_up_s;
+      if (board_s >= s->deadline_s) return BL_DEADLINE;
+      if (isfinite(s->keepalive_s) && board_s - s->last_write_s >= s->keepalive_s - 1e-9) return BL_KEEPALIVE;
+      // A tick's advance samples at most once per chunk, and it has at most tick_steps chunks.
+      if (s->noise_size - s->noise_cursor < s->tick_steps * noise_per_sample(s)) return BL_NOISE;
+      int32_t counts[BL_MAX_CHANNELS];
+      bl_encoder_counts(d, s, counts);
+      uint32_t mask = s->loadcell_index != s->last_loadcell_index ? (1u << s->channels) - 1u : 0u;
+      s->last_loadcell_index = s->loadcell_index;
+      ((bl_tick_fn)s->tick_fn)(s->firmware, (uint64_t)nearbyint(board_s * 1e6), counts, s->raw_counts, mask,
+                               s->duty, s->drive);
+      s->ticks += 1;
+      apply_outputs(m, d, s);
+      if (((bl_pending_fn)s->pending_fn)(s->firmware) > 0) return BL_TX;
     }
-    uint32_t mask = s->loadcell_index != s->last_loadcell_index ? 0xFu : 0u;
-    s->last_loadcell_index = s->loadcell_index;
-    tick(fw, (uint64_t)nearbyint(board_s * 1e6), counts, s->raw_counts, mask, s->duty, s->drive);
-    s->ticks += 1;
-    // EmulatedBoard._apply
-    if (s->held) {
-      s->applied_changed |= s->have_applied;
-      s->have_applied = 0;
-    } else if (!same_outputs(s)) {
-      bool coast = true;
-      for (int i = 0; i < BL_CHANNELS; ++i) coast = coast && s->drive[i] == 0;
-      if (coast || !s->plant_pwm) return BL_APPLY;
-      apply_pwm(d, s);
-      for (int i = 0; i < BL_CHANNELS; ++i) {
-        s->applied_duty[i] = s->duty[i];
-        s->applied_drive[i] = s->drive[i];
-      }
-      s->have_applied = 1;
-      s->applied_changed = 1;
+    // The tick's advance: Plant.step(TICK_S).
+    for (int taken = 0; taken < s->tick_steps;) {
+      int chunk = s->tick_steps - taken;
+      int until = steps_to_next_sample(d, s);
+      if (until < chunk) chunk = until;
+      taken += chunk;
+      int reason = plant_chunk(m, d, s, chunk);
+      if (reason) return reason;
     }
-    if (pending(fw) > 0) return BL_TX;
-    }
-  advance:
-    {
-    // EmulatedBoard.advance: Plant.step(TICK_S), one chunk of one step.
-    int reason = plant_chunk(m, d, step, s, 1);
-    if (reason) return reason;
-    // After a delivery the wait's predicate must be looked at before the next tick.
+    // After a delivery the host's wait looks at what arrived before the next tick.
     if (resume) return BL_DONE;
-    }
   }
-  return BL_DEADLINE;
+  return BL_DONE;
 }
 
 }  // extern "C"

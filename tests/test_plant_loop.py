@@ -1,0 +1,71 @@
+"""The plant loop (twin/sim/native/loop.cpp) and its binding: the twin's numbers, pinned to the bit."""
+
+import ctypes
+import math
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from twin import load_params
+from twin.device import open_device
+from twin.sim import native_loop
+from twin.sim.plant import Plant
+
+sys.path.insert(0, str(Path(__file__).parent / "golden"))
+import make_plant_golden  # noqa: E402
+
+GOLDEN = np.load(make_plant_golden.GOLDEN)
+
+
+def test_the_state_is_laid_out_from_the_loops_own_table():
+    native_loop.load()
+    fields = dict(native_loop.LoopState._fields_)
+    assert ctypes.sizeof(native_loop.LoopState) == native_loop.load().lib.bl_state_size()
+    # A few fields of each kind, as loop.cpp declares them.
+    assert fields["step_s"] is ctypes.c_double and fields["channels"] is ctypes.c_int32
+    assert fields["duty"]._length_ == native_loop.load().max_channels and fields["drive"]._type_ is ctypes.c_uint8
+
+
+@pytest.mark.parametrize("case", sorted(make_plant_golden.CASES))
+def test_the_twin_reproduces_its_golden_trajectories(case):
+    # Every drive and fixture change, sensor samples, engagement short steps, a noise refill, the
+    # board's ticks, friction's per-step hook, three tendons and a 2.5 ms step: any change to
+    # the loop that moves a number fails here (regenerate with the script beside the file).
+    assert np.array_equal(make_plant_golden.CASES[case](), GOLDEN[case])
+
+
+def test_the_golden_runs_take_short_steps_and_refill_the_noise():
+    # The pinned script exercises the engagement check and outlasts one noise buffer.
+    record, params = GOLDEN["plant"], load_params()
+    assert record[-1, -1] > 0
+    draws_per_s = params.rig.loadcell_rate_hz * 4 + params.rig.tracker_rate_hz * 12
+    assert record[-1, -2] > 4096 / draws_per_s
+
+
+def test_friction_acts_through_a_hook_before_every_short_step():
+    plant = Plant(load_params().replace({"effects.tendon_friction_coeff": 0.1}))
+    state = plant.loop.state
+    assert state.hook_fn
+    assert state.base_substeps == math.ceil(plant.timestep_s / 0.84e-3 - 1e-9)
+    assert np.isclose(plant.model.opt.timestep * state.base_substeps, plant.timestep_s)
+    assert not Plant(load_params()).loop.state.hook_fn
+
+
+def test_a_plant_takes_any_tendon_count_the_loop_holds():
+    params = load_params()
+    n = native_loop.load().max_channels
+    angles = list(np.linspace(0.0, 360.0, n, endpoint=False))
+    many = params.replace({"tendons.angles_deg": angles, "effects.tension_gain_error": [0.0] * n,
+                           "effects.tension_offset_error_n": [0.0] * n, "sensors.loadcell_offset_counts": [0.0] * n})
+    plant = Plant(many)
+    plant.set_tensions(np.full(n, 1.0))
+    plant.step(0.1)
+    assert plant.loadcell_sample().raw_counts.shape == (n,)
+    assert np.all(plant.true_tensions_n() > 0.5)
+
+
+def test_the_old_native_switch_is_an_unknown_option():
+    with pytest.raises(ValueError, match="native"):
+        open_device("sim://?native=0")
