@@ -44,6 +44,7 @@ from twin.device.transport import Transport
 if TYPE_CHECKING:
     from twin.calibration import Calibration
     from twin.device.fixture import Fixture
+    from twin.device.sim_twin import SimTwin
     from twin.device.tracker import TipTracker
 
 __all__ = ["MODE_NAMES", "Device"]
@@ -94,6 +95,7 @@ class Device:
         transport: bytes and clock of the backend.
         fixture: operator and fixture actions (tip mass, holder, calibration masses).
         tracker: the EM tracker's fused tip poses, or None when no tracker is configured.
+        twin: the simulated twin's ground truth and reset (``sim://``); None on a rig.
         command_timeout_s: longest wait for a command's answer (device clock, s).
         keepalive_s: longest silence before the host sends a PING (device clock, s); keep it
             well under the watchdog timeout (0.25 s by default). None sends no keepalives, so
@@ -111,6 +113,7 @@ class Device:
         *,
         fixture: Fixture | None = None,
         tracker: TipTracker | None = None,
+        twin: SimTwin | None = None,
         command_timeout_s: float = 0.5,
         keepalive_s: float | None = 0.1,
         queue_size: int = 4096,
@@ -122,6 +125,7 @@ class Device:
         self._transport = transport
         self.fixture = fixture
         self.tracker = tracker
+        self._twin = twin
         self._command_timeout_s = command_timeout_s
         self._keepalive_s = keepalive_s
         self._inbox = Inbox(transport.time_s, queue_size=queue_size)
@@ -136,8 +140,20 @@ class Device:
 
     @property
     def transport(self) -> Transport:
-        """The backend's transport; on ``sim://`` its ``board.plant`` is the twin's ground truth."""
+        """The backend's transport (bytes and clock); the twin's state is :attr:`twin`'s."""
         return self._transport
+
+    @property
+    def twin(self) -> SimTwin:
+        """The twin behind a ``sim://`` device (:class:`twin.device.sim_twin.SimTwin`): its
+        ground truth (tip pose, true tensions, simulated time) and a fast reset.
+
+        Raises:
+            DeviceError: the device is not a twin (``serial://``: a rig has no ground truth).
+        """
+        if self._twin is None:
+            raise DeviceError(f"{self.url}: not a simulated twin; device.twin (ground truth, reset) is sim:// only")
+        return self._twin
 
     @property
     def clock(self) -> str:

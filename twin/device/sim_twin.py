@@ -1,0 +1,82 @@
+"""The twin behind a ``sim://`` device: its ground truth and what only a simulation can do.
+
+Code above the device layer (the env, experiments, tests) reads the twin's true state and resets
+it through :class:`SimTwin` (``device.twin``) and never through the transport, the emulated
+board or the plant, which belong to the device layer. On a rig there is no such thing:
+``device.twin`` raises there (:attr:`twin.device.Device.twin`).
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+if TYPE_CHECKING:
+    from twin.device.board import EmulatedBoard
+    from twin.device.fixture import SimFixture
+
+__all__ = ["SimTwin"]
+
+
+class SimTwin:
+    """Ground truth and reset of an emulated board's plant.
+
+    Args:
+        board: the emulated board (``sim://``, or the board of a
+            :class:`twin.device.pty_board.PtyBoard`).
+        fixture: the fixture acting on it (``device.fixture`` on ``sim://``); None when the
+            host's fixture is elsewhere (a pseudo-terminal board's host asks an operator).
+
+    Attributes:
+        fixture: the :class:`twin.device.fixture.SimFixture`, or None.
+    """
+
+    def __init__(self, board: EmulatedBoard, fixture: SimFixture | None = None):
+        self._board = board
+        self.fixture = fixture
+
+    def reset(self, seed: int | None = None) -> None:
+        """Back to the twin's start (straight, at rest, no tip mass, holder released; sensor
+        noise reseeded with ``seed``, or the last seed if None) and power-cycle the board on it:
+        the firmware starts afresh (disabled, no handshake), so the host must
+        :meth:`twin.device.Device.reconnect` before it commands again. Much faster than opening
+        a new ``sim://`` device, which rebuilds the MuJoCo model."""
+        self._board.plant.reset(seed)
+        self._board.power_cycle()
+
+    @property
+    def time_s(self) -> float:
+        """Simulated time since the last :meth:`reset` (s); telemetry's ``time_s`` is the board's
+        clock, which restarts at each power cycle."""
+        return self._board.plant.time_s
+
+    def tip_pose(self) -> tuple[np.ndarray, np.ndarray]:
+        """True tip position (3,) m and rotation (3, 3), world frame, base at the origin."""
+        return self._board.plant.tip_pose()
+
+    def true_tensions_n(self) -> np.ndarray:
+        """(4,) true tension at the spool end of each tendon (N): what a perfect load cell reads."""
+        return self._board.plant.true_tensions_n()
+
+    @property
+    def tip_mass_kg(self) -> float:
+        """The nominal mass hung at the tip (kg)."""
+        return self._board.plant.tip_mass_kg
+
+    @property
+    def holder_engaged(self) -> bool:
+        """True while the reference holder clamps the discs straight."""
+        return self._board.plant.holder_engaged
+
+    @property
+    def held_tensions_n(self) -> np.ndarray | None:
+        """Tensions (N) that calibration masses put on the tendons instead of the motors, or
+        None while the motors drive."""
+        return self._board.held_tensions_n
+
+    @property
+    def drive_mode(self) -> str:
+        """How the spools are driven, one of :data:`twin.sim.plant.MODES`: ``"pwm"`` (the
+        firmware's duty), ``"coast"`` (H-bridges off: disabled or faulted), ..."""
+        return self._board.plant.mode
