@@ -1,4 +1,5 @@
-// Rig constants, timing and defaults of the firmware core (thesis §4; models/endoscope.toml [rig]).
+// Rig constants, timing and defaults of the firmware core (thesis §4). The ones the parameter set
+// also holds are checked against models/endoscope.toml by tests/test_firmware_config.py.
 #pragma once
 
 #include <cstddef>

@@ -1,0 +1,55 @@
+"""The firmware's compiled defaults (firmware/core/config.h) are the parameter set's values."""
+
+import ast
+import operator
+import re
+
+import pytest
+
+from twin import load_params
+from twin.device.firmware_lib import FIRMWARE_DIR
+
+CONFIG = (FIRMWARE_DIR / "core" / "config.h").read_text()
+PARAMS = load_params()
+
+
+_OPERATORS = {ast.Mult: operator.mul, ast.Div: operator.truediv}
+
+
+def _value(node: ast.expr) -> float:
+    if isinstance(node, ast.Constant) and isinstance(node.value, (int, float)):
+        return float(node.value)
+    if isinstance(node, ast.BinOp) and type(node.op) in _OPERATORS:
+        return _OPERATORS[type(node.op)](_value(node.left), _value(node.right))
+    raise AssertionError(f"{ast.unparse(node)}: not a product or quotient of numbers")
+
+
+def constant(name: str) -> float:
+    """The value of ``constexpr <type> <name> = <expression>;`` in config.h, where the expression
+    multiplies or divides number literals (``1.0f / 45000.0f``, ``4.0 * 1024.0``)."""
+    match = re.search(rf"constexpr\s+\w+\s+{name}\s*=\s*([^;]+);", CONFIG)
+    assert match, f"{name} is not in config.h"
+    expression = re.sub(r"(\d)f\b", r"\1", match.group(1))
+    return _value(ast.parse(expression, mode="eval").body)
+
+
+@pytest.mark.parametrize("name, expected", [
+    ("kEncoderCountsPerMotorRev", PARAMS.rig.encoder_counts_per_rev),
+    ("kGearRatio", PARAMS.rig.gear_ratio),
+    ("kSpoolRadiusM", PARAMS.rig.spool_radius_m),
+    ("kControlPeriodUs", 1e6 / PARAMS.rig.control_rate_hz),
+    ("kTelemetryPeriodUs", 1e6 / PARAMS.rig.telemetry_rate_hz),
+    ("kLoadcellPeriodUs", 1e6 / PARAMS.rig.loadcell_rate_hz),
+    ("kDefaultTensionLimitN", PARAMS.rig.tension_limit_n),
+    ("kDefaultGainNPerCount", 1.0 / PARAMS.sensors.loadcell_gain_counts_per_n),
+    ("kChannels", PARAMS.tendons.count),
+])
+def test_a_compiled_default_is_the_parameter_sets_value(name, expected):
+    assert constant(name) == pytest.approx(expected, rel=1e-12)
+
+
+def test_the_parser_reads_what_it_claims():
+    # A constant that is not there, or not a number, is a failure rather than a silent pass.
+    with pytest.raises(AssertionError):
+        constant("kNoSuchConstant")
+    assert constant("kMaxTensionLimitN") == 50.0
