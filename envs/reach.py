@@ -12,7 +12,7 @@ from gymnasium import spaces
 
 from envs.randomization import Randomization, TipLoads
 from twin.control.pretension import pretension_straight
-from twin.device import CommandRejected, SimFixture, open_device
+from twin.device import CommandRejected, open_device
 from twin.device.codec import Fault
 from twin.params import Params, load_params
 from twin.pcc import arc_tip_position_m
@@ -24,7 +24,7 @@ __all__ = ["ACTION_MODES", "EndoscopeReachEnv"]
 ACTION_MODES = {"tensions": "tensions", "lengths": "lengths", "pairs": "pairs"}
 _FAULTS = Fault.TENSION_LIMIT | Fault.WATCHDOG
 # Simulated time the fixture gives each reset step to come to rest (s): the twin's backbone
-# damps out in ~0.1 s; the rig's operator fixture ignores it.
+# damps out in ~0.1 s; the rig's operator fixture ignores it (Fixture.settle_s).
 _RESET_SETTLE_S = 0.2
 # Observation bounds: the firmware refuses length setpoints beyond ±50 mm, its duty clamp bounds a
 # tension runaway at ~30 N, and a 60 mm endoscope's tip stays within 0.1 m of the clamp.
@@ -155,8 +155,7 @@ class EndoscopeReachEnv(gym.Env):
         params, latency = self.randomization.sample(self.params, rng)
         self._open(params, int(rng.integers(2**31)))
         device = self.device
-        if isinstance(device.fixture, SimFixture):
-            device.fixture.settle_s = _RESET_SETTLE_S
+        device.fixture.settle_s = _RESET_SETTLE_S
         for mode, gains in self.gains.items():
             device.set_gains(mode, **gains)
         self._zero_m = pretension_straight(device, params, mode=ACTION_MODES[self.action_mode],
@@ -165,9 +164,8 @@ class EndoscopeReachEnv(gym.Env):
         if "tip_mass_kg" in options:
             mass, self._change_step = float(options["tip_mass_kg"]), None
         device.fixture.hang_tip_mass(mass)
-        if isinstance(device.fixture, SimFixture):
-            # Mid-episode loads land within one step: the env's time must not jump.
-            device.fixture.settle_s = 0.0
+        # Mid-episode loads land within one step: the env's time must not jump.
+        device.fixture.settle_s = 0.0
         self._tip_mass_kg = mass
         self.target_m = np.asarray(options["target_m"], dtype=float) if "target_m" in options else self._sample_target(rng)
         self._latency = latency
@@ -254,9 +252,7 @@ class EndoscopeReachEnv(gym.Env):
         if self.device is not None and (scheme != "sim" or params == self._device_params):
             if scheme == "sim":
                 # The same twin, reset: rebuilding the MuJoCo model is the slow part of a reset.
-                board = self.device.transport.board
-                board.plant.reset(seed)
-                board.power_cycle()
+                self.device.twin.reset(seed)
                 self.device.reconnect()
             return
         self.close()

@@ -98,7 +98,7 @@ def test_calibration_masses_on_the_twin_give_back_its_load_cells():
         run = run_calibration(lambda: device.wait_next().raw_counts, device.fixture.hang_calibration_mass,
                               masses_g=(0.0, 50.0, 100.0, 200.0), samples_per_mass=4, gravity_m_s2=9.81)
         device.fixture.remove_calibration_masses()
-        assert device.transport.board.held_tensions_n is None
+        assert device.twin.held_tensions_n is None
         sensors = params.sensors
         np.testing.assert_allclose(run.calibration.gain_counts_per_n, sensors.loadcell_gain_counts_per_n, rtol=0.02)
         np.testing.assert_allclose(run.calibration.offset_counts, sensors.loadcell_offset_counts, atol=300)
@@ -115,16 +115,16 @@ def test_calibration_masses_on_the_twin_give_back_its_load_cells():
 
 def test_sim_fixture_acts_on_the_twin():
     with open_device("sim://?seed=4") as device:
-        plant = device.transport.board.plant
+        twin = device.twin
         tip_free = device.tracker.read().pose.position_m
         device.fixture.hang_tip_mass(0.05)
-        assert plant.tip_mass_kg == 0.05
+        assert twin.tip_mass_kg == 0.05
         tip_loaded = device.tracker.read().pose.position_m
         assert tip_loaded[2] < tip_free[2] - 0.005  # the mass pulls the tip down
         device.fixture.engage_holder()
-        assert plant.holder_engaged
+        assert twin.holder_engaged
         device.fixture.release_holder()
-        assert not plant.holder_engaged
+        assert not twin.holder_engaged
         with pytest.raises(ValueError, match=r"mass_kg = -1.0: must be finite and >= 0"):
             device.fixture.hang_tip_mass(-1.0)
 
@@ -133,7 +133,7 @@ def test_sim_tracker_fuses_the_twins_probes_into_its_tip_pose():
     with open_device("sim://?seed=5&pose=up") as device:
         device.wait(0.1)
         result = device.tracker.read()
-        position, rotation = device.transport.board.plant.tip_pose()
+        position, rotation = device.twin.tip_pose()
         assert result.ok, result.reason
         np.testing.assert_allclose(result.pose.position_m, position, atol=1e-3)
         np.testing.assert_allclose(result.pose.rotation, rotation, atol=0.01)
@@ -162,6 +162,39 @@ def test_serial_devices_have_an_operator_fixture_and_a_tracker_only_when_configu
     assert isinstance(open_device("serial:///dev/ttyACM0").fixture, OperatorFixture)
     assert open_device("serial:///dev/ttyACM0").tracker is None
     assert open_device("serial:///dev/ttyACM0?igtl=127.0.0.1:18944").tracker is not None
+
+
+def test_only_a_twin_has_ground_truth():
+    with pytest.raises(DeviceError, match=r"serial:///dev/ttyACM0: not a simulated twin"):
+        open_device("serial:///dev/ttyACM0").twin
+
+
+def _run_and_record(device) -> np.ndarray:
+    device.tare()
+    device.enable()
+    device.set_lengths([-0.002, 0.0, 0.002, 0.0])
+    samples = [device.wait_next() for _ in range(12)]
+    return np.array([np.concatenate([[s.time_s], s.tendon_lengths_m, s.tensions_n, s.motor_commands]) for s in samples])
+
+
+def test_a_reset_twin_runs_as_a_new_one_of_the_same_seed():
+    with open_device("sim://?seed=6") as fresh:
+        expected = _run_and_record(fresh)
+    with open_device("sim://?seed=2") as device:
+        telemetry = _run_and_record(device)
+        # The pulled tendon 1 is taut, its load cell (calibrated, tared) reading what it carries.
+        assert device.twin.true_tensions_n()[0] == pytest.approx(telemetry[-1, 5], abs=0.05)
+        assert device.twin.true_tensions_n()[0] > 0.1
+        device.fixture.hang_tip_mass(0.01)
+        device.fixture.engage_holder()
+        assert device.twin.time_s > 1.0
+        device.twin.reset(6)
+        assert device.twin.time_s == 0.0
+        assert device.twin.tip_mass_kg == 0.0 and not device.twin.holder_engaged
+        # Straight along the horizontal clamp's axis.
+        np.testing.assert_allclose(device.twin.tip_pose()[0], [load_params().backbone.length_m, 0.0, 0.0], atol=1e-3)
+        device.reconnect()
+        np.testing.assert_array_equal(_run_and_record(device), expected)
 
 
 def test_twin_emulate_prints_a_port_that_the_driver_connects_to():

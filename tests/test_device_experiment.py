@@ -9,7 +9,7 @@ import os
 import numpy as np
 import pytest
 
-from twin.device import Device, open_device
+from twin.device import Device, SimTwin, open_device
 from twin.device.codec import Drive, State
 from twin.device.pty_board import PtyBoard
 
@@ -65,7 +65,7 @@ def test_experiment_on_sim():
 def test_experiment_on_the_emulated_board_over_a_pty():
     with PtyBoard(seed=3) as board:
         device = open_device(board.url)
-        result = short_experiment(device, lambda: board.board.plant.tip_pose()[0])
+        result = short_experiment(device, lambda: SimTwin(board.board).tip_pose()[0])
     assert result["clock"] == "wall"
     check_experiment(result)
     # Wall clock: the samples arrived about as fast as the board produced them.
@@ -91,7 +91,7 @@ def test_sim_repeats_exactly_for_a_seed_and_differs_with_another():
     runs = []
     for seed in (5, 5, 6):
         device = open_device("sim://", seed=seed)
-        runs.append(short_experiment(device, lambda: device.transport.board.plant.tip_pose()[0]))
+        runs.append(short_experiment(device, lambda: device.twin.tip_pose()[0]))
     first, again, other = (_telemetry_arrays(r["samples"]) for r in runs)
     np.testing.assert_array_equal(first, again)
     assert np.all(runs[0]["tip_after_m"] == runs[1]["tip_after_m"])

@@ -13,7 +13,7 @@ import tty
 import numpy as np
 import pytest
 
-from twin.device import DeviceDisconnected, DeviceTimeout, ProtocolVersionError, open_device
+from twin.device import DeviceDisconnected, DeviceTimeout, ProtocolVersionError, SimTwin, open_device
 from twin.device import codec as c
 from twin.device.codec import Drive, Fault, State
 from twin.device.inbox import Inbox
@@ -154,12 +154,12 @@ def test_a_host_that_stops_mid_run_is_stopped_by_the_watchdog():
         host = subprocess.Popen([sys.executable, "-c", HOST_SCRIPT, board.url], stdout=subprocess.PIPE, text=True)
         try:
             assert host.stdout.readline().strip() == "ENABLED"
-            assert board.board.plant.mode == "pwm"  # driven
+            assert SimTwin(board.board).drive_mode == "pwm"  # driven
         finally:
             host.kill()
             host.wait()
         time.sleep(0.4)  # past the 250 ms watchdog
-        assert board.board.plant.mode == "coast"
+        assert SimTwin(board.board).drive_mode == "coast"
         with open_device(board.url) as device:
             sample = device.latest()
             assert sample.state is State.FAULT

@@ -2,12 +2,14 @@
 
 Open a device by URL — ``sim://`` (the MuJoCo twin behind the real firmware, in simulated
 time) or ``serial:///dev/ttyACM0`` (the rig, wall-clock time) — and use the same
-:class:`Device` calls on either; :attr:`Device.clock` says how time advances.
+:class:`Device` calls on either; :attr:`Device.clock` says how time advances. On ``sim://``
+:attr:`Device.twin` (:class:`SimTwin`) gives the twin's ground truth and a fast reset.
 """
 
 from twin.device.device import MODE_NAMES, Device
 from twin.device.errors import CommandRejected, DeviceDisconnected, DeviceError, DeviceTimeout, ProtocolVersionError
 from twin.device.fixture import Fixture, OperatorFixture, SimFixture
+from twin.device.sim_twin import SimTwin
 from twin.device.telemetry import DeviceInfo, Telemetry
 from twin.device.tracker import TipTracker
 from twin.device.url import SCHEMES, open_device
@@ -25,6 +27,7 @@ __all__ = [
     "OperatorFixture",
     "ProtocolVersionError",
     "SimFixture",
+    "SimTwin",
     "Telemetry",
     "TipTracker",
     "open_device",

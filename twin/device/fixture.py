@@ -41,7 +41,15 @@ def _channels(channels: Iterable[int], count: int) -> tuple[int, ...]:
 
 
 class Fixture(abc.ABC):
-    """What the operator or the fixture does to the rig during an experiment."""
+    """What the operator or the fixture does to the rig during an experiment.
+
+    Attributes:
+        settle_s: device time each action gives the load or clamp to come to rest (s), for
+            callers that choose it (the env: long enough at reset, none mid-episode). On the
+            rig the operator decides when it is still, so :class:`OperatorFixture` ignores it.
+    """
+
+    settle_s: float = 0.0
 
     @abc.abstractmethod
     def hang_tip_mass(self, mass_kg: float) -> None:
