@@ -143,3 +143,34 @@ def test_the_graph_sees_relative_and_function_level_imports(tmp_path, monkeypatc
     assert set(graph["twin.low"]) == {"twin.high"}
     assert set(graph["twin.high"]) == {"twin.low", "twin.params"}
     assert find_cycle(graph) in (["twin.high", "twin.low", "twin.high"], ["twin.low", "twin.high", "twin.low"])
+
+
+# The device layer's own parts: what is above it reaches the twin through device.twin.
+_DEVICE_INTERNALS = ("twin.device.board", "twin.device.board_loop", "twin.device.sim_transport",
+                     "twin.device.firmware_lib")
+
+
+def _seam_violations(path: Path, *, check_imports: bool) -> list[str]:
+    found = []
+    for node in ast.walk(ast.parse(path.read_text(), str(path))):
+        if isinstance(node, ast.Attribute) and isinstance(node.value, ast.Attribute):
+            pair = (node.value.attr, node.attr)
+            # device.transport.<anything>, <board>.plant, <fixture or twin>._board
+            if pair[0] == "transport" or pair == ("board", "plant") or node.attr == "_board":
+                found.append(f"{path.relative_to(ROOT)}:{node.lineno}: .{pair[0]}.{pair[1]}")
+        elif check_imports and isinstance(node, (ast.Import, ast.ImportFrom)):
+            names = [a.name for a in node.names] if isinstance(node, ast.Import) else [node.module or ""]
+            found += [f"{path.relative_to(ROOT)}:{node.lineno}: imports {n}" for n in names
+                      if n.startswith(_DEVICE_INTERNALS)]
+    return found
+
+
+def test_nothing_above_the_device_reaches_through_its_seam():
+    """The env, the experiments and the tests read and reset the twin through ``device.twin``, never
+    through the transport, the emulated board or its plant; only the device and the twin import the
+    board's parts (tests of those parts may import them too)."""
+    above = [p for package in PACKAGES for p in sorted((ROOT / package).rglob("*.py"))
+             if not p.is_relative_to(ROOT / "twin" / "device") and not p.is_relative_to(ROOT / "twin" / "sim")]
+    found = [v for p in above for v in _seam_violations(p, check_imports=True)]
+    found += [v for p in sorted((ROOT / "tests").rglob("*.py")) for v in _seam_violations(p, check_imports=False)]
+    assert not found, "reaches through the device seam:\n  " + "\n  ".join(found)
