@@ -1,4 +1,4 @@
-"""``twin predict`` and ``twin bench predictor`` command-line contracts (issue 2, item 8)."""
+"""``twin predict`` and ``twin bench predictor`` command-line contracts."""
 
 import json
 

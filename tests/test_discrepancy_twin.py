@@ -1,4 +1,4 @@
-"""The discrepancy workflow on data the MuJoCo twin generates (issue 7, proof on hidden effects).
+"""The discrepancy workflow on data the MuJoCo twin generates: the proof on hidden effects.
 
 The sweeps run through the device interface (the real firmware on the twin, load-cell and
 tracker noise on), with the effect hidden in the simulated rig only: the model recorded with the
@@ -72,8 +72,7 @@ def test_hidden_friction_is_named_and_its_y_signature_removed(tmp_path):
     assert result.rms_after_m < 0.5 * result.rms_before_m
     # The thesis's y pattern (Fig. 20): e_y an inverted sine over the bending plane, most of a
     # millimetre, and gone once friction is added. Its z pattern (always positive) is not what the
-    # twin's friction gives: z errors of both signs, the largest negative (see the closing note of
-    # issue 7), so it is not asserted.
+    # twin's friction gives (z errors of both signs, the largest negative), so it is not asserted.
     before = result.residuals.signature()
     after = find_discrepancy(result.dataset, result.params_after).signature()
     assert before["corr_y_minus_sin_phi"] > 0.5

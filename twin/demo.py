@@ -1,7 +1,7 @@
 """``twin demo``: predict the thesis's horizontal endoscope across a few configurations.
 
-The main job until the validation sweep exists (issue 2): solves a κ × φ fan with and without
-a 10 g tip mass and saves a plot of the shapes.
+Solves a κ × φ fan with and without a 10 g tip mass and saves a plot of the shapes: a quick
+look at the predictor on its own, without a device.
 """
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""Piecewise-constant-curvature kinematics (thesis §2.2.1, §8.3; SPEC §4).
+"""Piecewise-constant-curvature kinematics (thesis §2.2.1, §8.3).
 
 A single segment bent at curvature κ (1/m) in plane φ (angle from the body x axis towards y)
 over length L. The bending plane φ points towards the tendons that shorten.
@@ -26,7 +26,7 @@ GRID_TIP_MASS_KG = (0.0, 0.005, 0.010)
 
 
 def tendon_length_changes_m(kappa_per_m: float, phi_deg: float, params: Params) -> np.ndarray:
-    """Relative tendon lengths Δℓ_i = −r κ L cos(φ − α_i) (m; positive = paid out). SPEC §4."""
+    """Relative tendon lengths Δℓ_i = −r κ L cos(φ − α_i) (m; positive = paid out); thesis §2.2.1."""
     alpha = np.radians(np.asarray(params.tendons.angles_deg))
     return -params.tendons.radius_m * kappa_per_m * params.backbone.length_m * np.cos(
         np.radians(phi_deg) - alpha

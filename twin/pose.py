@@ -1,6 +1,6 @@
 """Base orientations and rotation helpers shared by the predictor and the twin.
 
-Conventions (issue 2): ``up`` is the identity (backbone along world +z); ``horizontal`` is the
+Conventions: ``up`` is the identity (backbone along world +z); ``horizontal`` is the
 thesis's set-up, the base rotated +90° about world y: local x → world −z, local y → world +y,
 local z → world +x, with gravity along world −z.
 """

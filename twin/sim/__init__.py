@@ -1,8 +1,8 @@
-"""The MuJoCo twin of the endoscope and rig (issue 3).
+"""The MuJoCo twin of the endoscope and rig.
 
 Model generation (:mod:`twin.sim.model`), the plant the device layer wraps
-(:mod:`twin.sim.plant`), the motor and sensor models, the effects real rigs have
-(:mod:`twin.sim.effects`), rendering, the cross-check against the predictor and the benchmark.
+(:mod:`twin.sim.plant`), the motor and sensor models with the effects real rigs have
+(:mod:`twin.effects`), rendering, the cross-check against the predictor and the benchmark.
 """
 
 # twin/__init__.py has chosen MuJoCo's headless GL backend before anything here imports mujoco.

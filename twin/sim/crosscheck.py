@@ -1,4 +1,4 @@
-"""Cross-check of the twin against the predictor over the thesis validation grid (SPEC §5).
+"""Cross-check of the twin against the predictor over the thesis validation grid (thesis §8.3).
 
 Both are settled in statics under the same tendon tensions: for each grid configuration
 (κ, φ, tip mass) the tensions that realise the PCC arc on top of the pretension

@@ -1,10 +1,10 @@
 """The spool drive: Maxon DC gear motor behind a DRV8871 H-bridge, and its quadrature encoder.
 
-The thesis gives the motor as "24 V, 0.13 N·m, 1321 rpm, gearbox 5.3:1" (SPEC §2). Read as the
+The thesis gives the motor as "24 V, 0.13 N·m, 1321 rpm, gearbox 5.3:1" (thesis §4). Read as the
 figures of the gear motor's *output shaft*: 1321 rpm × 5.3 ≈ 7000 rpm and 0.13 N·m / 5.3 ≈
 25 mN·m at the motor shaft are the rated point of a ~20 W Maxon motor, while motor-shaft
 figures would put 815 N on a 0.4 mm line. The encoder sits on the motor shaft (4 × 1024
-counts per motor revolution, SPEC §2).
+counts per motor revolution, thesis §4).
 
 Derivations (linear DC motor, electrical time constant neglected — it is well under the 1 ms
 step), all referred to the output shaft from ``rig.*``:
