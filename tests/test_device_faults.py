@@ -20,8 +20,8 @@ from twin.device.inbox import Inbox
 from twin.device.pty_board import PtyBoard
 
 
-def telemetry_stream(count: int) -> tuple[list[c.Telemetry], list[bytes]]:
-    messages = [c.Telemetry(time_us=25000 * k, sample_seq=k, lengths_m=(1e-3 * k, 0.0, -1e-3 * k, 0.0),
+def telemetry_stream(count: int) -> tuple[list[c.TelemetryMessage], list[bytes]]:
+    messages = [c.TelemetryMessage(time_us=25000 * k, sample_seq=k, lengths_m=(1e-3 * k, 0.0, -1e-3 * k, 0.0),
                             raw_counts=(k, -k, 2 * k, 0), state=c.State.ENABLED) for k in range(count)]
     return messages, [c.encode_frame(m, seq=k) for k, m in enumerate(messages)]
 

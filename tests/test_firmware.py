@@ -87,7 +87,7 @@ def _enabled_board() -> Board:
     board.run(0.05)  # fresh load-cell samples
     board.send(c.Enable())
     board.run(0.02)
-    assert board.replies(c.Telemetry)[-1].state == c.State.ENABLED
+    assert board.replies(c.TelemetryMessage)[-1].state == c.State.ENABLED
     return board
 
 
@@ -98,7 +98,7 @@ def test_length_setpoint_drives_the_motors_the_right_way():
     board.run(0.02)
     assert board.duty[0] > 0 and board.duty[1] < 0 and board.duty[2] == 0 and board.duty[3] == 0
     assert list(board.fw.drive_modes) == [c.Drive.DRIVE] * 4
-    t = board.replies(c.Telemetry)[-1]
+    t = board.replies(c.TelemetryMessage)[-1]
     assert t.targets[:2] == pytest.approx((0.001, -0.001))
     assert t.duty[0] > 0 and t.duty[1] < 0 and t.drives() == (c.Drive.DRIVE,) * 4
 
@@ -109,24 +109,24 @@ def test_watchdog_stops_the_motors_when_the_host_goes_silent():
     for _ in range(5):
         board.send(c.Ping())
         board.run(0.1)
-    assert board.replies(c.Telemetry)[-1].state == c.State.ENABLED
+    assert board.replies(c.TelemetryMessage)[-1].state == c.State.ENABLED
     board.run(0.3)  # silent for longer than the 250 ms default
-    t = board.replies(c.Telemetry)[-1]
+    t = board.replies(c.TelemetryMessage)[-1]
     assert t.state == c.State.FAULT and t.fault_flags & c.Fault.WATCHDOG
     assert t.drives() == (c.Drive.COAST,) * 4 and np.all(board.duty == 0.0)
     board.send(c.Ping())
     board.run(0.05)
-    assert board.replies(c.Telemetry)[-1].state == c.State.FAULT  # latched
+    assert board.replies(c.TelemetryMessage)[-1].state == c.State.FAULT  # latched
     board.send(c.Enable())
     board.run(0.03)
-    assert board.replies(c.Telemetry)[-1].state == c.State.ENABLED
-    assert board.replies(c.Telemetry)[-1].fault_flags == 0
+    assert board.replies(c.TelemetryMessage)[-1].state == c.State.ENABLED
+    assert board.replies(c.TelemetryMessage)[-1].fault_flags == 0
 
 
 def test_telemetry_at_40_hz_with_consecutive_sequence_numbers():
     board = Board()
     board.run(1.0)
-    samples = board.replies(c.Telemetry)
+    samples = board.replies(c.TelemetryMessage)
     assert len(samples) == 40
     assert [t.sample_seq for t in samples] == list(range(40))
     assert np.all(np.diff([t.time_us for t in samples]) == 25_000)
@@ -142,7 +142,7 @@ def test_garbage_from_the_host_is_counted_and_never_acted_on():
     enable[4] ^= 0x10  # the CRC no longer matches
     board.fw.receive(garbage.tobytes() + b"\x00" + bytes(enable))
     board.run(0.03)
-    t = board.replies(c.Telemetry)[-1]
+    t = board.replies(c.TelemetryMessage)[-1]
     assert t.state == c.State.DISABLED
     assert board.replies(c.Ack) == [] and board.replies(c.Nack) == []
     assert t.rx_bad_frames > 2000

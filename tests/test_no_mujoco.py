@@ -47,7 +47,7 @@ HOST_WITHOUT_MUJOCO = textwrap.dedent("""
             for frame in decoder.feed(data):
                 if isinstance(frame.message, c.Hello):
                     os.write(master, c.encode_frame(c.HelloReply(), seq=0) + c.encode_frame(
-                        c.Telemetry(sample_seq=7, lengths_m=(1e-3, 0.0, -1e-3, 0.0), state=c.State.ENABLED), seq=1))
+                        c.TelemetryMessage(sample_seq=7, lengths_m=(1e-3, 0.0, -1e-3, 0.0), state=c.State.ENABLED), seq=1))
                 else:
                     os.write(master, c.encode_frame(c.Ack(acked_seq=frame.seq, acked_type=frame.message.TYPE), seq=2))
 

@@ -49,7 +49,6 @@ def quat_to_matrix(quat) -> np.ndarray:
 
 def matrix_to_quat(rot) -> np.ndarray:
     """Quaternion ``(w, x, y, z)`` with w >= 0 of a rotation matrix (Shepperd's method)."""
-    # On plain floats: a fused tracker frame is converted 40 times a second.
     m = np.asarray(rot, dtype=float).tolist()
     t = m[0][0] + m[1][1] + m[2][2]
     if t > 0:

@@ -80,7 +80,7 @@ uint8_t Firmware::stale_mask() const {
 }
 
 void Firmware::send_telemetry(const Measurements& now, uint8_t stale_mask) {
-  msg::Telemetry t{};
+  msg::TelemetryMessage t{};
   t.time_us = time_us_;
   t.sample_seq = telemetry_seq_++;
   uint8_t drive_modes = 0;

@@ -126,7 +126,7 @@ struct Nack {
   uint8_t acked_type;
   uint8_t error;
 };
-struct Telemetry {
+struct TelemetryMessage {
   static constexpr MsgType kType = MsgType::kTelemetry;
   uint64_t time_us;             // device time since the first tick
   uint32_t sample_seq;          // telemetry counter: a gap means lost samples
@@ -192,7 +192,7 @@ template <class V> void visit_fields(V& v, msg::Nack& m) {
   v(m.acked_type);
   v(m.error);
 }
-template <class V> void visit_fields(V& v, msg::Telemetry& m) {
+template <class V> void visit_fields(V& v, msg::TelemetryMessage& m) {
   v(m.time_us);
   v(m.sample_seq);
   v(m.encoder_counts);

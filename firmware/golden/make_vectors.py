@@ -41,7 +41,7 @@ VALID: list[tuple[str, int, c.Message]] = [
     (
         "telemetry",
         0x0102,
-        c.Telemetry(
+        c.TelemetryMessage(
             time_us=4_295_000_000,
             sample_seq=171_800,
             encoder_counts=(21709, -1, 0, -2_000_000),

@@ -20,7 +20,7 @@ struct Replies {
   int hello_replies = 0;
   msg::HelloReply hello{};
   int telemetry = 0;
-  msg::Telemetry last{};
+  msg::TelemetryMessage last{};
 };
 
 class Bench {

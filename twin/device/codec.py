@@ -50,7 +50,7 @@ __all__ = [
     "HelloReply",
     "Ack",
     "Nack",
-    "Telemetry",
+    "TelemetryMessage",
     "MESSAGE_TYPES",
     "Frame",
     "FrameDecoder",
@@ -114,8 +114,8 @@ class Drive(enum.IntEnum):
 
 @functools.lru_cache(maxsize=512)
 def enum_member(enum_cls: type[enum.Enum], value: int) -> enum.Enum:
-    """``enum_cls(value)``, cached: an enum call costs ~1 µs (an IntFlag's 3 µs, composing the
-    members), and each telemetry sample makes seven. A value the enum refuses still raises."""
+    """``enum_cls(value)``, cached: each telemetry sample looks up seven enum members. A value
+    the enum refuses still raises."""
     return enum_cls(value)
 
 
@@ -311,7 +311,7 @@ class Nack(Message):
 
 
 @dataclasses.dataclass(frozen=True)
-class Telemetry(Message):
+class TelemetryMessage(Message):
     """One 40 Hz sample. ``targets`` are per motor, in m (length modes) or N (tension);
     ``duty`` in [-1, 1], positive pays tendon out; ``drive_modes`` packs a Drive per motor in
     bits 2i..2i+1; ``stale_mask`` bit i = load cell i stale."""
@@ -358,7 +358,7 @@ class Telemetry(Message):
 MESSAGE_TYPES: dict[int, type[Message]] = {
     cls.TYPE: cls
     for cls in (Hello, Ping, Enable, Disable, Tare, SetMode, SetSetpoints, SetGains, SetCalibration,
-                SetLimits, HelloReply, Ack, Nack, Telemetry)
+                SetLimits, HelloReply, Ack, Nack, TelemetryMessage)
 }
 
 
@@ -383,9 +383,8 @@ def crc16(data: bytes) -> int:
 
 def cobs_encode(data: bytes) -> bytes:
     """COBS-encode ``data`` (no delimiter appended); the result contains no 0x00."""
-    # Block by block (a Python loop per byte costs 15 µs per command frame): each run of
-    # non-zero bytes becomes code + run, in blocks of at most 254 bytes (code 0xFF, no zero
-    # implied). A new block starts after a full one only if data follows (canonical COBS).
+    # Each run of non-zero bytes becomes code + run, in blocks of at most 254 bytes (code 0xFF,
+    # no zero implied). A new block starts after a full one only if data follows (canonical COBS).
     out = bytearray()
     runs = data.split(b"\x00")
     last = len(runs) - 1
@@ -407,8 +406,8 @@ def cobs_decode(data: bytes) -> bytes:
     Raises:
         FrameError: a zero byte, or a block running past the end.
     """
-    # In place (a loop over blocks costs 14 µs per telemetry frame): each code byte after the
-    # first becomes the zero it stands for, or goes when it follows a full block (0xFF).
+    # In place: each code byte after the first becomes the zero it stands for, or goes when it
+    # follows a full block (0xFF).
     n = len(data)
     out = bytearray(data)
     after_full, i = [], 0

@@ -10,7 +10,7 @@ Example:
     >>> fw.receive(codec.encode_frame(codec.Hello(), seq=1))
     >>> duty = fw.tick(0, [0, 0, 0, 0], [0, 0, 0, 0], new_mask=0b1111)
     >>> [type(f.message).__name__ for f in codec.FrameDecoder().feed(fw.take_tx())]
-    ['HelloReply', 'Telemetry']
+    ['HelloReply', 'TelemetryMessage']
 """
 
 from __future__ import annotations

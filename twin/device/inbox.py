@@ -96,7 +96,7 @@ class Inbox:
 
     # ------------------------------------------------------------------ internals
     def _dispatch(self, message: codec.Message) -> None:
-        if isinstance(message, codec.Telemetry):
+        if isinstance(message, codec.TelemetryMessage):
             sample = Telemetry.from_message(message, self._clock())
             previous = self.latest
             # A board that restarted counts from 0 again: only a forward jump is a loss.

@@ -58,7 +58,7 @@ class Telemetry:
     received_s: float
 
     @classmethod
-    def from_message(cls, message: codec.Telemetry, received_s: float) -> "Telemetry":
+    def from_message(cls, message: codec.TelemetryMessage, received_s: float) -> "Telemetry":
         """The host view of a decoded TELEMETRY message received at ``received_s``."""
         return cls(
             time_s=message.time_us / 1e6,
