@@ -13,11 +13,14 @@ Example:
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 import tomllib
 import typing
 from pathlib import Path
 from typing import Any, Iterable, Mapping
+
+from twin.effects import PER_TENDON, Key, parameter_keys
 
 __all__ = [
     "DEFAULT_PARAMS_PATH",
@@ -180,19 +183,23 @@ class Sensors:
     tracker_noise_rad: float = _f(_nonnegative)
 
 
-@dataclasses.dataclass(frozen=True)
-class Effects:
-    """Effects real rigs have; all zero = off. Shared vocabulary of twin.sim and twin.discrepancy."""
+@functools.cache
+def _effects_section(keys: tuple[Key, ...]) -> type:
+    """The ``[effects]`` section's dataclass for the keys the registered effects declare."""
+    fields = []
+    for key in keys:
+        checks = ((_nonnegative,) if key.nonnegative else ()) + ((_choice(*key.choices),) if key.choices else ()) \
+            + ((_length(key.size),) if isinstance(key.size, int) else ())
+        fields.append((key.name, float if key.size is None else tuple[float, ...], _f(*checks)))
+    cls = dataclasses.make_dataclass("Effects", fields, frozen=True)
+    cls.__module__ = __name__
+    cls.__doc__ = ("Effects real rigs have, all off by default: the keys the effect modules of "
+                   ":mod:`twin.effects` declare.")
+    return cls
 
-    tendon_friction_coeff: float = _f(_nonnegative)
-    tendon_friction_direction: float = _f(_choice(1.0, -1.0))
-    tendon_compliance_m_per_n: float = _f(_nonnegative)
-    tension_gain_error: tuple[float, ...] = _f()
-    tension_offset_error_n: tuple[float, ...] = _f()
-    disc_mass_fraction: float = _f(_nonnegative)
-    base_tilt_deg: tuple[float, ...] = _f(_length(2))
-    tip_load_error_fraction: float = _f()
-    tracker_offset_m: tuple[float, ...] = _f(_length(3))
+
+# The [effects] section of the registered effects (twin.effects.EFFECTS).
+Effects = _effects_section(parameter_keys())
 
 
 @dataclasses.dataclass(frozen=True)
@@ -214,17 +221,19 @@ class SolverSettings:
     max_iterations: int = _f(_positive)
 
 
-_SECTIONS: dict[str, type] = {
-    "backbone": Backbone,
-    "tendons": Tendons,
-    "discs": Discs,
-    "environment": Environment,
-    "rig": Rig,
-    "sensors": Sensors,
-    "effects": Effects,
-    "sim": SimSettings,
-    "solver": SolverSettings,
-}
+def _sections() -> dict[str, type]:
+    """Section name → its dataclass; ``[effects]`` as the effects registered now declare it."""
+    return {
+        "backbone": Backbone,
+        "tendons": Tendons,
+        "discs": Discs,
+        "environment": Environment,
+        "rig": Rig,
+        "sensors": Sensors,
+        "effects": _effects_section(parameter_keys()),
+        "sim": SimSettings,
+        "solver": SolverSettings,
+    }
 
 
 @dataclasses.dataclass(frozen=True)
@@ -261,7 +270,7 @@ class Params:
     def to_dict(self) -> dict[str, dict[str, dict[str, Any]]]:
         """``{section: {key: {"value": v, "source": s}}}``, as in the TOML file."""
         out: dict[str, dict[str, dict[str, Any]]] = {}
-        for section in _SECTIONS:
+        for section in _sections():
             obj = getattr(self, section)
             out[section] = {
                 f.name: {
@@ -311,12 +320,13 @@ def _toml_float(x: float) -> str:
 
 def _split_key(key: str) -> tuple[str, str]:
     parts = key.split(".")
-    if len(parts) != 2 or parts[0] not in _SECTIONS:
+    sections = _sections()
+    if len(parts) != 2 or parts[0] not in sections:
         raise ParameterError(
             f"unknown parameter key {key!r}: expected 'section.key' with section one of "
-            f"{', '.join(_SECTIONS)}"
+            f"{', '.join(sections)}"
         )
-    names = [f.name for f in dataclasses.fields(_SECTIONS[parts[0]])]
+    names = [f.name for f in dataclasses.fields(sections[parts[0]])]
     if parts[1] not in names:
         raise ParameterError(f"unknown parameter key {key!r}: {parts[0]} has {', '.join(names)}")
     return parts[0], parts[1]
@@ -353,10 +363,11 @@ def _coerce(key: str, value: Any, annotation: Any) -> Any:
 def _from_dict(raw: Mapping[str, Any], origin: str) -> Params:
     sections: dict[str, Any] = {}
     sources: dict[str, str] = {}
-    unknown = set(raw) - set(_SECTIONS)
+    section_types = _sections()
+    unknown = set(raw) - set(section_types)
     if unknown:
         raise ParameterError(f"{origin}: unknown section(s) {sorted(unknown)}")
-    for section, cls in _SECTIONS.items():
+    for section, cls in section_types.items():
         table = raw.get(section)
         if table is None:
             raise ParameterError(f"{origin}: missing section [{section}]")
@@ -409,7 +420,8 @@ def _check_consistency(p: Params) -> None:
             f"backbone.length_m = {b.length_m!r}"
         )
     n = t.count
-    for key in ("effects.tension_gain_error", "effects.tension_offset_error_n", "sensors.loadcell_offset_counts"):
+    per_tendon = [k.key for k in parameter_keys() if k.size == PER_TENDON]
+    for key in per_tendon + ["sensors.loadcell_offset_counts"]:
         if len(p.get(key)) != n:
             raise ParameterError(f"{key} = {list(p.get(key))!r}: must have one entry per tendon ({n})")
     if p.sim.elements < d.count:

@@ -17,6 +17,7 @@ from scipy.optimize import least_squares
 
 from twin.data.dataset import Dataset
 from twin.data.prediction import predict_rows
+from twin.effects import FitParameter
 from twin.params import Params
 
 __all__ = ["FitParameter", "ParameterFit", "fit_parameters", "apply_values"]
@@ -24,25 +25,6 @@ __all__ = ["FitParameter", "ParameterFit", "fit_parameters", "apply_values"]
 # Penalty (m per axis) for a row whose prediction fails during a fit: large against any
 # plausible error, so the optimiser steers away from parameters the model cannot solve.
 _FAILED_ROW_PENALTY_M = 0.05
-
-
-@dataclasses.dataclass(frozen=True)
-class FitParameter:
-    """One fitted scalar: ``key`` (``section.name``) and, for list-valued keys, its ``index``.
-
-    Attributes:
-        log: fit log(value) (for positive quantities spanning decades).
-        scale: typical size, for conditioning and the finite-difference step.
-    """
-
-    key: str
-    index: int | None = None
-    log: bool = False
-    scale: float = 1.0
-
-    @property
-    def label(self) -> str:
-        return self.key if self.index is None else f"{self.key}[{self.index}]"
 
 
 @dataclasses.dataclass(frozen=True)

@@ -9,7 +9,8 @@ and rig behave as the *true* parameter set says, while the dataset's metadata re
 * the true endoscope (its stiffness, weight, disc mass and capstan friction, with each tendon's
   sliding direction from its encoder length, :func:`twin.effects.friction_direction`) is solved
   under the true tip load and the true, possibly tilted, clamp;
-* the sensors report as :mod:`twin.sim.sensors` does: load cells (1 + g) τ + o plus noise,
+* the sensors report as :mod:`twin.sim.sensors` does: load cells gain · τ + offset plus noise
+  (:func:`twin.effects.loadcell_response`),
   encoders quantised to one count, the tracker at its offset from the tip plus noise.
 
 The prediction side (:mod:`twin.data.prediction`) undoes exactly this measurement model
@@ -62,8 +63,7 @@ def synthetic_validation_dataset(folder: str | Path, nominal: Params, truth: Par
     loadcell_sigma = truth.sensors.loadcell_noise_n if loadcell_noise_n is None else loadcell_noise_n
     predictor = Predictor(RodModel.from_params(truth))
     clamp = effects.clamp_rotation(truth, base_rotation)
-    gain = 1.0 + np.asarray(truth.effects.tension_gain_error)
-    offset = np.asarray(truth.effects.tension_offset_error_n)
+    gain, offset = effects.loadcell_response(truth)
     count_m = truth.rig.tendon_m_per_count
     cases = list(validation_grid() if grid is None else grid)
     stride = max(int(c[0]) for c in cases) + 1  # repeats get their own configuration numbers

@@ -13,6 +13,7 @@ from functools import cached_property
 
 import numpy as np
 
+from twin import effects
 from twin.params import Params
 from twin.rod import kernel
 
@@ -88,16 +89,14 @@ class RodModel:
     def from_params(cls, params: Params, *, steps: int | None = None, with_effects: bool = True) -> "RodModel":
         """The endoscope of a parameter set.
 
-        With ``with_effects`` the effects that change the rod itself are included: disc mass
-        lumping (``effects.disc_mass_fraction``) and tendon friction (``effects.tendon_friction_coeff``).
+        With ``with_effects`` the effects that change the rod itself are included, as they build
+        the body (:func:`twin.effects.body_spec`: disc mass lumping, tendon friction).
         Sensor-side effects (gains, offsets, tracker offset, tilt) belong to the callers.
         """
         b, t, d = params.backbone, params.tendons, params.discs
-        fraction = params.effects.disc_mass_fraction if with_effects else 0.0
-        if fraction > 1:
-            raise ValueError(f"effects.disc_mass_fraction = {fraction!r}: must be <= 1")
+        body = effects.body_spec(params) if with_effects else effects.BodySpec.nominal(params)
         disc_s = [b.length_m * (k + 1) / d.count for k in range(d.count)]
-        disc_mass = d.lumped_mass_kg + b.mass_kg * fraction / d.count
+        disc_mass = body.disc_mass_kg
         routes = []
         for angle in t.angles_deg:
             helix = 0.0
@@ -114,13 +113,13 @@ class RodModel:
             bending_stiffness_nm2=b.bending_stiffness_nm2,
             torsional_stiffness_nm2=b.torsional_stiffness_nm2,
             tendons=tuple(routes),
-            line_mass_kg_per_m=b.mass_kg * (1 - fraction) / b.length_m,
+            line_mass_kg_per_m=body.line_mass_kg_per_m,
             point_masses=tuple((s, disc_mass) for s in disc_s) if disc_mass > 0 else (),
             gravity_m_s2=params.environment.gravity_m_s2,
             steps=params.solver.steps if steps is None else steps,
             tolerance=params.solver.tolerance,
             max_iterations=params.solver.max_iterations,
-            friction_coeff=params.effects.tendon_friction_coeff if with_effects else 0.0,
+            friction_coeff=body.friction_coeff,
         )
 
     def replace(self, **changes) -> "RodModel":

@@ -1,7 +1,7 @@
 """MuJoCo model of the endoscope and its rig, generated from the parameter set with ``mujoco.MjSpec``.
 
 MuJoCo 4 has no cable element whose off-axis sites rotate with the rod, so the backbone is an
-explicit chain of rigid bodies with elastic joints (``../shared/notes/mujoco4.md``). The rod
+explicit chain of rigid bodies with elastic joints. The rod
 of length L is cut into N = ``sim.elements`` elements of length h = L/N; the compliance of
 element k is lumped in a joint at its middle, s = (k − ½) h, so the clamp holds the first
 half-element and the last body is a half-element ending at the tip. A pure end moment then
@@ -48,8 +48,9 @@ import math
 import mujoco
 import numpy as np
 
+from twin import effects
 from twin.params import Params
-from twin.pose import HORIZONTAL, matrix_to_quat, rot_x, rot_y
+from twin.pose import HORIZONTAL, matrix_to_quat
 from twin.sim.motor import MotorConstants
 
 __all__ = [
@@ -59,7 +60,6 @@ __all__ = [
     "Layout",
     "build_model",
     "build_spec",
-    "clamp_rotation",
     "model_xml",
     "slide_stations",
     "station_joints",
@@ -139,13 +139,6 @@ _SITE_SIZE = [0.0003, 0.0, 0.0]
 _RGBA_ROD = (0.85, 0.55, 0.35, 1.0)
 _RGBA_DISC = (0.75, 0.75, 0.78, 1.0)
 _RGBA_TENDON = (0.1, 0.3, 0.9, 1.0)
-
-
-def clamp_rotation(params: Params, base_rotation=HORIZONTAL) -> np.ndarray:
-    """The clamp's actual orientation (3×3): the nominal base rotation tilted by
-    ``effects.base_tilt_deg`` about world x, then world y."""
-    tilt_x, tilt_y = np.radians(params.effects.base_tilt_deg)
-    return rot_y(tilt_y) @ rot_x(tilt_x) @ np.asarray(base_rotation, dtype=float)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -292,8 +285,8 @@ def build_spec(params: Params, *, base_rotation=HORIZONTAL, elements: int | None
 
     Args:
         params: the parameter set.
-        base_rotation: nominal clamp orientation (3×3, body → world); ``effects.base_tilt_deg``
-            is applied on top of it.
+        base_rotation: nominal clamp orientation (3×3, body → world); the effects turn it
+            (:func:`twin.effects.clamp_rotation`).
         elements: number of elements N (default ``sim.elements``).
         tendon_sites: override of ``sim.tendon_routing`` (see :meth:`Layout.from_params`).
     """
@@ -317,11 +310,12 @@ def build_spec(params: Params, *, base_rotation=HORIZONTAL, elements: int | None
     spec.stat.extent = 0.1
 
     clamp = spec.worldbody.add_body(
-        name="clamp", quat=matrix_to_quat(clamp_rotation(params, base_rotation)).tolist())
+        name="clamp", quat=matrix_to_quat(effects.clamp_rotation(params, base_rotation)).tolist())
     clamp.add_geom(name="clamp", type=mujoco.mjtGeom.mjGEOM_CYLINDER, size=[params.discs.outer_radius_m,
                    0.004, 0], pos=[0, 0, -0.004], rgba=[0.3, 0.3, 0.3, 1], contype=0, conaffinity=0)
-    stations = _add_backbone(spec, clamp, params, layout)
-    _add_discs(stations, params, layout)
+    body_spec = effects.body_spec(params)
+    stations = _add_backbone(spec, clamp, params, layout, body_spec)
+    _add_discs(stations, params, layout, body_spec)
     tip = stations[n]
     tip.add_site(name="tip", pos=[0, 0, h / 2], size=_SITE_SIZE)
     load = tip.add_body(name="tip_load", pos=[0, 0, h / 2], mass=0.0, ipos=[0, 0, 0], inertia=[0, 0, 0])
@@ -337,11 +331,12 @@ def build_spec(params: Params, *, base_rotation=HORIZONTAL, elements: int | None
     return spec
 
 
-def _add_backbone(spec, clamp, params, layout) -> list:
-    """The chain of N bodies with their elastic joints; returns [clamp, body 1, …, body N]."""
+def _add_backbone(spec, clamp, params, layout, body_spec: effects.BodySpec) -> list:
+    """The chain of N bodies with their elastic joints, carrying the body's line mass; returns
+    [clamp, body 1, …, body N]."""
     b, sim = params.backbone, params.sim
     n, h = layout.elements, layout.element_length_m
-    uniform = b.mass_kg * (1.0 - params.effects.disc_mass_fraction) / b.length_m
+    uniform = body_spec.line_mass_kg_per_m
     stiffness = {
         "shear": b.shear_stiffness_n / h, "axial": b.axial_stiffness_n / h,
         "bend": b.bending_stiffness_nm2 / h, "twist": b.torsional_stiffness_nm2 / h,
@@ -368,11 +363,11 @@ def _add_backbone(spec, clamp, params, layout) -> list:
     return bodies
 
 
-def _add_discs(stations, params, layout) -> None:
-    """Disc geoms, and the disc masses (``discs.lumped_mass_kg`` plus the lumped fraction
-    ``effects.disc_mass_fraction`` of the backbone) folded into the carrying body's inertia."""
+def _add_discs(stations, params, layout, body_spec: effects.BodySpec) -> None:
+    """Disc geoms, and the body's disc masses (``discs.lumped_mass_kg`` and what the effects
+    lump there, :class:`twin.effects.BodySpec`) folded into the carrying body's inertia."""
     d, b = params.discs, params.backbone
-    disc_mass = d.lumped_mass_kg + params.effects.disc_mass_fraction * b.mass_kg / d.count
+    disc_mass = body_spec.disc_mass_kg
     for s, k in zip(layout.disc_s_m, layout.disc_body):
         body = stations[k]
         z = s - layout.body_origin_s_m(k)
@@ -394,9 +389,10 @@ def _add_discs(stations, params, layout) -> None:
 
 
 def tendon_stiffness_n_per_m(params: Params) -> float:
-    """Stiffness of each tendon (N/m): 1 / ``effects.tendon_compliance_m_per_n``, or, with that
-    effect off, 1 / :data:`INEXTENSIBLE_COMPLIANCE_M_PER_N`."""
-    return 1.0 / max(params.effects.tendon_compliance_m_per_n, INEXTENSIBLE_COMPLIANCE_M_PER_N)
+    """Stiffness of each tendon (N/m): 1 / the body's tendon compliance
+    (``effects.tendon_compliance_m_per_n``), or, with that effect off, 1 /
+    :data:`INEXTENSIBLE_COMPLIANCE_M_PER_N`."""
+    return 1.0 / max(effects.body_spec(params).tendon_compliance_m_per_n, INEXTENSIBLE_COMPLIANCE_M_PER_N)
 
 
 def _add_tendons_and_spools(spec, clamp, stations, params, layout) -> None:

@@ -1,0 +1,146 @@
+"""Capstan friction of the tendons at the disc holes.
+
+Keys: ``effects.tendon_friction_coeff`` μ per radian of wrap (0 = off) and
+``effects.tendon_friction_direction`` (±1, the predictor's sliding sense at rest).
+
+Twin: the tension decays as e^(−μθ) over the wrap angle θ from the spool to each disc while the
+tendon is pulled, and grows so while it is released; the load cell, at the spool, reads the
+undecayed end. So the tip bends less than the measured tension says on loading, more on
+unloading: hysteresis. :class:`TendonFriction` applies it before every physics step.
+
+Prediction: the predictor takes μ with the body (:class:`twin.effects.BodySpec`) and each
+tendon's sliding direction from its encoder length (:func:`friction_direction`).
+
+Discrepancy: μ (log; starts at 0.02 when off): one coefficient for all holes, fitted for both
+sliding directions at rest (pulled / backed off), the better kept.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+from twin.effects.base import BodySpec, Candidate, Effect, FitParameter, Key, Params
+
+__all__ = ["EFFECT", "FRICTION_MAX_STEP_S", "PRESLIDING_M", "TendonFriction", "friction_direction"]
+
+# Tendon travel over which the friction turns from one direction to the other (m): the
+# presliding (Dahl) displacement of a braided line in a printed hole, an assumption of a few
+# hundredths of a millimetre, well above an encoder count (0.94 µm).
+PRESLIDING_M = 2e-5
+# Longest physics step (s) the explicit friction update is stable at: measured, a spool pulled in
+# tension mode settles at 1 ms and chatters (±0.03 N of spool tension) at 2.5 ms; in the twin's
+# friction sweep (tests/test_discrepancy_twin.py) 1 ms steps diverged once, in tension mode after
+# 124 s, and 0.83 ms steps (2.5 ms / 3, 5 ms / 6) never did.
+FRICTION_MAX_STEP_S = 0.84e-3
+# Starting value of μ for a fit when it is off (0) in the parameter set: log(0) cannot start one.
+_FIT_START = 0.02
+
+
+class TendonFriction:
+    """Capstan friction of the tendons over the disc holes, applied as body forces.
+
+    MuJoCo's tendon carries one tension T₀ along its whole path — the spool's. With friction
+    coefficient μ the tension in segment k (spool = 0) is T_k = T₀ exp(−σ μ Σ_{m≤k} θ_m), where
+    θ_m is the angle the tendon turns at site m (the base hole and each disc, or each joint
+    with continuous routing) and σ ∈ [−1, 1]
+    the state of a Dahl model of the sliding direction: σ → +1 while the spool pulls tendon
+    in, → −1 while it pays out, over :data:`PRESLIDING_M` of travel, and it holds when the
+    tendon stops, so a static state remembers how it was reached. The difference between the
+    friction profile and MuJoCo's uniform one is added at each disc site as a force (and its
+    moment about the body's centre of mass) through ``xfrc_applied``; the forces include the
+    friction on the disc, so momentum balances.
+
+    A :class:`twin.effects.StepHook`: call :meth:`before_step` before every step of at most
+    :attr:`max_step_s`; it costs a few tens of µs of Python, which is why the plant only steps
+    one step at a time when friction is on.
+    """
+
+    max_step_s = FRICTION_MAX_STEP_S
+
+    def __init__(self, model, coeff: float, spool_dofs: np.ndarray, sites: np.ndarray):
+        """Args:
+            model: the compiled twin (``mujoco.MjModel``).
+            coeff: μ per radian of wrap.
+            spool_dofs: (n,) dof index of each spool.
+            sites: (n, S) site ids along each tendon's path, spool first, tip last.
+        """
+        self.coeff = float(coeff)
+        self._sites = np.asarray(sites)
+        self._bodies = model.site_bodyid[self._sites]
+        self._spool_dofs = np.asarray(spool_dofs)
+        self.state = np.zeros(len(self._sites))
+
+    @classmethod
+    def in_model(cls, model, coeff: float, tendons: int) -> "TendonFriction":
+        """The friction of the ``tendons`` tendons of a twin built by :mod:`twin.sim.model`,
+        found by the names it gives them: spool joint and site ``spool{i}``, base hole
+        ``hole{i}``, then sites ``t{i}_s1`` … towards the tip."""
+        names = {model.site(k).name for k in range(model.nsite)}
+        along = 0
+        while f"t0_s{along + 1}" in names:
+            along += 1
+        sites = [[model.site(f"spool{i}").id, model.site(f"hole{i}").id]
+                 + [model.site(f"t{i}_s{j}").id for j in range(1, along + 1)] for i in range(tendons)]
+        dofs = [model.jnt_dofadr[model.joint(f"spool{i}").id] for i in range(tendons)]
+        return cls(model, coeff, np.array(dofs), np.array(sites))
+
+    def reset(self) -> None:
+        self.state[:] = 0.0
+
+    def before_step(self, model, data, spool_tensions_n: np.ndarray) -> None:
+        """Update the sliding state over the last step and set ``data.xfrc_applied``."""
+        pull_speed = -data.qvel[self._spool_dofs]
+        self.state = np.clip(self.state + pull_speed * model.opt.timestep / PRESLIDING_M, -1.0, 1.0)
+        p = data.site_xpos[self._sites]                          # (n, S, 3)
+        seg = np.diff(p, axis=1)
+        u = seg / np.linalg.norm(seg, axis=2, keepdims=True)      # (n, S-1, 3)
+        cos = np.clip(np.einsum("nkj,nkj->nk", u[:, :-1], u[:, 1:]), -1.0, 1.0)
+        wrap = np.cumsum(np.arccos(cos), axis=1)                  # at sites 1 .. S-2
+        t0 = np.asarray(spool_tensions_n, dtype=float)[:, None]
+        decay = np.exp(-self.state[:, None] * self.coeff * wrap)
+        excess = np.concatenate([np.zeros_like(t0), t0 * (decay - 1.0)], axis=1)  # T_k − T₀
+        pulls = excess[:, :, None] * u                            # per segment
+        force = np.zeros_like(p)
+        force[:, 1:] -= pulls                                     # towards the previous site
+        force[:, :-1] += pulls                                    # towards the next site
+        data.xfrc_applied[:] = 0.0
+        bodies = self._bodies.ravel()
+        f = force.reshape(-1, 3)
+        torque = np.cross(p.reshape(-1, 3) - data.xipos[bodies], f)
+        np.add.at(data.xfrc_applied[:, :3], bodies, f)
+        np.add.at(data.xfrc_applied[:, 3:], bodies, torque)
+
+
+def friction_direction(relative_lengths_m, sense: float = 1.0) -> np.ndarray:
+    """Sliding direction per tendon for a static state reached from the pretensioned straight pose:
+    +1 (tension lost towards the tip) for a tendon pulled in (shortened) to get there, −1 for one
+    paid out — times ``sense`` (``effects.tendon_friction_direction``), −1 when a length controller
+    settled by backing off past the presliding travel, which flips every tendon's last motion."""
+    lengths = np.asarray(relative_lengths_m, dtype=float)
+    return sense * np.where(lengths > 0, -1.0, 1.0)
+
+
+class TendonFrictionEffect(Effect):
+    name = "tendon_friction"
+    description = ("capstan friction at the disc holes: tension lost towards the tip while pulled, "
+                   "gained while released")
+    parameters = (Key("tendon_friction_coeff", nonnegative=True),
+                  Key("tendon_friction_direction", off=1.0, choices=(1.0, -1.0)))
+
+    def body_spec(self, params: Params, spec: BodySpec) -> BodySpec:
+        return dataclasses.replace(spec, friction_coeff=params.effects.tendon_friction_coeff)
+
+    def step_hook(self, params: Params, model) -> TendonFriction | None:
+        coeff = params.effects.tendon_friction_coeff
+        return TendonFriction.in_model(model, coeff, params.tendons.count) if coeff > 0 else None
+
+    def candidate(self, params: Params) -> Candidate:
+        coeff = FitParameter("effects.tendon_friction_coeff", log=True)
+        return Candidate(self.name, (coeff,), start={coeff.label: _FIT_START},
+                         variants=({"effects.tendon_friction_direction": 1.0},
+                                   {"effects.tendon_friction_direction": -1.0}))
+
+
+EFFECT = TendonFrictionEffect()
