@@ -69,6 +69,7 @@ def predict_rows(params: Params, base_rotation, tensions_n, tip_mass_kg, lengths
     model = model or RodModel.from_params(params)
     predictor = Predictor(model)
     rotation = effects.clamp_rotation(params, base_rotation)
+    tensions = np.clip(effects.true_tensions_n(params, tensions_n), 0.0, None)
     n = len(tip_mass_kg)
     tip = np.full((n, 3), np.nan)
     converged = np.zeros(n, dtype=bool)
@@ -77,7 +78,7 @@ def predict_rows(params: Params, base_rotation, tensions_n, tip_mass_kg, lengths
     rows = tqdm(range(n), desc="predicting", unit="row", disable=not progress, leave=False)
     for i in rows:
         sol = predictor.solve(
-            np.clip(effects.true_tensions_n(params, tensions_n[i]), 0.0, None),
+            tensions[i],
             tip_force_n=effects.tip_force_n(params, tip_mass_kg[i]),
             base_rotation=rotation,
             friction_direction=effects.friction_direction(lengths_m[i], params.effects.tendon_friction_direction),
