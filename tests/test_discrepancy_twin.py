@@ -24,7 +24,7 @@ GRID = [g for g in validation_grid() if g[1] in (0.0, 13.0, 26.2) and g[2] % 60 
 # effect → (hidden values in the twin, what the fit should find, tolerance).
 HIDDEN = {
     "tension_gain": ({"effects.tension_gain_error": [0.08, -0.06, 0.05, -0.07]}, [0.08, -0.06, 0.05, -0.07], 0.015),
-    # Only the antagonist differences o1 − o3, o2 − o4 bend the endoscope (candidates.py).
+    # Only the antagonist differences o1 − o3, o2 − o4 bend the endoscope (twin/effects/tension_offset.py).
     "tension_offset": ({"effects.tension_offset_error_n": [0.08, -0.06, -0.05, 0.07]}, [0.13, -0.13], 0.02),
     "weight": ({"backbone.mass_kg": 0.0078}, [0.0078], 0.0006),
     "tip_load": ({"effects.tip_load_error_fraction": 0.15}, [0.15], 0.03),
