@@ -69,3 +69,21 @@ def test_a_plant_takes_any_tendon_count_the_loop_holds():
 def test_the_old_native_switch_is_an_unknown_option():
     with pytest.raises(ValueError, match="native"):
         open_device("sim://?native=0")
+
+
+def test_the_peak_tension_is_the_largest_any_physics_step_saw():
+    plant = Plant(load_params(), seed=1)
+    plant.set_tensions([1.0, 1.0, 1.0, 1.0])
+    plant.step(0.3)
+    plant.set_motor_pwm([-0.03, 0.0, 0.0, 0.0])  # the motor winds tendon 1 in, then lets go
+    seen = np.zeros(4)
+    for k in range(60):
+        if k == 30:
+            plant.coast()
+        plant.step(plant.timestep_s)
+        seen = np.maximum(seen, plant.true_tensions_n())
+    peak = plant.peak_tensions_n()
+    assert np.all(peak >= seen) and np.allclose(peak, seen, rtol=0.2)
+    assert peak[0] > 2 * plant.true_tensions_n()[0]
+    plant.clear_peak_tensions()
+    assert np.array_equal(plant.peak_tensions_n(), plant.true_tensions_n())

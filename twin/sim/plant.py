@@ -171,6 +171,7 @@ class Plant:
         self.model.body_mass[self._tip_load] = 0.0
         self.data.eq_active[self._holder] = False
         self.loop.reset()
+        self.clear_peak_tensions()
         self._loadcell = self._tracker_frame = None
         self._warnings_seen = self.data.warning.number.copy()
 
@@ -329,6 +330,15 @@ class Plant:
     def true_tensions_n(self) -> np.ndarray:
         """(n,) tension at the spool end of each tendon (N): what a perfect load cell reads."""
         return np.maximum(self.data.ten_length - self._slack_length_m, 0.0) * self._tendon_stiffness
+
+    def peak_tensions_n(self) -> np.ndarray:
+        """(n,) the largest tension each tendon carried at any physics step since the last
+        :meth:`clear_peak_tensions` (or reset) (N): what a safety limit must bound."""
+        return np.array(self.loop.state.peak_tension_n[:self.tendon_count])
+
+    def clear_peak_tensions(self) -> None:
+        """Start :meth:`peak_tensions_n` afresh from the current tensions."""
+        self.loop.state.peak_tension_n[:self.tendon_count] = self.true_tensions_n().tolist()
 
     def tip_pose(self) -> tuple[np.ndarray, np.ndarray]:
         """Tip position (3,) m and rotation (3, 3) in the world frame, base at the origin."""

@@ -96,6 +96,7 @@ enum { BL_DRIVE_COAST = 0, BL_DRIVE_ON = 1 };
   A(f64, tracker_positions_m, BL_PROBE_VALUES)  /* the latest frame's probe positions, world (m) */    \
   A(f64, tracker_axes, BL_PROBE_VALUES)         /* and unit axes */                                    \
   A(f64, pwm_v, BL_MAX_CHANNELS)                /* voltages last given to the motors (V) */            \
+  A(f64, peak_tension_n, BL_MAX_CHANNELS)       /* ground truth: the largest tension since cleared */  \
   S(f64, jump_accel_m_s2)       /* spool acceleration step since the last physics step */               \
   S(i32, channels)              /* tendons of the plant */                                              \
   S(i32, noise_size)            /* draws in the buffer */                                               \
@@ -178,6 +179,11 @@ static int warnings_total(const mjData* d) {
   return total;
 }
 
+// The tension of tendon i's dead-band spring (N): what the load cell at its spool carries.
+static double spring_tension_n(const mjData* d, const bl_state* s, int i) {
+  return max0(d->ten_length[i] - s->slack_length_m[i]) * s->tendon_stiffness_n_per_m;
+}
+
 // Draws one load-cell sample and one tracker frame may take.
 static int noise_per_sample(const bl_state* s) { return s->channels + 2 * BL_PROBE_VALUES; }
 
@@ -244,12 +250,8 @@ void bl_set_drive(mjModel* m, mjData* d, bl_state* s, int32_t mode, const double
 
 // The motor encoders' quadrature counts: a counter changes at each edge, so the count is the
 // floor of the tendon paid out over the tendon per edge.
-static int32_t encoder_count(const mjData* d, const bl_state* s, int i) {
-  return (int32_t)floor(d->qpos[s->spool_qpos[i]] / s->m_per_count + 1e-9);
-}
-
 void bl_encoder_counts(const mjData* d, const bl_state* s, int32_t* counts) {
-  for (int i = 0; i < s->channels; ++i) counts[i] = encoder_count(d, s, i);
+  for (int i = 0; i < s->channels; ++i) counts[i] = (int32_t)floor(d->qpos[s->spool_qpos[i]] / s->m_per_count + 1e-9);
 }
 
 // Load cells: HX711 codes of offset + gain · (loadcell_gain · T + loadcell_offset_n + noise),
@@ -258,7 +260,7 @@ static void sample_loadcells(const mjData* d, bl_state* s) {
   const double* z = s->loadcell_noise_n > 0 ? s->noise + s->noise_cursor : nullptr;
   if (z) s->noise_cursor += s->channels;
   for (int i = 0; i < s->channels; ++i) {
-    double tension = max0(d->ten_length[i] - s->slack_length_m[i]) * s->tendon_stiffness_n_per_m;
+    double tension = spring_tension_n(d, s, i);
     double sensed = s->loadcell_gain[i] * tension + s->loadcell_offset_n[i];
     if (z) sensed = sensed + s->loadcell_noise_n * z[i];
     double code = nearbyint(s->loadcell_offset_counts[i] + s->loadcell_gain_counts_per_n * sensed);
@@ -352,6 +354,10 @@ static int plant_chunk(mjModel* m, mjData* d, bl_state* s, int chunk) {
   for (int k = 0; k < chunk * substeps; ++k) {
     if (hook) hook();
     step(m, d);
+    for (int i = 0; i < s->channels; ++i) {
+      double tension = spring_tension_n(d, s, i);
+      if (tension > s->peak_tension_n[i]) s->peak_tension_n[i] = tension;
+    }
   }
   int total = warnings_total(d);
   if (total != s->warnings_total) {
