@@ -12,6 +12,13 @@ keys; so a new effect is a new module here and its keys in the parameter file, n
 
 The functions below compose the effects' hooks (:mod:`twin.effects.base`): the rest of the code
 calls these, never an effect's keys.
+
+Adding an effect that acts through the existing hooks touches:
+
+* ``twin/effects/<name>.py``: an :class:`Effect` subclass and its ``EFFECT`` (keys with their
+  schema, description, hooks, candidate; the docstring says what is fitted and why);
+* ``models/endoscope.toml``: its keys under ``[effects]``, off, with their source;
+* ``models/README.md``: regenerated (``python -m twin.sim.modelfiles``).
 """
 
 from __future__ import annotations
