@@ -12,9 +12,9 @@ Example:
 
 from twin.rod.model import RodModel, TendonRoute
 from twin.rod.jacobian import TipJacobian, solve_with_jacobian, tip_jacobian
-from twin.rod.solver import ConvergenceError, LoadCase, Predictor, RodSolution, solve
+from twin.rod.solver import ConvergenceError, LoadCase, NewtonIteration, Predictor, RodSolution, SolverStatus, solve
 
 __all__ = [
-    "ConvergenceError", "LoadCase", "Predictor", "RodModel", "RodSolution", "TendonRoute", "TipJacobian",
-    "solve", "solve_with_jacobian", "tip_jacobian",
+    "ConvergenceError", "LoadCase", "NewtonIteration", "Predictor", "RodModel", "RodSolution", "SolverStatus",
+    "TendonRoute", "TipJacobian", "solve", "solve_with_jacobian", "tip_jacobian",
 ]

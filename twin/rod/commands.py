@@ -53,7 +53,7 @@ def run_predict(args: argparse.Namespace) -> int:
                     base_rotation=rotation_from_args(args))
     except ConvergenceError as exc:
         if args.json:
-            print(json.dumps({"converged": False, "status": exc.status, "residual": exc.residual_nm,
+            print(json.dumps({"converged": False, "status": exc.status.label, "residual": exc.residual_nm,
                               "iterations": exc.iterations, "error": str(exc)}))
         print(f"twin predict: {exc}", file=sys.stderr)
         return 3
@@ -65,6 +65,6 @@ def run_predict(args: argparse.Namespace) -> int:
     print("tip rotation     " + "\n                 ".join(
         " ".join(f"{x:9.5f}" for x in row) for row in sol.tip_rotation))
     print("tendon lengths   " + " ".join(f"{x * 1e3:.4f}" for x in sol.tendon_lengths_m) + " mm")
-    print(f"converged        {sol.converged} ({sol.status}) residual {sol.residual_nm:.2e} N m, "
+    print(f"converged        {sol.converged} ({sol.status.label}) residual {sol.residual_nm:.2e} N m, "
           f"{sol.iterations} iterations, {sol.solve_time_s * 1e3:.2f} ms")
     return 0

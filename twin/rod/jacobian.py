@@ -16,7 +16,7 @@ import numpy as np
 
 from twin.rod import kernel
 from twin.rod.model import RodModel
-from twin.rod.solver import RodSolution, kernel_args, solve
+from twin.rod.solver import RodSolution, rod_inputs, solve
 
 __all__ = ["TipJacobian", "tip_jacobian", "solve_with_jacobian"]
 
@@ -70,7 +70,7 @@ def tip_jacobian(model: RodModel, solution: RodSolution) -> TipJacobian:
         ValueError: the solution did not converge (there is no shape to differentiate).
     """
     if not solution.converged:
-        raise ValueError(f"tip_jacobian needs a converged solution (status {solution.status!r})")
+        raise ValueError(f"tip_jacobian needs a converged solution (status {solution.status.label!r})")
     load = solution.load
     nt = model.tendon_count
     k = model.stations
@@ -81,9 +81,9 @@ def tip_jacobian(model: RodModel, solution: RodSolution) -> TipJacobian:
     r_ref = solution.tip_rotation
     scale = model.moment_scale_nm
 
-    # The kernel perturbs the tendon table and the tip force in place: both are copies here.
-    args = list(kernel_args(model, load, states, strains))
-    args[9] = load.tip_force_n.copy()
+    # The kernel perturbs the tendon table and the tip force in place: both are copies here
+    # (rod_inputs builds its own tendon table).
+    rod = rod_inputs(model, load)._replace(tip_force_n=load.tip_force_n.copy())
     # ∂r/∂m0 and ∂T/∂m0 by central differences: the implicit-function step amplifies their
     # error by the conditioning of ∂r/∂m0, so they get the second-order scheme. The others are
     # forward differences against an integration of the unperturbed case in the same call, so
@@ -102,7 +102,7 @@ def tip_jacobian(model: RodModel, solution: RodSolution) -> TipJacobian:
     # One compiled call for all 7 + nt + 3 integrations: from Python each cost 25 µs of
     # overhead on top of its 65 (twin bench predictor).
     if not kernel.tip_sensitivities(np.asarray(m0, dtype=float), h_m, h_tau, h_f, np.asarray(p_ref, dtype=float),
-                                    np.asarray(r_ref, dtype=float), *args, dr_dm, dt_dm, dr_dth, dt_dth):
+                                    np.asarray(r_ref, dtype=float), rod, states, strains, dr_dm, dt_dm, dr_dth, dt_dth):
         raise ValueError("tip_jacobian: a perturbed integration failed; the solution is on a singular branch")
     dm0 = -np.linalg.solve(dr_dm, dr_dth)
     return TipJacobian(matrix=dt_dth + dt_dm @ dm0, tendon_count=nt)

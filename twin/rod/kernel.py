@@ -24,9 +24,16 @@ w_i' = |u × t_i| and τ_i(s) = τ_i(0) exp(−μ σ_i w_i(s)), σ_i = +1 while 
 
 State layout per station: p (3), R (9, row-major), m (3), w (nt), ℓ (nt) — tendon path
 lengths from the base.
+
+The kernels read the rod and its load case from one :class:`RodInputs`, a named tuple: compiled
+code reads its fields as it would positional arguments, and a call from Python costs about 1 µs
+more to dispatch (Numba types a named tuple outside its fast path), once per solve.
 """
 
 from __future__ import annotations
+
+import enum
+from typing import NamedTuple
 
 import numpy as np
 from numba import njit
@@ -36,8 +43,76 @@ from numba import njit
 T_R0, T_R1, T_ALPHA, T_OMEGA, T_END, T_TAU, T_SIGMA = range(7)
 TENDON_COLUMNS = 7
 
+# Columns of the Newton trace :func:`shoot` fills, one row per iteration: tip moment residual
+# norm at its start (N·m), line-search factor α of the step accepted from it (0: none), that
+# step's size |Δm(0)| (N·m), 1.0 if ∂res/∂m0 was recomputed by finite differences for it.
+TR_RESIDUAL, TR_STEP_FRACTION, TR_STEP, TR_FRESH = range(4)
+TRACE_COLUMNS = 4
+
 _LOCAL_MAX_ITER = 20
 _LOCAL_TOL = 1e-13
+
+
+class SolverStatus(enum.IntEnum):
+    """What stopped a shooting solve; the values are the codes :func:`shoot` returns."""
+
+    CONVERGED = 0
+    ITERATION_LIMIT = 1
+    INTEGRATION_FAILED = 2  # at the starting guess
+    LINE_SEARCH_STALLED = 3  # also: a finite-difference Jacobian could not be formed
+
+    @property
+    def label(self) -> str:
+        """Human-readable form, e.g. ``"iteration limit"`` (the ``twin predict`` output)."""
+        return self.name.lower().replace("_", " ")
+
+
+# Plain ints for the compiled code (Numba freezes globals at compile time).
+_CONVERGED = int(SolverStatus.CONVERGED)
+_ITERATION_LIMIT = int(SolverStatus.ITERATION_LIMIT)
+_INTEGRATION_FAILED = int(SolverStatus.INTEGRATION_FAILED)
+_LINE_SEARCH_STALLED = int(SolverStatus.LINE_SEARCH_STALLED)
+
+
+class RodInputs(NamedTuple):
+    """What an integration of the rod reads: the model's arrays and one load case (SI, world frame).
+
+    Built by :func:`twin.rod.solver.rod_inputs`. :func:`tip_sensitivities` perturbs ``tendons``
+    and ``tip_force_n`` in place (and restores them): give it copies.
+
+    Attributes:
+        base_position_m: p(0) (3,).
+        base_rotation: R(0), body → world (3, 3).
+        nodes: station arc lengths (m), (K+1,), containing every interval boundary.
+        intervals: for each step k, the midpoint of the event interval it lies in (m), (K,).
+        kse: shear, shear and axial stiffness (N), (3,).
+        kbt: bending, bending and torsional stiffness (N·m²), (3,).
+        tendons: tendon table (nt, TENDON_COLUMNS), with this load's tensions and friction directions.
+        length_m: rod length L.
+        friction_coeff: capstan coefficient μ (1).
+        tip_force_n: external tip force F_e (3,).
+        tip_moment_nm: external tip moment M_e (3,).
+        gravity_m_s2: gravitational acceleration vector (3,).
+        line_mass_kg_per_m: distributed mass of the rod.
+        point_mass_s_m: arc lengths of the lumped masses (np,).
+        point_mass_kg: the lumped masses (np,).
+    """
+
+    base_position_m: np.ndarray
+    base_rotation: np.ndarray
+    nodes: np.ndarray
+    intervals: np.ndarray
+    kse: np.ndarray
+    kbt: np.ndarray
+    tendons: np.ndarray
+    length_m: float
+    friction_coeff: float
+    tip_force_n: np.ndarray
+    tip_moment_nm: np.ndarray
+    gravity_m_s2: np.ndarray
+    line_mass_kg_per_m: float
+    point_mass_s_m: np.ndarray
+    point_mass_kg: np.ndarray
 
 
 @njit(cache=True)
@@ -200,6 +275,8 @@ def _strains(nb, mb, s, mid, wraps, kse, kbt, tendons, nt, length, mu, vu, jac, 
     return -1
 
 
+# The helpers below take the fields they use, not a RodInputs: called at every RK4 stage, they
+# would otherwise be passed all its arrays, flattened (6 % of an integration).
 @njit(cache=True)
 def _internal_force(s, mid, length, tip_force, grav, line_mass, pm_s, pm_m, n):
     """Total internal force n(s) (N, world): tip force plus the weight distal to s.
@@ -217,12 +294,15 @@ def _internal_force(s, mid, length, tip_force, grav, line_mass, pm_s, pm_m, n):
 
 
 @njit(cache=True)
-def internal_forces(nodes, intervals, length, tip_force, grav, line_mass, pm_s, pm_m, out):
+def internal_forces(rod, out):
     """n(s) at every station (N, world) into ``out`` (K+1, 3): :func:`_internal_force` with each
     station's interval (the last station takes the last interval's)."""
+    nodes = rod.nodes
+    intervals = rod.intervals
     last = intervals.shape[0] - 1
     for k in range(nodes.shape[0]):
-        _internal_force(nodes[k], intervals[min(k, last)], length, tip_force, grav, line_mass, pm_s, pm_m, out[k])
+        _internal_force(nodes[k], intervals[min(k, last)], rod.length_m, rod.tip_force_n, rod.gravity_m_s2,
+                        rod.line_mass_kg_per_m, rod.point_mass_s_m, rod.point_mass_kg, out[k])
     return out
 
 
@@ -277,23 +357,35 @@ def _deriv(y, s, mid, vu, kse, kbt, tendons, nt, length, mu, tip_force, grav, li
 
 
 @njit(cache=True)
-def integrate(m0, p0, r0, nodes, intervals, kse, kbt, tendons, length, mu, tip_force, tip_moment,
-              grav, line_mass, pm_s, pm_m, states, strains):
+def integrate(m0, rod, states, strains):
     """Integrate the rod from the base with base moment m0 (N·m, world) by fixed-step RK4.
 
     Args:
-        nodes: station arc lengths (m), shape (K+1,), containing every interval boundary.
-        intervals: for each step k, the midpoint of the event interval it lies in (m), (K,).
+        m0: base moment m(0) (N·m, world) (3,).
+        rod: the :class:`RodInputs`.
         states: output (K+1, 15 + 2 nt) states at the stations.
         strains: output (K+1, 6) strains (v, u) at the stations.
 
     Returns:
         (ok, residual (3,)) — residual = m(L) − M_e (N·m, world); ok False if a local solve failed.
     """
+    nodes = rod.nodes
+    intervals = rod.intervals
+    kse = rod.kse
+    kbt = rod.kbt
+    tendons = rod.tendons
+    length = rod.length_m
+    mu = rod.friction_coeff
+    tip_force = rod.tip_force_n
+    grav = rod.gravity_m_s2
+    line_mass = rod.line_mass_kg_per_m
+    pm_s = rod.point_mass_s_m
+    pm_m = rod.point_mass_kg
     nt = tendons.shape[0]
     ny = 15 + 2 * nt
     y = np.zeros(ny)
-    y[0:3] = p0
+    y[0:3] = rod.base_position_m
+    r0 = rod.base_rotation
     for i in range(3):
         for j in range(3):
             y[3 + 3 * i + j] = r0[i, j]
@@ -351,7 +443,7 @@ def integrate(m0, p0, r0, nodes, intervals, kse, kbt, tendons, length, mu, tip_f
         if not np.all(np.isfinite(y)):
             return False, res
     for i in range(3):
-        res[i] = y[12 + i] - tip_moment[i]
+        res[i] = y[12 + i] - rod.tip_moment_nm[i]
     return True, res
 
 
@@ -361,8 +453,7 @@ def _norm3(x):
 
 
 @njit(cache=True)
-def _fd_jacobian(m0, res, jac, trial, p0, r0, nodes, intervals, kse, kbt, tendons, length, mu, tip_force,
-                 tip_moment, grav, line_mass, pm_s, pm_m, states, strains, fd_step_nm):
+def _fd_jacobian(m0, res, jac, trial, rod, states, strains, fd_step_nm):
     """∂res/∂m0 by forward differences (backward where a forward step fails) into ``jac``.
 
     Returns (ok, integrations)."""
@@ -371,13 +462,11 @@ def _fd_jacobian(m0, res, jac, trial, p0, r0, nodes, intervals, kse, kbt, tendon
         for i in range(3):
             trial[i] = m0[i]
         trial[j] += fd_step_nm
-        okj, rj = integrate(trial, p0, r0, nodes, intervals, kse, kbt, tendons, length, mu,
-                            tip_force, tip_moment, grav, line_mass, pm_s, pm_m, states, strains)
+        okj, rj = integrate(trial, rod, states, strains)
         calls += 1
         if not okj:
             trial[j] -= 2.0 * fd_step_nm
-            okj, rj = integrate(trial, p0, r0, nodes, intervals, kse, kbt, tendons, length, mu,
-                                tip_force, tip_moment, grav, line_mass, pm_s, pm_m, states, strains)
+            okj, rj = integrate(trial, rod, states, strains)
             calls += 1
             if not okj:
                 return False, calls
@@ -390,8 +479,15 @@ def _fd_jacobian(m0, res, jac, trial, p0, r0, nodes, intervals, kse, kbt, tendon
 
 
 @njit(cache=True)
-def shoot(m0, p0, r0, nodes, intervals, kse, kbt, tendons, length, mu, tip_force, tip_moment, grav,
-          line_mass, pm_s, pm_m, states, strains, tol_nm, max_iter, fd_step_nm, jac, have_jac):
+def _log(trace, row, norm, alpha, step_nm, fresh):
+    trace[row, TR_RESIDUAL] = norm
+    trace[row, TR_STEP_FRACTION] = alpha
+    trace[row, TR_STEP] = step_nm
+    trace[row, TR_FRESH] = 1.0 if fresh else 0.0
+
+
+@njit(cache=True)
+def shoot(m0, rod, states, strains, tol_nm, max_iter, fd_step_nm, jac, have_jac, trace):
     """Newton shooting on the base moment m0 (updated in place) with a backtracking line search.
 
     ``jac`` (3, 3) is ∂res/∂m0, in and out. With ``have_jac`` the solve starts from it (a
@@ -401,28 +497,31 @@ def shoot(m0, p0, r0, nodes, intervals, kse, kbt, tendons, length, mu, tip_force
     as every iteration does without it. On return it holds the latest ∂res/∂m0 (Broyden-updated:
     good for a warm start, not for sensitivities).
 
+    ``trace`` (max_iter + 1, TRACE_COLUMNS) receives one row per iteration (columns ``TR_*``),
+    the last row being the iterate the solve ended on (no step taken from it).
+
     Returns:
-        (status, residual norm N·m, Newton iterations, integrations). status: 0 converged,
-        1 iteration limit, 2 integration failed at the starting point, 3 line search stalled.
+        (status, residual norm N·m, Newton iterations, integrations, trace rows written); status
+        is a :class:`SolverStatus` code.
     """
-    ok, res = integrate(m0, p0, r0, nodes, intervals, kse, kbt, tendons, length, mu, tip_force,
-                        tip_moment, grav, line_mass, pm_s, pm_m, states, strains)
+    ok, res = integrate(m0, rod, states, strains)
     calls = 1
     if not ok:
-        return 2, np.inf, 0, calls
+        _log(trace, 0, np.inf, 0.0, 0.0, False)
+        return _INTEGRATION_FAILED, np.inf, 0, calls, 1
     norm = _norm3(res)
     trial = np.empty(3)
     fresh = False
     for it in range(max_iter):
         if norm <= tol_nm:
-            return 0, norm, it, calls
+            _log(trace, it, norm, 0.0, 0.0, False)
+            return _CONVERGED, norm, it, calls, it + 1
         if not have_jac:
-            okj, c = _fd_jacobian(m0, res, jac, trial, p0, r0, nodes, intervals, kse, kbt, tendons, length,
-                                  mu, tip_force, tip_moment, grav, line_mass, pm_s, pm_m, states, strains,
-                                  fd_step_nm)
+            okj, c = _fd_jacobian(m0, res, jac, trial, rod, states, strains, fd_step_nm)
             calls += c
             if not okj:
-                return 3, norm, it, calls
+                _log(trace, it, norm, 0.0, 0.0, True)
+                return _LINE_SEARCH_STALLED, norm, it, calls, it + 1
             have_jac, fresh = True, True
         step = np.linalg.solve(jac, -res)
         alpha = 1.0
@@ -431,8 +530,7 @@ def shoot(m0, p0, r0, nodes, intervals, kse, kbt, tendons, length, mu, tip_force
         for _ in range(12 if fresh else 1):
             for i in range(3):
                 trial[i] = m0[i] + alpha * step[i]
-            okt, rt = integrate(trial, p0, r0, nodes, intervals, kse, kbt, tendons, length, mu,
-                                tip_force, tip_moment, grav, line_mass, pm_s, pm_m, states, strains)
+            okt, rt = integrate(trial, rod, states, strains)
             calls += 1
             if okt:
                 new_norm = _norm3(rt)
@@ -453,6 +551,7 @@ def shoot(m0, p0, r0, nodes, intervals, kse, kbt, tendons, length, mu, tip_force
                     corr = (rt[i] - res[i] - pred) / dm2
                     for j in range(3):
                         jac[i, j] += corr * alpha * step[j]
+            _log(trace, it, norm, alpha, np.sqrt(dm2), fresh)
             for i in range(3):
                 m0[i] = trial[i]
                 res[i] = rt[i]
@@ -462,16 +561,18 @@ def shoot(m0, p0, r0, nodes, intervals, kse, kbt, tendons, length, mu, tip_force
                 have_jac = False  # the carried Jacobian is stale: take a fresh one next
             fresh = False
         elif fresh:
+            _log(trace, it, norm, 0.0, 0.0, True)
             # Leave states consistent with m0 for the caller.
-            integrate(m0, p0, r0, nodes, intervals, kse, kbt, tendons, length, mu, tip_force,
-                      tip_moment, grav, line_mass, pm_s, pm_m, states, strains)
-            return 3, norm, it + 1, calls + 1
+            integrate(m0, rod, states, strains)
+            return _LINE_SEARCH_STALLED, norm, it + 1, calls + 1, it + 1
         else:
+            _log(trace, it, norm, 0.0, 0.0, False)
             have_jac = False
+    _log(trace, max_iter, norm, 0.0, 0.0, False)
     if norm <= tol_nm:
         # The last accepted trial left states at m0.
-        return 0, norm, max_iter, calls
-    return 1, norm, max_iter, calls
+        return _CONVERGED, norm, max_iter, calls, max_iter + 1
+    return _ITERATION_LIMIT, norm, max_iter, calls, max_iter + 1
 
 
 @njit(cache=True)
@@ -494,9 +595,7 @@ def _tip_change(states, p_ref, r_ref, out):
 
 
 @njit(cache=True)
-def tip_sensitivities(m0, h_m, h_tau, h_f, p_ref, r_ref, p0, r0, nodes, intervals, kse, kbt, tendons, length,
-                      mu, tip_force, tip_moment, grav, line_mass, pm_s, pm_m, states, strains,
-                      dr_dm, dt_dm, dr_dth, dt_dth):
+def tip_sensitivities(m0, h_m, h_tau, h_f, p_ref, r_ref, rod, states, strains, dr_dm, dt_dm, dr_dth, dt_dth):
     """The partial derivatives twin.rod.jacobian.tip_jacobian combines, from single integrations
     at the converged base moment m0 (7 + nt + 3 of them, in one compiled call).
 
@@ -504,12 +603,14 @@ def tip_sensitivities(m0, h_m, h_tau, h_f, p_ref, r_ref, p0, r0, nodes, interval
     for θ = each tension (step ``h_tau``, N) then each tip force component (``h_f``, N) by forward
     differences against an integration at m0, written into the first nt + 3 columns of
     ``dr_dth`` (3, ·) and ``dt_dth`` (6, ·). T is the tip pose change against (p_ref, r_ref):
-    position (m) and rotation vector (rad). ``tendons`` and ``tip_force`` are perturbed in place
-    and restored.
+    position (m) and rotation vector (rad). ``rod.tendons`` and ``rod.tip_force_n`` are perturbed
+    in place and restored.
 
     Returns:
         False when a perturbed integration failed (the outputs are then incomplete).
     """
+    tendons = rod.tendons
+    tip_force = rod.tip_force_n
     nt = tendons.shape[0]
     trial = np.empty(3)
     pose_p = np.empty(6)
@@ -520,14 +621,12 @@ def tip_sensitivities(m0, h_m, h_tau, h_f, p_ref, r_ref, p0, r0, nodes, interval
         for i in range(3):
             trial[i] = m0[i]
         trial[j] = m0[j] + h_m
-        ok, res_p = integrate(trial, p0, r0, nodes, intervals, kse, kbt, tendons, length, mu, tip_force,
-                              tip_moment, grav, line_mass, pm_s, pm_m, states, strains)
+        ok, res_p = integrate(trial, rod, states, strains)
         if not ok:
             return False
         _tip_change(states, p_ref, r_ref, pose_p)
         trial[j] = m0[j] - h_m
-        ok, res_m = integrate(trial, p0, r0, nodes, intervals, kse, kbt, tendons, length, mu, tip_force,
-                              tip_moment, grav, line_mass, pm_s, pm_m, states, strains)
+        ok, res_m = integrate(trial, rod, states, strains)
         if not ok:
             return False
         _tip_change(states, p_ref, r_ref, pose_m)
@@ -535,8 +634,7 @@ def tip_sensitivities(m0, h_m, h_tau, h_f, p_ref, r_ref, p0, r0, nodes, interval
             dr_dm[i, j] = (res_p[i] - res_m[i]) / (2 * h_m)
         for i in range(6):
             dt_dm[i, j] = (pose_p[i] - pose_m[i]) / (2 * h_m)
-    ok, res_0 = integrate(m0, p0, r0, nodes, intervals, kse, kbt, tendons, length, mu, tip_force,
-                          tip_moment, grav, line_mass, pm_s, pm_m, states, strains)
+    ok, res_0 = integrate(m0, rod, states, strains)
     if not ok:
         return False
     _tip_change(states, p_ref, r_ref, pose_0)
@@ -549,8 +647,7 @@ def tip_sensitivities(m0, h_m, h_tau, h_f, p_ref, r_ref, p0, r0, nodes, interval
             h = h_f
             saved = tip_force[j - nt]
             tip_force[j - nt] = saved + h
-        ok, res = integrate(m0, p0, r0, nodes, intervals, kse, kbt, tendons, length, mu, tip_force,
-                            tip_moment, grav, line_mass, pm_s, pm_m, states, strains)
+        ok, res = integrate(m0, rod, states, strains)
         if j < nt:
             tendons[j, T_TAU] = saved
         else:

@@ -8,14 +8,50 @@ case the returned :class:`RodSolution` has ``converged=False`` and NaN geometry.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import time
 
 import numpy as np
 
 from twin.rod import kernel
+from twin.rod.kernel import RodInputs, SolverStatus
 from twin.rod.model import RodModel
 
-__all__ = ["ConvergenceError", "RodSolution", "LoadCase", "solve", "Predictor"]
+__all__ = ["ConvergenceError", "NewtonIteration", "RodSolution", "LoadCase", "SolverStatus", "rod_inputs",
+           "solve", "Predictor"]
+
+
+@dataclasses.dataclass(frozen=True)
+class NewtonIteration:
+    """One iteration of the shooting Newton solve (the counterpart of ``mujoco.minimize.IterLog``).
+
+    Attributes:
+        load_factor: continuation factor λ of the shooting run it belongs to (1: the full load).
+        iteration: index within that run; 0 is the starting guess.
+        residual_nm: tip moment residual |m(L) − M_e| (N·m) at the start of the iteration.
+        step_fraction: line-search factor α of the Newton step accepted from it (1: the full
+            step); 0 when none was (the run ended here, or the step was rejected).
+        step_nm: size |Δm(0)| (N·m) of that accepted step; 0 when none was.
+        fresh_jacobian: ∂res/∂m0 was recomputed by finite differences for this step; False when
+            the Broyden-updated one carried over was used.
+    """
+
+    load_factor: float
+    iteration: int
+    residual_nm: float
+    step_fraction: float
+    step_nm: float
+    fresh_jacobian: bool
+
+
+def _iterations(log) -> tuple[NewtonIteration, ...]:
+    """The trace of a solve from its runs' (load factor, kernel trace rows) pairs."""
+    return tuple(
+        NewtonIteration(load_factor=lam, iteration=i, residual_nm=float(row[kernel.TR_RESIDUAL]),
+                        step_fraction=float(row[kernel.TR_STEP_FRACTION]), step_nm=float(row[kernel.TR_STEP]),
+                        fresh_jacobian=bool(row[kernel.TR_FRESH]))
+        for lam, rows in log for i, row in enumerate(rows)
+    )
 
 
 class ConvergenceError(RuntimeError):
@@ -25,16 +61,16 @@ class ConvergenceError(RuntimeError):
         residual_nm: tip moment residual |m(L) − M_e| (N·m) at the best iterate.
         iterations: Newton iterations spent.
         status: what stopped the solver.
+        trace: every Newton iteration of the solve, in order (its last ``residual_nm`` is this one's).
     """
 
-    def __init__(self, message: str, *, residual_nm: float, iterations: int, status: str):
+    def __init__(self, message: str, *, residual_nm: float, iterations: int, status: SolverStatus,
+                 trace: tuple[NewtonIteration, ...] = ()):
         super().__init__(message)
         self.residual_nm = residual_nm
         self.iterations = iterations
         self.status = status
-
-
-_STATUS = {0: "converged", 1: "iteration limit", 2: "integration failed", 3: "line search stalled"}
+        self.trace = trace
 
 
 _EYE3 = np.eye(3)
@@ -106,7 +142,10 @@ class RodSolution:
         tendon_lengths_m: path length of each tendon from the base to its termination (nt,).
         tendon_tensions_n: tension of each tendon along s (K, nt) (varies only with friction).
         base_moment_nm: the solved m(0), reusable as a warm start.
-        converged, status, residual_nm, iterations, integrations, continuation_steps, solve_time_s.
+        converged, residual_nm, iterations, integrations, continuation_steps, solve_time_s.
+        status: the :class:`SolverStatus` that ended the (last) shooting run.
+        trace: every Newton iteration of the solve, in order, as :class:`NewtonIteration`
+            (built on first access); the last one's ``residual_nm`` is this solution's.
         load: the :class:`LoadCase` that was solved.
         shooting_jacobian: (3, 3) ∂(tip moment residual)/∂m(0) (1) as the solve left it (finite
             differences kept current by Broyden updates), reusable with the warm start
@@ -124,7 +163,7 @@ class RodSolution:
     tendon_tensions_n: np.ndarray
     base_moment_nm: np.ndarray
     converged: bool
-    status: str
+    status: SolverStatus
     residual_nm: float
     iterations: int
     integrations: int
@@ -132,6 +171,13 @@ class RodSolution:
     solve_time_s: float
     load: LoadCase
     shooting_jacobian: np.ndarray | None = None
+    # The kernel's trace rows per shooting run, (load factor, (n, TRACE_COLUMNS) array), from
+    # which ``trace`` is built on first access: a warm solve does not pay for dataclasses unread.
+    trace_log: tuple[tuple[float, np.ndarray], ...] = dataclasses.field(default=(), repr=False, compare=False)
+
+    @functools.cached_property
+    def trace(self) -> tuple[NewtonIteration, ...]:
+        return _iterations(self.trace_log)
 
     @property
     def tip_position_m(self) -> np.ndarray:
@@ -147,7 +193,7 @@ class RodSolution:
             "tip_position_m": self.tip_position_m.tolist(),
             "tip_rotation": self.tip_rotation.tolist(),
             "converged": self.converged,
-            "status": self.status,
+            "status": self.status.label,
             "residual": self.residual_nm,
             "iterations": self.iterations,
             "continuation_steps": self.continuation_steps,
@@ -158,25 +204,34 @@ class RodSolution:
         }
 
 
-def kernel_args(model: RodModel, load: LoadCase, states, strains) -> tuple:
-    """Positional arguments of :func:`kernel.integrate` after m0, for this model and load."""
+def rod_inputs(model: RodModel, load: LoadCase) -> RodInputs:
+    """The kernels' :class:`~twin.rod.kernel.RodInputs` for this model and load (its own tendon table)."""
     a = model.arrays
     tendons = a["tendons"].copy()
     tendons[:, kernel.T_TAU] = load.tensions_n
     tendons[:, kernel.T_SIGMA] = load.friction_direction
-    return (load.base_position_m, load.base_rotation, a["nodes"], a["intervals"], a["kse"], a["kbt"],
-            tendons, model.length_m, model.friction_coeff, load.tip_force_n, load.tip_moment_nm,
-            a["grav"], model.line_mass_kg_per_m, a["pm_s"], a["pm_m"], states, strains)
+    return RodInputs(
+        base_position_m=load.base_position_m, base_rotation=load.base_rotation, nodes=a["nodes"],
+        intervals=a["intervals"], kse=a["kse"], kbt=a["kbt"], tendons=tendons, length_m=model.length_m,
+        friction_coeff=model.friction_coeff, tip_force_n=load.tip_force_n, tip_moment_nm=load.tip_moment_nm,
+        gravity_m_s2=a["grav"], line_mass_kg_per_m=model.line_mass_kg_per_m, point_mass_s_m=a["pm_s"],
+        point_mass_kg=a["pm_m"],
+    )
 
 
-def _run(model: RodModel, load: LoadCase, m0: np.ndarray, states, strains, jac: np.ndarray | None = None):
-    """Shoot from m0 (updated in place); ``jac``, if given, is the ∂res/∂m0 to start from.
+def _run(model: RodModel, rod: RodInputs, m0: np.ndarray, states, strains, log: list,
+         jac: np.ndarray | None = None, load_factor: float = 1.0):
+    """Shoot from m0 (updated in place) for the load case in ``rod``; ``jac``, if given, is the
+    ∂res/∂m0 to start from. Appends (``load_factor``, the run's trace rows) to ``log``.
 
     Returns (status code, residual N·m, iterations, integrations, the final ∂res/∂m0)."""
     tol = model.tolerance * model.moment_scale_nm
     out = np.array(jac, dtype=float) if jac is not None else np.zeros((3, 3))
-    code, res, iters, calls = kernel.shoot(m0, *kernel_args(model, load, states, strains), tol, model.max_iterations,
-                                           1e-7 * model.moment_scale_nm, out, jac is not None)
+    trace = np.empty((model.max_iterations + 1, kernel.TRACE_COLUMNS))
+    code, res, iters, calls, rows = kernel.shoot(m0, rod, states, strains, tol,
+                                                 model.max_iterations, 1e-7 * model.moment_scale_nm, out,
+                                                 jac is not None, trace)
+    log.append((load_factor, trace[:rows]))
     return code, res, iters, calls, out
 
 
@@ -242,44 +297,52 @@ def _solve_load(model, load, guess_nm, continuation, raise_on_failure, guess_jac
     states = np.empty((k, 15 + 2 * nt))
     strains = np.empty((k, 6))
     m0 = (_initial_guess(model, load) if guess_nm is None else np.array(guess_nm, dtype=float)).copy()
-    code, res, iters, calls, jac = _run(model, load, m0, states, strains, guess_jacobian)
+    log = []
+    rod = rod_inputs(model, load)
+    code, res, iters, calls, jac = _run(model, rod, m0, states, strains, log, guess_jacobian)
     steps_taken = 0
     if code != 0 and guess_nm is not None:
         m0 = _initial_guess(model, load)
-        code, res, it2, c2, jac = _run(model, load, m0, states, strains)
+        code, res, it2, c2, jac = _run(model, rod, m0, states, strains, log)
         iters, calls = iters + it2, calls + c2
     if code != 0 and continuation:
-        code, res, it2, c2, steps_taken, m0, jac = _continuation(model, load, states, strains)
+        code, res, it2, c2, steps_taken, m0, jac = _continuation(model, load, states, strains, log)
         iters, calls = iters + it2, calls + c2
     elapsed = time.perf_counter() - start
-    status = _STATUS[code]
+    status = _STATUSES[code]
     if code != 0:
         if raise_on_failure:
             raise ConvergenceError(
-                f"rod solve failed ({status}) after {iters} iterations and {steps_taken} continuation "
+                f"rod solve failed ({status.label}) after {iters} iterations and {steps_taken} continuation "
                 f"steps: tip moment residual {res:.3e} N·m (tolerance "
                 f"{model.tolerance * model.moment_scale_nm:.1e} N·m)",
-                residual_nm=float(res), iterations=iters, status=status,
+                residual_nm=float(res), iterations=iters, status=status, trace=_iterations(log),
             )
         states[:] = np.nan
         strains[:] = np.nan
-    return _package(model, load, states, strains, m0, code == 0, status, float(res), iters, calls,
-                    steps_taken, elapsed, jac if code == 0 else None)
+    return _package(model, rod, load, states, strains, m0, code == 0, status, float(res), iters, calls,
+                    steps_taken, elapsed, jac if code == 0 else None, tuple(log))
 
 
-def _continuation(model, load, states, strains):
+# Indexed by the kernel's status code: a tuple lookup, cheaper than the enum's constructor.
+_STATUSES = tuple(SolverStatus)
+
+
+def _continuation(model, load, states, strains, log):
     """Step the load factor λ from 0 to 1, halving the step on failure (warm start each time)."""
     lam, step = 0.0, 0.25
     m0 = _initial_guess(model, load.scaled(0.0))
     iters = calls = steps = 0
-    code, res, it, c, jac = _run(model, load.scaled(0.0), m0, states, strains)
+    code, res, it, c, jac = _run(model, rod_inputs(model, load.scaled(0.0)), m0, states, strains, log,
+                                 load_factor=0.0)
     iters, calls = iters + it, calls + c
     if code != 0:
         return code, res, iters, calls, steps, m0, jac
     while lam < 1.0:
         target = min(1.0, lam + step)
         trial = m0.copy()
-        code, res, it, c, jac = _run(model, load.scaled(target), trial, states, strains)
+        code, res, it, c, jac = _run(model, rod_inputs(model, load.scaled(target)), trial, states, strains, log,
+                                     load_factor=target)
         iters, calls, steps = iters + it, calls + c, steps + 1
         if code == 0:
             lam, m0 = target, trial
@@ -291,14 +354,14 @@ def _continuation(model, load, states, strains):
     return 0, res, iters, calls, steps, m0, jac
 
 
-def _package(model, load, states, strains, m0, converged, status, res, iters, calls, steps, elapsed, jac=None):
+def _package(model, rod, load, states, strains, m0, converged, status, res, iters, calls, steps, elapsed, jac=None,
+             log=()):
     a = model.arrays
     nt = model.tendon_count
     k = states.shape[0]
     rotations = states[:, 3:12].reshape(k, 3, 3)
     s = a["nodes"]
-    forces = kernel.internal_forces(s, a["intervals"], model.length_m, load.tip_force_n, a["grav"],
-                                    model.line_mass_kg_per_m, a["pm_s"], a["pm_m"], np.empty((k, 3)))
+    forces = kernel.internal_forces(rod, np.empty((k, 3)))
     wraps = states[:, 15:15 + nt]
     tensions = load.tensions_n[None, :] * np.exp(-model.friction_coeff * load.friction_direction[None, :] * wraps)
     return RodSolution(
@@ -320,6 +383,7 @@ def _package(model, load, states, strains, m0, converged, status, res, iters, ca
         solve_time_s=elapsed,
         load=load,
         shooting_jacobian=jac,
+        trace_log=log,
     )
 
 
