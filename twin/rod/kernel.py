@@ -27,7 +27,7 @@ lengths from the base.
 
 The kernels read the rod and its load case from one :class:`RodInputs`, a named tuple: compiled
 code reads its fields as it would positional arguments, and a call from Python costs about 1 µs
-more to dispatch (Numba types a named tuple outside its fast path), once per solve.
+more to dispatch (Numba types a named tuple outside its fast path).
 """
 
 from __future__ import annotations
