@@ -1,4 +1,4 @@
-"""The Cosserat rod–tendon predictor against known answers (issue 2, item 7)."""
+"""The Cosserat rod–tendon predictor against known answers."""
 
 import numpy as np
 import pytest
@@ -8,7 +8,7 @@ from scipy.optimize import brentq
 from twin import load_params
 from twin.pcc import validation_grid
 from twin.pose import HORIZONTAL, rot_z
-from twin.rod import ConvergenceError, RodModel, TendonRoute, solve, tip_jacobian
+from twin.rod import ConvergenceError, RodModel, SolverStatus, TendonRoute, solve, tip_jacobian
 from twin.rod.grid import GRAVITY_TIP_FORCE_N, pcc_tensions_n
 
 PARAMS = load_params()
@@ -224,3 +224,51 @@ def test_friction_makes_pulling_and_releasing_differ():
     # Tension decays with wrap: at the tip exp(−μ θ) with θ the bend angle.
     theta = np.arccos(pulled.tip_rotation[2, 2])
     assert pulled.tendon_tensions_n[-1, 0] == pytest.approx(np.exp(-0.2 * theta), rel=1e-3)
+
+
+def test_status_is_an_enum_on_success_and_failure():
+    sol = solve(MODEL, pcc_tensions_n(13.0, 60.0, PARAMS), base_rotation=HORIZONTAL)
+    assert sol.status is SolverStatus.CONVERGED and sol.to_dict()["status"] == "converged"
+    report = solve(MODEL.replace(max_iterations=1), [60.0, 0, 0, 0], continuation=False, raise_on_failure=False)
+    assert report.status is SolverStatus.ITERATION_LIMIT and report.to_dict()["status"] == "iteration limit"
+
+
+def test_trace_records_every_newton_iteration():
+    tensions = pcc_tensions_n(13.0, 60.0, PARAMS)
+    cold = solve(MODEL, tensions, base_rotation=HORIZONTAL)
+    trace = cold.trace
+    # One entry per iteration plus the iterate the solve ended on.
+    assert len(trace) == cold.iterations + 1 and [t.iteration for t in trace] == list(range(len(trace)))
+    assert trace[-1].residual_nm == cold.residual_nm
+    residuals = [t.residual_nm for t in trace]
+    assert all(b < a for a, b in zip(residuals, residuals[1:]))
+    assert trace[0].residual_nm > 1e3 * MODEL.tolerance * MODEL.moment_scale_nm
+    assert all(t.step_fraction > 0 and t.step_nm > 0 for t in trace[:-1])
+    assert trace[-1].step_fraction == 0 and trace[-1].step_nm == 0
+    # A cold solve starts with finite differences (3 integrations) and goes on with Broyden
+    # updates; with full steps each iteration adds one trial integration to the first one.
+    assert trace[0].fresh_jacobian
+    assert all(t.step_fraction == 1.0 for t in trace[:-1])
+    assert cold.integrations == 1 + sum(1 + 3 * t.fresh_jacobian for t in trace[:-1])
+    warm = solve(MODEL, tensions + 0.01, base_rotation=HORIZONTAL, guess_nm=cold.base_moment_nm,
+                 guess_jacobian=cold.shooting_jacobian)
+    assert not warm.trace[0].fresh_jacobian  # the carried Jacobian, Broyden-updated
+    assert warm.trace[-1].residual_nm == warm.residual_nm
+
+
+def test_trace_follows_the_continuation_runs():
+    model = MODEL.replace(max_iterations=3)
+    rescued = solve(model, [20.0, 1.35, 1.35, 1.35], base_rotation=HORIZONTAL, tip_force_n=[0, 0, -0.2])
+    factors = [t.load_factor for t in rescued.trace]
+    assert 0.0 in factors and any(0.0 < f < 1.0 for f in factors)
+    assert factors[-1] == 1.0 and rescued.trace[-1].residual_nm == rescued.residual_nm
+
+
+def test_convergence_error_carries_status_and_trace():
+    with pytest.raises(ConvergenceError) as info:
+        solve(MODEL.replace(max_iterations=1), [60.0, 0, 0, 0], continuation=False)
+    error = info.value
+    assert error.status is SolverStatus.ITERATION_LIMIT and "iteration limit" in str(error)
+    assert len(error.trace) == 2  # the one iteration and the iterate it reached
+    assert error.trace[-1].residual_nm == error.residual_nm
+    assert error.trace[0].residual_nm > error.residual_nm
