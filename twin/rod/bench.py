@@ -1,4 +1,4 @@
-"""Predictor speed benchmark (issue 2): cold, warm-started and pose + Jacobian solve times."""
+"""Predictor speed benchmark: cold, warm-started and pose + Jacobian solve times."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Load cases of the thesis validation grid for the predictor (SPEC §5, thesis §8.3).
+"""Load cases of the thesis validation grid for the predictor (thesis §8.3).
 
 Until measured tensions exist, each PCC configuration is realised by the tensions that bend
 the unloaded, weightless model to curvature κ in plane φ on top of the pretension:
