@@ -15,7 +15,7 @@ import mujoco
 
 from twin.params import DEFAULT_PARAMS_PATH, Params, load_params
 from twin.sim.model import (INEXTENSIBLE_COMPLIANCE_M_PER_N, SPOOL_DAMPING_N_S_PER_M, STATION_JOINTS, model_xml,
-                            slide_stations)
+                            slide_stations, tendon_stiffness_n_per_m)
 from twin.sim.motor import MotorConstants
 
 __all__ = ["MODELS_DIR", "readme_text", "write_model_files"]
@@ -74,7 +74,7 @@ def readme_text(params: Params) -> str:
         f"| slide stiffness shear / axial, per element lumped | {b.shear_stiffness_n / h:.6g} / "
         f"{b.axial_stiffness_n / h:.6g} N/m | GA/h, EA/h, divided by the elements a slide lumps |",
         f"| joint damping | sim.damping_time_s × stiffness | stiffness-proportional |",
-        f"| tendon stiffness | {1 / max(params.effects.tendon_compliance_m_per_n, INEXTENSIBLE_COMPLIANCE_M_PER_N):.6g} N/m | 1 / max(effects.tendon_compliance_m_per_n, {INEXTENSIBLE_COMPLIANCE_M_PER_N:g}) |",
+        f"| tendon stiffness | {tendon_stiffness_n_per_m(params):.6g} N/m | 1 / max(effects.tendon_compliance_m_per_n, {INEXTENSIBLE_COMPLIANCE_M_PER_N:g}) |",
         f"| motor constant K | {motor.torque_constant_nm_per_a:.6g} N·m/A | V / ω₀ at the gearbox output |",
         f"| motor resistance R | {motor.resistance_ohm:.6g} Ω | K·V / τ_stall |",
         f"| spool transmission | {motor.transmission_rad_per_m:.6g} rad/m | 1 / spool radius |",
