@@ -22,6 +22,7 @@ PARAMS = load_params()
 GAIN = PARAMS.sensors.loadcell_gain_counts_per_n
 OFFSETS = np.asarray(PARAMS.sensors.loadcell_offset_counts)
 NOISE_N = PARAMS.sensors.loadcell_noise_n
+G = PARAMS.environment.gravity_m_s2
 
 
 class FakeHX711:
@@ -38,7 +39,7 @@ class FakeHX711:
     def hang_mass(self, mass_g, channels):
         self.hung.append((mass_g, channels))
         self.tension_n[:] = 0.0
-        self.tension_n[list(channels)] = tensions_from_masses_n(mass_g)
+        self.tension_n[list(channels)] = tensions_from_masses_n(mass_g, G)
 
     def read_raw_counts(self):
         tension = self.tension_n + self.rng.normal(scale=self.noise_n, size=self.tension_n.shape)
@@ -46,13 +47,13 @@ class FakeHX711:
 
 
 def test_table2_masses_span_the_thesis_tensions():
-    tensions = tensions_from_masses_n(TABLE2_MASSES_G)
+    tensions = tensions_from_masses_n(TABLE2_MASSES_G, G)
     assert len(TABLE2_MASSES_G) == 12
     assert tensions[0] == 0.0 and tensions[-1] == pytest.approx(2.45, abs=0.01)
 
 
 def test_fit_is_exact_on_a_noise_free_line():
-    tensions = tensions_from_masses_n(TABLE2_MASSES_G)
+    tensions = tensions_from_masses_n(TABLE2_MASSES_G, G)
     fit = fit_channel(1234.0 - 40000.0 * tensions, tensions)  # negative gain: reversed wiring
     assert fit.gain_counts_per_n == pytest.approx(-40000.0)
     assert fit.offset_counts == pytest.approx(1234.0)
@@ -62,7 +63,7 @@ def test_fit_is_exact_on_a_noise_free_line():
 
 def test_fit_standard_errors_match_the_textbook_formula_and_the_spread_of_repeats():
     rng = np.random.default_rng(10)
-    tensions = tensions_from_masses_n(TABLE2_MASSES_G)
+    tensions = tensions_from_masses_n(TABLE2_MASSES_G, G)
     noise_counts = 200.0
     gains, ses = [], []
     for _ in range(400):
@@ -78,7 +79,7 @@ def test_fit_standard_errors_match_the_textbook_formula_and_the_spread_of_repeat
 def test_guided_run_recovers_the_twins_gain_and_offset_within_their_uncertainty():
     gains = GAIN * np.array([1.0, 0.97, 1.04, -1.0])
     fake = FakeHX711(gains, OFFSETS, NOISE_N, seed=11)
-    run = run_calibration(fake.read_raw_counts, fake.hang_mass, samples_per_mass=20, device="sim://")
+    run = run_calibration(fake.read_raw_counts, fake.hang_mass, samples_per_mass=20, gravity_m_s2=G, device="sim://")
     assert [m for m, _ in fake.hung] == list(TABLE2_MASSES_G)
     assert all(ch == (0, 1, 2, 3) for _, ch in fake.hung)
     cal = run.calibration
@@ -98,7 +99,7 @@ def test_guided_run_recovers_the_twins_gain_and_offset_within_their_uncertainty(
 def test_guided_run_one_channel_at_a_time_loads_only_that_channel():
     fake = FakeHX711([GAIN] * 4, OFFSETS, NOISE_N, seed=12)
     masses = (0.0, 50.0, 100.0, 200.0)
-    run = run_calibration(fake.read_raw_counts, fake.hang_mass, masses_g=masses,
+    run = run_calibration(fake.read_raw_counts, fake.hang_mass, masses_g=masses, gravity_m_s2=G,
                           samples_per_mass=5, one_at_a_time=True)
     assert fake.hung == [(m, (c,)) for c in range(4) for m in masses]
     np.testing.assert_allclose(run.calibration.gain_counts_per_n, GAIN, rtol=0.01)
@@ -106,14 +107,14 @@ def test_guided_run_one_channel_at_a_time_loads_only_that_channel():
 
 def test_guided_run_refuses_a_bad_reading_naming_it():
     with pytest.raises(ValueError, match="expected 4 finite counts"):
-        run_calibration(lambda: np.zeros(3), lambda m, c: None, samples_per_mass=2)
+        run_calibration(lambda: np.zeros(3), lambda m, c: None, samples_per_mass=2, gravity_m_s2=G)
     with pytest.raises(ValueError, match=r"\[1.0, nan, 3.0, 4.0\]"):
-        run_calibration(lambda: [1.0, np.nan, 3.0, 4.0], lambda m, c: None)
+        run_calibration(lambda: [1.0, np.nan, 3.0, 4.0], lambda m, c: None, gravity_m_s2=G)
 
 
 def _calibration(seed=13):
     fake = FakeHX711([GAIN] * 4, OFFSETS, NOISE_N, seed=seed)
-    return run_calibration(fake.read_raw_counts, fake.hang_mass, samples_per_mass=5,
+    return run_calibration(fake.read_raw_counts, fake.hang_mass, samples_per_mass=5, gravity_m_s2=G,
                            device="serial:///dev/ttyACM0").calibration
 
 
@@ -178,7 +179,7 @@ def test_check_passes_a_good_calibration_and_fails_a_shifted_one():
         fake.hang_mass(m, (0, 1, 2, 3))
         raw.append(np.mean([fake.read_raw_counts() for _ in range(20)], axis=0))
     raw = np.array(raw)
-    tensions = tensions_from_masses_n(masses)
+    tensions = tensions_from_masses_n(masses, G)
     good = check(cal, raw, tensions)
     assert good.passed and good.channel_passed.all()
     assert np.all(good.max_abs_error_n < 0.005)

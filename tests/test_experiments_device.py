@@ -14,7 +14,7 @@ def test_calibration_on_the_twin_recovers_simulated_gain_and_offset():
     params = load_params(overrides={"effects.tension_gain_error": gain_error,
                                     "effects.tension_offset_error_n": offset_error_n})
     with open_device("sim://?seed=4", params=params) as device:
-        cal = calibrate_device(device, samples_per_mass=6, progress=False)
+        cal = calibrate_device(device, params, samples_per_mass=6, progress=False)
     s = params.sensors
     true_gain = s.loadcell_gain_counts_per_n * (1 + np.array(gain_error))
     true_offset = np.array(s.loadcell_offset_counts) + s.loadcell_gain_counts_per_n * np.array(offset_error_n)

@@ -33,7 +33,6 @@ __all__ = [
     "CALIBRATION_FORMAT",
     "CALIBRATION_VERSION",
     "TABLE2_MASSES_G",
-    "THESIS_GRAVITY_M_S2",
     "Calibration",
     "CalibrationFileError",
     "CalibrationRun",
@@ -50,7 +49,6 @@ __all__ = [
 
 # Thesis Table 2: masses hung over the sensor pulley (0 … 2.45 N).
 TABLE2_MASSES_G = (0.0, 5.0, 10.0, 20.0, 30.0, 50.0, 70.0, 100.0, 120.0, 150.0, 200.0, 250.0)
-THESIS_GRAVITY_M_S2 = 9.813
 CALIBRATION_FORMAT = "twin.loadcell-calibration"
 CALIBRATION_VERSION = 1
 
@@ -59,8 +57,9 @@ class CalibrationFileError(ValueError):
     """A calibration file is malformed; the message names the file, the field and the value."""
 
 
-def tensions_from_masses_n(masses_g, gravity_m_s2: float = THESIS_GRAVITY_M_S2) -> np.ndarray:
-    """Tendon tension (N) of each hung mass (g): m·g, the pulley taken as frictionless."""
+def tensions_from_masses_n(masses_g, gravity_m_s2: float) -> np.ndarray:
+    """Tendon tension (N) of each hung mass (g) under gravity (m/s², ``environment.gravity_m_s2``):
+    m·g, the pulley taken as frictionless."""
     return np.asarray(masses_g, dtype=float) * 1e-3 * gravity_m_s2
 
 
@@ -208,7 +207,7 @@ class Calibration:
     channels: tuple[ChannelCalibration, ...]
     masses_g: tuple[float, ...]
     raw_counts: tuple[tuple[float, ...], ...]
-    gravity_m_s2: float = THESIS_GRAVITY_M_S2
+    gravity_m_s2: float
     samples_per_mass: int = 1
     device: str = ""
     date: str = ""
@@ -220,7 +219,7 @@ class Calibration:
         raw_counts,
         *,
         masses_g: Sequence[float],
-        gravity_m_s2: float = THESIS_GRAVITY_M_S2,
+        gravity_m_s2: float,
         samples_per_mass: int = 1,
         device: str = "",
         date: str | None = None,
@@ -465,7 +464,7 @@ def run_calibration(
     samples_per_mass: int = 20,
     channels: int = 4,
     one_at_a_time: bool = False,
-    gravity_m_s2: float = THESIS_GRAVITY_M_S2,
+    gravity_m_s2: float,
     device: str = "",
 ) -> CalibrationRun:
     """The thesis's calibration procedure as a guided run on a device.

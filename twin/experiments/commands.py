@@ -216,11 +216,11 @@ def run_calibrate_cmd(args: argparse.Namespace) -> int:
                 device.fixture.hang_calibration_mass(m, range(4))
                 raw.append(sum(device.wait_next().raw_counts.astype(float) for _ in range(args.samples)) / args.samples)
             device.fixture.remove_calibration_masses()
-            result = check(cal, raw, tensions_from_masses_n(masses))
+            result = check(cal, raw, tensions_from_masses_n(masses, params.environment.gravity_m_s2))
             for i, (err, ok) in enumerate(zip(result.max_abs_error_n, result.channel_passed)):
                 print(f"channel {i + 1}: largest error {err * 1e3:.1f} mN ({'pass' if ok else 'FAIL'})")
             return 0 if result.passed else 5
-        cal = calibrate_device(device, samples_per_mass=args.samples)
+        cal = calibrate_device(device, params, samples_per_mass=args.samples)
     finally:
         device.close()
     cal.save(path)

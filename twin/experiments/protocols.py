@@ -24,10 +24,6 @@ __all__ = ["ProtocolError", "Measurement", "measure", "settle", "pretension", "r
            "run_stiffness", "calibrate_device", "nominal_calibration"]
 
 
-# g used to turn a pretension into the dead weight hung over a pulley (thesis value, m/s²).
-PRETENSION_GRAVITY_M_S2 = 9.813
-
-
 class ProtocolError(RuntimeError):
     """A procedure could not go on (no tracker, a faulted board, a tip that does not settle)."""
 
@@ -136,7 +132,7 @@ def nominal_calibration(params: Params) -> dict:
             "offset_counts": list(s.loadcell_offset_counts), "source": "nominal (sensors.* of the parameter set)"}
 
 
-def pretension(device, tension_n: float, *, settle_s: float = 0.3) -> np.ndarray:
+def pretension(device, tension_n: float, *, gravity_m_s2: float, settle_s: float = 0.3) -> np.ndarray:
     """Hold the endoscope straight in the reference holder and pretension every tendon to ``tension_n``.
 
     The thesis wound the tendons by hand until the load cells read 1.2–1.5 N (§8.3); here the same
@@ -150,8 +146,7 @@ def pretension(device, tension_n: float, *, settle_s: float = 0.3) -> np.ndarray
     # Equal dead weights first: they pull a bent endoscope (from the previous configuration) back
     # to nearly straight, so the holder closes on a straight endoscope, not snaps a bent one.
     device.disable()
-    gravity = PRETENSION_GRAVITY_M_S2
-    device.fixture.hang_calibration_mass(tension_n / gravity * 1e3, range(4))
+    device.fixture.hang_calibration_mass(tension_n / gravity_m_s2 * 1e3, range(4))
     device.fixture.engage_holder()
     device.wait(settle_s)
     device.set_mode("lengths")
@@ -192,7 +187,7 @@ def run_validation(device, folder: str | Path, params: Params, *, grid: Sequence
         bar = tqdm(total=sum(len(v) for _, v in todo), desc="validation sweep", unit="config",
                    disable=not progress)
         for (kappa, phi), configs in todo:
-            zero = pretension(device, pre)
+            zero = pretension(device, pre, gravity_m_s2=params.environment.gravity_m_s2)
             device.fixture.release_holder()
             device.set_lengths(zero + tendon_length_changes_m(kappa, phi, params))
             for config, mass in sorted(configs, key=lambda c: c[1]):
@@ -238,15 +233,16 @@ def run_stiffness(device, folder: str | Path, params: Params, *, masses_kg=(0.0,
     return Path(folder)
 
 
-def calibrate_device(device, *, samples_per_mass: int = 10, progress: bool = True) -> Calibration:
-    """The thesis's load-cell calibration (§4.3) as a guided run: Table 2 masses over each pulley."""
+def calibrate_device(device, params: Params, *, samples_per_mass: int = 10, progress: bool = True) -> Calibration:
+    """The thesis's load-cell calibration (§4.3) as a guided run: Table 2 masses over each pulley,
+    weighed with the parameter set's gravity."""
     device.disable()
 
     def read_raw():
         return device.wait_next(timeout_s=1.0).raw_counts.astype(float)
 
     run = run_calibration(read_raw, device.fixture.hang_calibration_mass, samples_per_mass=samples_per_mass,
-                          device=device.url)
+                          gravity_m_s2=params.environment.gravity_m_s2, device=device.url)
     device.fixture.remove_calibration_masses()
     return run.calibration
 

@@ -61,9 +61,9 @@ class RodModel:
     bending_stiffness_nm2: float
     torsional_stiffness_nm2: float
     tendons: tuple[TendonRoute, ...]
+    gravity_m_s2: float
     line_mass_kg_per_m: float = 0.0
     point_masses: tuple[tuple[float, float], ...] = ()
-    gravity_m_s2: float = 9.813
     steps: int = 40
     tolerance: float = 1e-9
     max_iterations: int = 30
