@@ -134,7 +134,7 @@ def test_tuned_tension_gains_beat_the_firmware_defaults_on_the_step_rollout():
 def test_tip_tracker_integral_action_removes_a_model_error_feedforward_keeps():
     """The tracking controller on a stand-in plant: the predictor with tendon 1's load cell 8% off.
     Feed-forward alone (gain 0) keeps the miss; the Jacobian integral action removes most of it."""
-    from twin.tuning import TipTracker
+    from twin.tuning import TipTrackingController
     from twin.pcc import arc_tip_position_m
     from twin.rod.grid import GRAVITY_TIP_FORCE_N
 
@@ -147,7 +147,7 @@ def test_tip_tracker_integral_action_removes_a_model_error_feedforward_keeps():
 
     misses = {}
     for gain in (0.0, 0.3):
-        tracker = TipTracker(PARAMS, gain=gain)
+        tracker = TipTrackingController(PARAMS, gain=gain)
         tensions = tracker.reset(target, 0.005)
         for _ in range(15):
             tensions = tracker.update(plant_tip(tensions))

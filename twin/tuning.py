@@ -5,7 +5,7 @@ model-based tip-tracking controller on top of it.
    A rollout asks for a fixed sequence of tension steps on an antagonistic pair and hangs a tip
    mass half-way; the cost is the RMS tension tracking error (N), plus a penalty if the board
    faults. Nelder–Mead on (log kp, log ki, log duty clamp) from the firmware's defaults.
-2. **Tip tracking** (:class:`TipTracker`): feedforward tensions from the predictor for the known
+2. **Tip tracking** (:class:`TipTrackingController`): feedforward tensions from the predictor for the known
    tip load (:func:`twin.control.compensation.compensate_tensions`), then an integral correction
    through the predictor's Jacobian, τ ← τ + g·J⁺(p* − p), and swing damping, −k_v·J⁺ṗ. The
    cost is the mean tip error (mm) over episodes with random targets and loads on twins that
@@ -44,7 +44,7 @@ from twin.pose import HORIZONTAL
 from twin.rod import Predictor, RodModel, tip_jacobian
 from twin.rod.grid import GRAVITY_TIP_FORCE_N
 
-__all__ = ["TipTracker", "TuningResult", "tension_cost", "tracking_cost", "tune_tension_gains", "tune_tracking_gains",
+__all__ = ["TipTrackingController", "TuningResult", "tension_cost", "tracking_cost", "tune_tension_gains", "tune_tracking_gains",
            "main", "register"]
 
 # Cost of a rollout the board faulted in (N RMS or mm): above any error a working loop has.
@@ -116,7 +116,7 @@ def tune_tension_gains(*, params: Params | None = None, start: dict | None = Non
                         int(fit.nfev) + 1)
 
 
-class TipTracker:
+class TipTrackingController:
     """Feedforward, Jacobian integral control and swing damping of the tip, on tension actions.
 
     At reset the predictor's tensions for the target under the known tip load are the
@@ -194,7 +194,7 @@ def _tracking_episode(args) -> float:
     gains, params, seed, steps, tension_gains = args
     env = EndoscopeReachEnv(params=params, gains={"tensions": tension_gains},
                             tip_loads=TipLoads(change_probability=0.0), randomization=Randomization.typical())
-    controller = TipTracker(params if params is not None else load_params(), **gains)
+    controller = TipTrackingController(params if params is not None else load_params(), **gains)
     try:
         observation, info = env.reset(seed=seed)
         action = env.action_for(controller.reset(env.target_m, info["tip_mass_kg"]))
@@ -213,7 +213,7 @@ def _tracking_episode(args) -> float:
 
 def tracking_cost(gains: dict, *, params: Params | None = None, seeds: Sequence[int] = (0, 1, 2),
                   steps: int = TRACKING_STEPS, tension_gains: dict | None = None, workers: int = 1) -> float:
-    """Mean tip error (mm) over the second half of episodes with the :class:`TipTracker` gains
+    """Mean tip error (mm) over the second half of episodes with the :class:`TipTrackingController` gains
     ``gains`` (``gain``, ``velocity_gain_s``)."""
     jobs = [(gains, params, seed, steps, tension_gains or TUNED_TENSION_GAINS) for seed in seeds]
     if workers > 1:
@@ -226,7 +226,7 @@ def tracking_cost(gains: dict, *, params: Params | None = None, seeds: Sequence[
 
 def tune_tracking_gains(*, params: Params | None = None, start: dict | None = None, evaluations: int = 20,
                         tension_gains: dict | None = None, **options) -> TuningResult:
-    """Nelder–Mead on (log gain, log velocity_gain_s) of :class:`TipTracker` and the log of the
+    """Nelder–Mead on (log gain, log velocity_gain_s) of :class:`TipTrackingController` and the log of the
     tension PID's ``ki`` (the rest of ``tension_gains`` held), from ``start``; the baseline is
     feedforward alone (both tracker gains 0) on ``tension_gains``, and is returned as ``after``
     when nothing found beats it. ``options`` go to :func:`tracking_cost`.
