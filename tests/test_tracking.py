@@ -141,11 +141,11 @@ def test_the_wahba_solution_is_the_svd_one(case):
         if case in ("two directions", "parallel"):
             # R is not unique there: compare the cost, not the rotation.
             cost = lambda r: np.sum(weights * np.sum((world - body @ r.T) ** 2, axis=1))
-            r = np.array(_wahba(b.tolist()))
+            r = np.array(_wahba(b))
             assert_proper_rotation(r)
             assert cost(r) <= cost(expected) * (1 + 1e-9) + 1e-12
             continue
-        r = np.array(_wahba(b.tolist()))
+        r = np.array(_wahba(b))
         assert_proper_rotation(r)
         np.testing.assert_allclose(r, expected, atol=1e-11)
 

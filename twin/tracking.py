@@ -24,17 +24,11 @@ import math
 import time
 from typing import Callable
 
+import numba
 import numpy as np
 
 from twin.params import Params
 from twin.pose import matrix_to_quat
-
-try:
-    # MuJoCo's 3×3 symmetric eigensolver, for the fusion's rotation (see _wahba).
-    from mujoco import mju_eig3 as _mju_eig3
-except ImportError:
-    # A host that only talks to the rig need not install MuJoCo: numpy's eigh does the same.
-    _mju_eig3 = None
 
 __all__ = [
     "CapCalibration",
@@ -144,7 +138,7 @@ class CapCalibration:
     @property
     def axis_angle_rad(self) -> float:
         """Angle between the two probe axes (rad); π/2 for the nominal cap."""
-        return _angle(np.asarray(self.axis_a), np.asarray(self.axis_b))
+        return _angle(np.asarray(self.axis_a, dtype=float), np.asarray(self.axis_b, dtype=float))
 
 
 @dataclasses.dataclass(frozen=True)
@@ -249,65 +243,56 @@ class FusionResult:
         return self.status is FrameStatus.OK
 
 
+@numba.njit(cache=True)
 def _angle(u: np.ndarray, v: np.ndarray) -> float:
-    return _angle_floats(np.asarray(u, dtype=float).tolist(), np.asarray(v, dtype=float).tolist())
+    """The angle between two vectors (rad): atan2 of |u×v| and u·v stays accurate near 0 and π,
+    where arccos of the dot product does not."""
+    return math.atan2(np.linalg.norm(np.cross(u, v)), np.dot(u, v))
 
 
-def _angle_floats(u, v) -> float:
-    # atan2 of |u×v| and u·v stays accurate near 0 and π where arccos of the dot product does not.
-    # On plain floats (_cross): np.cross costs ten times as much, once per fused frame.
-    cx, cy, cz = _cross(u, v)
-    return math.atan2(math.sqrt(cx * cx + cy * cy + cz * cz), u[0] * v[0] + u[1] * v[1] + u[2] * v[2])
-
-
-def _wahba(b: list[list[float]]) -> list[list[float]]:
+@numba.njit(cache=True)
+def _wahba(b: np.ndarray) -> np.ndarray:
     """Rotation R (body → world) minimising Σ w_i |world_i − R body_i|², from
-    B = Σ w_i world_i body_iᵀ (rows of nested lists).
+    B = Σ w_i world_i body_iᵀ (3, 3).
 
     R = U diag(1, 1, det U det V) Vᵀ for B = U Σ Vᵀ (Markley 1988), taken from the two leading
     eigenvectors v₁, v₂ of BᵀB (Horn, Hilden & Negahdaripour 1988): u_k = B v_k / σ_k and
     R = u₁v₁ᵀ + u₂v₂ᵀ + (u₁×u₂)(v₁×v₂)ᵀ, a proper rotation by construction. Any orthonormal
-    pair spanning a repeated eigenvalue's space gives the same R. MuJoCo's 3×3 eigensolver
-    takes 2 µs where numpy's SVD takes 20 (``twin bench env``: once per tracker frame); without
-    MuJoCo installed numpy's ``eigh`` stands in for it.
+    pair spanning a repeated eigenvalue's space gives the same R.
 
     Falls back to the SVD when the directions are all (nearly) parallel (σ₂ < 10⁻⁶ σ₁), where
     u₂ would be rounding error and R is not determined anyway.
     """
-    (b00, b01, b02), (b10, b11, b12), (b20, b21, b22) = b
-    # S = BᵀB
-    s00 = b00 * b00 + b10 * b10 + b20 * b20
-    s01 = b00 * b01 + b10 * b11 + b20 * b21
-    s02 = b00 * b02 + b10 * b12 + b20 * b22
-    s11 = b01 * b01 + b11 * b11 + b21 * b21
-    s12 = b01 * b02 + b11 * b12 + b21 * b22
-    s22 = b02 * b02 + b12 * b12 + b22 * b22
-    if _mju_eig3 is not None:
-        eigval, eigvec = np.empty(3), np.empty(9)
-        _mju_eig3(eigval, eigvec, np.empty(4), np.array([s00, s01, s02, s01, s11, s12, s02, s12, s22]))
-        l1, l2, _ = eigval.tolist()  # descending
-        e = eigvec.tolist()  # row-major; the columns are the eigenvectors
-    else:
-        eigval, eigvec = np.linalg.eigh(np.array([[s00, s01, s02], [s01, s11, s12], [s02, s12, s22]]))
-        _, l2, l1 = eigval.tolist()  # ascending
-        e = eigvec[:, ::-1].ravel().tolist()  # columns in descending order, as MuJoCo's
-    if not l2 > 1e-12 * l1:
-        u, _, vt = np.linalg.svd(np.array(b))
-        u[:, 2] *= math.copysign(1.0, np.linalg.det(u) * np.linalg.det(vt))
-        return (u @ vt).tolist()
-    v1, v2 = (e[0], e[3], e[6]), (e[1], e[4], e[7])
-    u1, u2 = [], []
-    for (row0, row1, row2) in b:
-        u1.append(row0 * v1[0] + row1 * v1[1] + row2 * v1[2])
-        u2.append(row0 * v2[0] + row1 * v2[1] + row2 * v2[2])
-    n1, n2 = math.sqrt(l1), math.sqrt(l2)
-    u1, u2 = [x / n1 for x in u1], [x / n2 for x in u2]
-    u3, v3 = _cross(u1, u2), _cross(v1, v2)
-    return [[u1[i] * v1[j] + u2[i] * v2[j] + u3[i] * v3[j] for j in range(3)] for i in range(3)]
+    eigval, eigvec = np.linalg.eigh(b.T @ b)  # ascending
+    if not eigval[1] > 1e-12 * eigval[2]:
+        u, _, vt = np.linalg.svd(b)
+        if np.linalg.det(u) * np.linalg.det(vt) < 0:
+            u[:, 2] = -u[:, 2]
+        return u @ vt
+    v1, v2 = eigvec[:, 2].copy(), eigvec[:, 1].copy()
+    u1, u2 = b @ v1, b @ v2
+    # u₁ ⟂ u₂ exactly; re-orthonormalising removes the rounding a small σ₂ amplifies.
+    u1 /= np.linalg.norm(u1)
+    u2 -= np.dot(u1, u2) * u1
+    u2 /= np.linalg.norm(u2)
+    return np.outer(u1, v1) + np.outer(u2, v2) + np.outer(np.cross(u1, u2), np.cross(v1, v2))
 
 
-def _cross(a, b) -> list[float]:
-    return [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
+@numba.njit(cache=True)
+def _fuse_geometry(pa, pb, axis_a, axis_b, body, probe_sum_m, weights):
+    """The pose of :func:`fuse` from probe positions (m) and axes (world frame), with the cap's
+    body directions, c_A + c_B and the directions' weights: (position (3,) m, rotation (3, 3),
+    probe distance m, inter-axis angle rad)."""
+    axis_a, axis_b = axis_a / np.linalg.norm(axis_a), axis_b / np.linalg.norm(axis_b)
+    baseline = pb - pa
+    distance_m = np.linalg.norm(baseline)
+    world = np.empty((3, 3))
+    world[0], world[1], world[2] = axis_a, axis_b, baseline / distance_m
+    # B = Σ w_i world_i body_iᵀ, the matrix whose SVD solves Wahba's problem.
+    rotation = _wahba((world.T * weights) @ body)
+    # The mean over both probes of p_i − R c_i.
+    position_m = 0.5 * (pa + pb - rotation @ probe_sum_m)
+    return position_m, rotation, distance_m, _angle(axis_a, axis_b)
 
 
 def fuse(
@@ -352,8 +337,8 @@ def fuse(
         if not probe.valid:
             return FusionResult(FrameStatus.INVALID, f"probe {name}: no valid sample")
     for name, probe in (("A", probe_a), ("B", probe_b)):
-        values = probe.position_m.tolist() + probe.axis.tolist() + [probe.timestamp_s]
-        if not all(map(math.isfinite, values)) or not any(values[3:6]):
+        finite = np.isfinite(probe.position_m).all() and np.isfinite(probe.axis).all() and math.isfinite(probe.timestamp_s)
+        if not finite or not probe.axis.any():
             return FusionResult(
                 FrameStatus.NOT_FINITE,
                 f"probe {name}: position_m = {probe.position_m.tolist()}, axis = "
@@ -374,15 +359,12 @@ def fuse(
             f"probe samples {skew_s:.3f} s apart (max_skew_s = {settings.max_skew_s})",
         )
 
-    # Plain floats from here: fused once per 40 Hz frame, numpy's calls on 3-vectors cost ten
-    # times as much (twin bench env).
     cap = _cap_geometry(calibration)
-    pa, pb = probe_a.position_m.tolist(), probe_b.position_m.tolist()
-    axis_a, axis_b = _unit(probe_a.axis.tolist()), _unit(probe_b.axis.tolist())
-    baseline = [y - x for x, y in zip(pa, pb)]
-    distance_m = math.sqrt(sum(x * x for x in baseline))
+    baseline_noise_rad = math.sqrt(2.0) * settings.position_noise_m / cap.distance_m
+    weights = np.array([settings.axis_noise_rad, settings.axis_noise_rad, baseline_noise_rad]) ** -2.0
+    position_m, rotation, distance_m, angle_rad = _fuse_geometry(
+        probe_a.position_m, probe_b.position_m, probe_a.axis, probe_b.axis, cap.body, cap.probe_sum_m, weights)
     distance_error_m = distance_m - cap.distance_m
-    angle_rad = _angle_floats(axis_a, axis_b)
     angle_error_rad = angle_rad - cap.angle_rad
     if abs(distance_error_m) > settings.max_distance_error_m:
         return FusionResult(
@@ -403,18 +385,6 @@ def fuse(
             angle_error_rad=angle_error_rad,
         )
 
-    world = (axis_a, axis_b, [x / distance_m for x in baseline])
-    baseline_noise_rad = math.sqrt(2.0) * settings.position_noise_m / cap.distance_m
-    weights = (settings.axis_noise_rad ** -2.0, settings.axis_noise_rad ** -2.0, baseline_noise_rad ** -2.0)
-    # B = Σ w_i world_i body_iᵀ, the matrix whose SVD solves Wahba's problem (_wahba).
-    (d0, d1, d2), (c0, c1, c2) = ([w * x for x in d] for w, d in zip(weights, world)), cap.body_rows
-    b = [[d0[i] * c0[j] + d1[i] * c1[j] + d2[i] * c2[j] for j in range(3)] for i in range(3)]
-    r = _wahba(b)
-    # The mean over both probes of p_i − R c_i.
-    c = cap.probe_sum_m
-    position_m = np.array([0.5 * (pa[i] + pb[i] - (r[i][0] * c[0] + r[i][1] * c[1] + r[i][2] * c[2]))
-                           for i in range(3)])
-    rotation = np.array(r)
     pose = TipPose(position_m, rotation, 0.5 * (probe_a.timestamp_s + probe_b.timestamp_s))
     return FusionResult(
         FrameStatus.OK, pose=pose, distance_error_m=distance_error_m, angle_error_rad=angle_error_rad
@@ -423,10 +393,17 @@ def fuse(
 
 @dataclasses.dataclass(frozen=True, eq=False)
 class _CapGeometry:
-    """What :func:`fuse` needs of a calibration, computed once per calibration."""
+    """What :func:`fuse` needs of a calibration, computed once per calibration.
 
-    body_rows: list  # rows: axis A, axis B, the unit baseline A → B, in the tip frame
-    probe_sum_m: list  # c_A + c_B (m)
+    Attributes:
+        body: (3, 3) rows axis A, axis B and the unit baseline A → B, in the tip frame.
+        probe_sum_m: (3,) c_A + c_B (m).
+        distance_m: the probes' distance (m).
+        angle_rad: the angle between their axes (rad).
+    """
+
+    body: np.ndarray
+    probe_sum_m: np.ndarray
     distance_m: float
     angle_rad: float
 
@@ -436,12 +413,7 @@ def _cap_geometry(calibration: CapCalibration) -> _CapGeometry:
     c_a, c_b = np.array(calibration.position_a_m), np.array(calibration.position_b_m)
     distance_m = calibration.probe_distance_m
     body = np.array([calibration.axis_a, calibration.axis_b, (c_b - c_a) / distance_m])
-    return _CapGeometry(body.tolist(), (c_a + c_b).tolist(), distance_m, calibration.axis_angle_rad)
-
-
-def _unit(v: list[float]) -> list[float]:
-    norm = math.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
-    return [v[0] / norm, v[1] / norm, v[2] / norm]
+    return _CapGeometry(body, c_a + c_b, distance_m, calibration.axis_angle_rad)
 
 
 def fuse_frame(
@@ -498,8 +470,7 @@ class CallableSource:
         time_s, positions_m, axes = self._sample()
         readings = []
         for position_m, axis in zip(np.asarray(positions_m, float), np.asarray(axes, float), strict=True):
-            # On plain floats: np.isfinite costs ten times as much on three numbers.
-            if all(map(math.isfinite, position_m.tolist() + axis.tolist())):
+            if np.isfinite(position_m).all() and np.isfinite(axis).all():
                 readings.append(ProbeReading(position_m, axis, time_s))
             else:
                 readings.append(ProbeReading.missing())
