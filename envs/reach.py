@@ -198,7 +198,6 @@ class EndoscopeReachEnv(gym.Env):
         sample = self.device.wait_next()
         self._read_tracker()
         self._previous = action
-        # Plain floats: numpy's reductions on four numbers cost more than the sums.
         error = math.dist(self._pose[0].tolist(), self.target_m.tolist())
         fault = rejected or bool(sample.fault_flags & _FAULTS) or not sample.enabled
         duty = sample.motor_commands.tolist()

@@ -64,7 +64,6 @@ def _mode(mode: str | codec.Mode) -> codec.Mode:
 def _vector(name: str, values: Iterable[float], count: int) -> tuple[float, ...]:
     array = np.asarray(values, dtype=float)
     floats = tuple(array.tolist()) if array.shape == (count,) else ()
-    # math.isfinite on the floats: np.isfinite + np.all cost 8 µs on every setpoint command.
     if len(floats) != count or not all(map(math.isfinite, floats)):
         raise ValueError(f"{name} = {values!r}: expected {count} finite numbers")
     return floats

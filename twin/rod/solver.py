@@ -99,7 +99,7 @@ class LoadCase:
         if np.any(tensions < 0):
             raise ValueError(f"tensions_n = {tensions.tolist()}: tendons only pull; tensions must be >= 0")
         rot = np.eye(3) if base_rotation is None else np.asarray(base_rotation, dtype=float)
-        # np.allclose(rot @ rot.T, I, atol=1e-9) written out: allclose costs 30 µs a solve.
+        # Orthonormal to 1e-9 (np.allclose's test, element by element) and proper.
         if rot.shape != (3, 3) or not np.all(np.abs(rot @ rot.T - _EYE3) <= 1e-9 + 1e-5 * _EYE3) \
                 or np.linalg.det(rot) < 0:
             raise ValueError(f"base_rotation = {rot.tolist()}: must be a proper 3x3 rotation")
