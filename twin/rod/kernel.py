@@ -25,9 +25,8 @@ w_i' = |u × t_i| and τ_i(s) = τ_i(0) exp(−μ σ_i w_i(s)), σ_i = +1 while 
 State layout per station: p (3), R (9, row-major), m (3), w (nt), ℓ (nt) — tendon path
 lengths from the base.
 
-The kernels read the rod and its load case from one :class:`RodInputs`, a named tuple: compiled
-code reads its fields as it would positional arguments, and a call from Python costs about 1 µs
-more to dispatch (Numba types a named tuple outside its fast path).
+The kernels read the rod and its load case from one :class:`RodInputs`, a named tuple, whose
+fields compiled code reads as it would positional arguments.
 """
 
 from __future__ import annotations
@@ -275,8 +274,8 @@ def _strains(nb, mb, s, mid, wraps, kse, kbt, tendons, nt, length, mu, vu, jac, 
     return -1
 
 
-# The helpers below take the fields they use, not a RodInputs: called at every RK4 stage, they
-# would otherwise be passed all its arrays, flattened (6 % of an integration).
+# The helpers below take the fields they use, not a RodInputs: they run at every RK4 stage, and
+# a RodInputs argument would hand them all of its arrays each time.
 @njit(cache=True)
 def _internal_force(s, mid, length, tip_force, grav, line_mass, pm_s, pm_m, n):
     """Total internal force n(s) (N, world): tip force plus the weight distal to s.

@@ -96,11 +96,11 @@ class LoadCase:
              base_rotation=None, base_position_m=None, friction_direction=None) -> "LoadCase":
         nt = model.tendon_count
         tensions = _vector(tensions_n, nt, "tensions_n")
-        if np.any(tensions < 0):
+        if (tensions < 0).any():
             raise ValueError(f"tensions_n = {tensions.tolist()}: tendons only pull; tensions must be >= 0")
         rot = np.eye(3) if base_rotation is None else np.asarray(base_rotation, dtype=float)
         # Orthonormal to 1e-9 (np.allclose's test, element by element) and proper.
-        if rot.shape != (3, 3) or not np.all(np.abs(rot @ rot.T - _EYE3) <= 1e-9 + 1e-5 * _EYE3) \
+        if rot.shape != (3, 3) or not (np.abs(rot @ rot.T - _EYE3) <= 1e-9 + 1e-5 * _EYE3).all() \
                 or np.linalg.det(rot) < 0:
             raise ValueError(f"base_rotation = {rot.tolist()}: must be a proper 3x3 rotation")
         direction = np.ones(nt) if friction_direction is None else _vector(friction_direction, nt, "friction_direction")
@@ -122,7 +122,7 @@ class LoadCase:
 
 def _vector(value, n, name) -> np.ndarray:
     arr = np.asarray(value, dtype=float).reshape(-1)
-    if arr.size != n or not np.all(np.isfinite(arr)):
+    if arr.size != n or not np.isfinite(arr).all():
         raise ValueError(f"{name} = {np.asarray(value).tolist()!r}: expected {n} finite numbers")
     return arr
 
@@ -172,7 +172,7 @@ class RodSolution:
     load: LoadCase
     shooting_jacobian: np.ndarray | None = None
     # The kernel's trace rows per shooting run, (load factor, (n, TRACE_COLUMNS) array), from
-    # which ``trace`` is built on first access: a warm solve does not pay for dataclasses unread.
+    # which ``trace`` is built on first access: most solves' traces are never read.
     trace_log: tuple[tuple[float, np.ndarray], ...] = dataclasses.field(default=(), repr=False, compare=False)
 
     @functools.cached_property
@@ -284,7 +284,7 @@ def solve(model: RodModel, tensions_n, *, tip_force_n=None, tip_moment_nm=None, 
                          friction_direction=friction_direction)
     if guess_jacobian is not None:
         guess_jacobian = np.asarray(guess_jacobian, dtype=float)
-        if guess_nm is None or guess_jacobian.shape != (3, 3) or not np.all(np.isfinite(guess_jacobian)):
+        if guess_nm is None or guess_jacobian.shape != (3, 3) or not np.isfinite(guess_jacobian).all():
             raise ValueError(f"guess_jacobian = {np.asarray(guess_jacobian).tolist()!r}: expected the 3x3 "
                              "shooting_jacobian of a converged solution, with its guess_nm")
     return _solve_load(model, load, guess_nm, continuation, raise_on_failure, guess_jacobian)
@@ -324,7 +324,7 @@ def _solve_load(model, load, guess_nm, continuation, raise_on_failure, guess_jac
                     steps_taken, elapsed, jac if code == 0 else None, tuple(log))
 
 
-# Indexed by the kernel's status code: a tuple lookup, cheaper than the enum's constructor.
+# Indexed by the kernel's status code (every solve converts one).
 _STATUSES = tuple(SolverStatus)
 
 
