@@ -1,6 +1,6 @@
 """Load-cell calibration: known masses, a line per channel, a file the host applies (thesis §4.3).
 
-Each tendon runs over a ball-bearing pulley on a load cell read by an HX711 (SPEC §2). A known
+Each tendon runs over a ball-bearing pulley on a load cell read by an HX711 (thesis §4). A known
 mass hung on the tendon sets its tension to m·g. The fit direction follows the thesis
 (Fig. 9) and the statistics: the tension is known exactly and the counts are noisy, so each
 channel is fitted as

@@ -1,5 +1,5 @@
 """The discrepancy workflow: find where model and measurement disagree, name the missing effect,
-add it to the parameter set, and show the gap shrink on held-out data (issue 7).
+add it to the parameter set, and show the gap shrink on held-out data.
 
 Example:
     >>> from twin.data.dataset import read_dataset
