@@ -6,7 +6,7 @@ import argparse
 
 import numpy as np
 
-from twin.params import Params, load_params
+from twin.params import ParameterError, Params, load_params
 from twin.pose import base_rotation_from
 
 __all__ = ["add_param_args", "add_pose_args", "params_from_args", "rotation_from_args", "vector"]
@@ -45,7 +45,15 @@ def add_pose_args(parser: argparse.ArgumentParser, default: str = "horizontal") 
 
 
 def params_from_args(args: argparse.Namespace) -> Params:
-    return load_params(args.params, overrides=args.overrides)
+    """The parameter set of ``--params`` and ``--set``.
+
+    Raises:
+        ParameterError: a bad file or value; also a ``--params`` file that cannot be read.
+    """
+    try:
+        return load_params(args.params, overrides=args.overrides)
+    except OSError as exc:
+        raise ParameterError(f"--params {args.params}: cannot read it ({exc.strerror or exc})") from None
 
 
 def rotation_from_args(args: argparse.Namespace) -> np.ndarray:

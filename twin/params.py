@@ -46,6 +46,11 @@ class ParameterError(ValueError):
     """A parameter is missing, unknown, of the wrong type or out of range; names key and value."""
 
 
+# Whole-number settings are counts and strides that compiled code (MuJoCo, the solver) holds
+# in a C int: larger values cannot mean anything but a typo.
+_INT_MAX = 2**31 - 1
+
+
 # Checks carried as field metadata: each returns an error string or None.
 def _positive(x):
     return None if x > 0 else "must be > 0"
@@ -348,8 +353,11 @@ def _coerce(key: str, value: Any, annotation: Any) -> Any:
             raise ParameterError(f"{key} = {value!r}: must be a string")
         return value
     if annotation is int:
-        if isinstance(value, bool) or not isinstance(value, (int, float)) or value != int(value):
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or (
+                isinstance(value, float) and not value.is_integer()):
             raise ParameterError(f"{key} = {value!r}: must be a whole number")
+        if abs(value) > _INT_MAX:
+            raise ParameterError(f"{key} = {value!r}: must be a whole number of at most {_INT_MAX}")
         return int(value)
     if annotation is float:
         if isinstance(value, bool) or not isinstance(value, (int, float)):
@@ -371,6 +379,8 @@ def _from_dict(raw: Mapping[str, Any], origin: str) -> Params:
         table = raw.get(section)
         if table is None:
             raise ParameterError(f"{origin}: missing section [{section}]")
+        if not isinstance(table, Mapping):
+            raise ParameterError(f"{origin}: [{section}] must be a table of keys, not {table!r}")
         hints = typing.get_type_hints(cls)
         names = [f.name for f in dataclasses.fields(cls)]
         extra = set(table) - set(names)
@@ -458,16 +468,24 @@ def load_params(
         overrides: ``["section.key=value", ...]`` strings (as from ``--set``) or a mapping.
 
     Raises:
-        ParameterError: a value is missing, unknown or invalid (the message names key and value).
-        FileNotFoundError: ``path`` does not exist.
+        ParameterError: the file is not a TOML parameter file, or a value is missing, unknown or
+            invalid (the message names the file, the key and the value).
+        OSError: ``path`` cannot be read (FileNotFoundError when it does not exist).
     """
     path = Path(path) if path is not None else DEFAULT_PARAMS_PATH
     try:
         with open(path, "rb") as fh:
             raw = tomllib.load(fh)
     except tomllib.TOMLDecodeError as exc:
-        raise ParameterError(f"{path}: not valid TOML: {exc}") from None
-    params = _from_dict(raw, origin=str(path))
+        raise ParameterError(f"{path}: not a TOML parameter file (not valid TOML: {exc})") from None
+    except UnicodeDecodeError as exc:
+        raise ParameterError(f"{path}: not a TOML parameter file (byte {exc.start + 1} is not UTF-8 text; "
+                             "is it a binary file?)") from None
+    try:
+        params = _from_dict(raw, origin=str(path))
+    except ParameterError as exc:
+        text = str(exc)
+        raise ParameterError(text if text.startswith(f"{path}:") else f"{path}: {text}") from None
     if isinstance(overrides, Mapping):
         values = dict(overrides)
     else:
