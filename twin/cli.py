@@ -9,7 +9,9 @@ from __future__ import annotations
 import argparse
 import importlib
 import sys
+import warnings
 
+from twin.data.dataset import DatasetError, DatasetWarning
 from twin.params import ParameterError
 
 COMMAND_MODULES = [
@@ -36,14 +38,37 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+_format_warning = warnings.formatwarning
+
+
+def _format(message, category, filename, lineno, line=None) -> str:
+    """Dataset warnings as one line for the operator (they name file and row); others as Python's."""
+    if issubclass(category, DatasetWarning):
+        return f"twin: warning: {message}\n"
+    return _format_warning(message, category, filename, lineno, line)
+
+
 def main(argv: list[str] | None = None) -> int:
+    """Run one command; bad input and failing files end in one line on stderr, not a traceback.
+
+    Returns:
+        The command's exit code; 2 for a bad parameter or dataset, 1 for a file that cannot
+        be read or written, 130 on Ctrl-C.
+    """
     parser = build_parser()
     args = parser.parse_args(argv)
+    warnings.formatwarning = _format
     try:
         return int(args.func(args) or 0)
     except ParameterError as exc:
         print(f"twin: parameter error: {exc}", file=sys.stderr)
         return 2
+    except DatasetError as exc:
+        print(f"twin: dataset error: {exc}", file=sys.stderr)
+        return 2
+    except OSError as exc:
+        print(f"twin: {exc}", file=sys.stderr)
+        return 1
     except KeyboardInterrupt:
         print("twin: interrupted", file=sys.stderr)
         return 130
