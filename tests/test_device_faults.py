@@ -82,12 +82,19 @@ class HandPlayedBoard:
         self.decoder = c.FrameDecoder()
 
     def answer_hello(self, reply: c.HelloReply, *, then: bytes = b"") -> threading.Thread:
+        """Answer the HELLO with ``reply`` and the DISABLE that a host sends next with an ACK,
+        then send ``then``; the messages received meanwhile go to :attr:`received`."""
+        self.received = []
+
         def run():
             while True:
-                frames = self.decoder.feed(os.read(self.master, 4096))
-                if any(isinstance(f.message, c.Hello) for f in frames):
-                    os.write(self.master, c.encode_frame(reply, seq=0) + then)
-                    return
+                for frame in self.decoder.feed(os.read(self.master, 4096)):
+                    self.received.append(frame.message)
+                    if isinstance(frame.message, c.Hello):
+                        os.write(self.master, c.encode_frame(reply, seq=0))
+                    elif isinstance(frame.message, c.Disable):
+                        os.write(self.master, c.encode_frame(c.Ack(frame.seq, c.MsgType.DISABLE), seq=1) + then)
+                        return
 
         thread = threading.Thread(target=run, daemon=True)
         thread.start()
@@ -101,12 +108,15 @@ class HandPlayedBoard:
 def test_a_board_of_another_protocol_version_is_refused():
     board = HandPlayedBoard()
     try:
-        board.answer_hello(c.HelloReply(protocol_version=c.PROTOCOL_VERSION + 1))
+        thread = board.answer_hello(c.HelloReply(protocol_version=c.PROTOCOL_VERSION + 1))
         device = open_device(board.url)
-        with pytest.raises(ProtocolVersionError, match=r"protocol version 2, this host speaks 1") as info:
+        with pytest.raises(ProtocolVersionError, match=r"protocol version 2, this host speaks 1; sent it DISABLE") as info:
             device.connect(timeout_s=1.0)
         assert info.value.board_version == c.PROTOCOL_VERSION + 1
         assert not device.connected
+        # Disabled, in case it understands that, and told nothing else.
+        thread.join(timeout=1.0)
+        assert [type(m) for m in board.received] == [c.Hello, c.Disable]
     finally:
         board.close()
 
@@ -162,7 +172,8 @@ def test_a_host_that_stops_mid_run_is_stopped_by_the_watchdog():
         assert SimTwin(board.board).drive_mode == "coast"
         with open_device(board.url) as device:
             sample = device.latest()
-            assert sample.state is State.FAULT
+            # Connecting disables the board; the watchdog's fault stays latched for the host to read.
+            assert sample.state is State.DISABLED
             assert sample.fault_flags & Fault.WATCHDOG
             assert sample.drives == (Drive.COAST,) * 4 and not np.any(sample.motor_commands)
             # Latched until the next enable.

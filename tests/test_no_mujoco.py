@@ -45,10 +45,12 @@ HOST_WITHOUT_MUJOCO = textwrap.dedent("""
                 return
             for frame in decoder.feed(data):
                 if isinstance(frame.message, c.Hello):
-                    os.write(master, c.encode_frame(c.HelloReply(), seq=0) + c.encode_frame(
-                        c.TelemetryMessage(sample_seq=7, lengths_m=(1e-3, 0.0, -1e-3, 0.0), state=c.State.ENABLED), seq=1))
+                    os.write(master, c.encode_frame(c.HelloReply(), seq=0))
                 else:
-                    os.write(master, c.encode_frame(c.Ack(acked_seq=frame.seq, acked_type=frame.message.TYPE), seq=2))
+                    # The host waits for a sample after the DISABLE it sends on connecting.
+                    os.write(master, c.encode_frame(c.Ack(acked_seq=frame.seq, acked_type=frame.message.TYPE), seq=2)
+                             + c.encode_frame(c.TelemetryMessage(sample_seq=7, lengths_m=(1e-3, 0.0, -1e-3, 0.0),
+                                                                 state=c.State.ENABLED), seq=1))
 
     threading.Thread(target=board, daemon=True).start()
     device = open_device(f"serial://{os.ttyname(slave)}")

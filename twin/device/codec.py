@@ -18,6 +18,7 @@ import binascii
 import dataclasses
 import enum
 import functools
+import math
 import struct
 from typing import ClassVar, Iterable, Sequence
 
@@ -52,6 +53,7 @@ __all__ = [
     "Nack",
     "TelemetryMessage",
     "MESSAGE_TYPES",
+    "check_fields",
     "Frame",
     "FrameDecoder",
     "crc16",
@@ -151,7 +153,8 @@ class FrameError(CodecError):
 
 
 class MessageError(CodecError):
-    """A frame passed its CRC but its type is unknown or its payload has the wrong length."""
+    """A frame passed its CRC but its type is unknown, its payload has the wrong length, or a
+    field of a board → host message holds a value the protocol does not define."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -521,6 +524,57 @@ def _check_frame(encoded: bytes) -> tuple[int, int, bytes]:
     return msg_type, seq, body[_HEADER.size :]
 
 
+_STATES = frozenset(State)
+_MODES = frozenset(Mode)
+# drive_modes bytes whose four 2-bit fields are all Drive members (3 is none).
+_DRIVE_BYTES = frozenset(b for b in range(256) if all(((b >> (2 * i)) & 0b11) in frozenset(Drive) for i in range(CHANNELS)))
+
+
+def _check_telemetry(m: TelemetryMessage) -> None:
+    if m.state not in _STATES:
+        raise MessageError(f"TelemetryMessage.state = {m.state}: not a State")
+    if m.mode not in _MODES:
+        raise MessageError(f"TelemetryMessage.mode = {m.mode}: not a Mode")
+    if m.drive_modes not in _DRIVE_BYTES:
+        raise MessageError(f"TelemetryMessage.drive_modes = 0x{m.drive_modes:02x}: a motor's drive is not a Drive")
+    if m.stale_mask >> CHANNELS:
+        raise MessageError(f"TelemetryMessage.stale_mask = 0x{m.stale_mask:02x}: bits beyond the {CHANNELS} load cells")
+    # A sum of float32 values is finite exactly when every one of them is (float32's range is
+    # far inside float64's): one check instead of sixteen.
+    if not math.isfinite(sum(m.lengths_m) + sum(m.tensions_n) + sum(m.targets) + sum(m.duty)):
+        name = next(n for n in ("lengths_m", "tensions_n", "targets", "duty")
+                    if not all(map(math.isfinite, getattr(m, n))))
+        raise MessageError(f"TelemetryMessage.{name} = {getattr(m, name)!r}: not finite")
+    if not (-1.0 <= min(m.duty) and max(m.duty) <= 1.0):
+        raise MessageError(f"TelemetryMessage.duty = {m.duty!r}: outside [-1, 1]")
+
+
+def _check_hello_reply(m: HelloReply) -> None:
+    # The protocol version is not checked here: the host refuses another version by name.
+    if m.channels != CHANNELS:
+        raise MessageError(f"HelloReply.channels = {m.channels}: this host drives {CHANNELS}")
+    if not math.isfinite(m.tendon_m_per_count):
+        raise MessageError(f"HelloReply.tendon_m_per_count = {m.tendon_m_per_count!r}: not finite")
+
+
+# Board → host messages whose fields hold enums or physical values. Commands are not checked
+# here: the board answers a bad value with NACK BAD_VALUE, which is the protocol's verdict.
+# Fault flags are not checked either: a fault this host has no name for must still be seen.
+_FIELD_CHECKS = {MsgType.TELEMETRY: _check_telemetry, MsgType.HELLO_REPLY: _check_hello_reply}
+
+
+def check_fields(message: Message) -> None:
+    """Check that a board → host message carries only values the protocol defines: enum fields
+    hold members, floats are finite, duty lies in [-1, 1], a HELLO_REPLY names 4 channels.
+
+    Raises:
+        MessageError: naming the field and its value.
+    """
+    check = _FIELD_CHECKS.get(message.TYPE)
+    if check is not None:
+        check(message)
+
+
 def decode_frame(encoded: bytes) -> Frame:
     """Decode one frame given without its 0x00 delimiter.
 
@@ -538,7 +592,13 @@ class FrameDecoder:
     Whatever is not a valid frame is skipped and counted, and reception resynchronises on the
     next 0x00: ``bad_frames`` counts framing and CRC failures (corruption, truncation,
     garbage, over-long runs), ``bad_messages`` intact frames of an unknown type or wrong
-    length. Empty frames (repeated delimiters) are ignored.
+    length, or board → host messages with a value the protocol does not define
+    (:func:`check_fields`). Empty frames (repeated delimiters) are ignored.
+
+    Attributes:
+        bad_frames: frames dropped for framing or CRC errors.
+        bad_messages: intact frames that carried no usable message.
+        last_error: why the latest bad frame or message was dropped, or None.
     """
 
     def __init__(self) -> None:
@@ -546,6 +606,7 @@ class FrameDecoder:
         self._overflow = False
         self.bad_frames = 0
         self.bad_messages = 0
+        self.last_error: str | None = None
 
     def feed(self, data: bytes) -> list[Frame]:
         frames = []
@@ -575,13 +636,18 @@ class FrameDecoder:
         self._overflow = False
         if overflow:
             self.bad_frames += 1
+            self.last_error = f"frame longer than {_MAX_ENCODED_BYTES} encoded bytes"
             return None
         if not encoded:
             return None
         try:
-            return decode_frame(encoded)
-        except FrameError:
+            frame = decode_frame(encoded)
+            check_fields(frame.message)
+            return frame
+        except FrameError as exc:
             self.bad_frames += 1
-        except MessageError:
+            self.last_error = str(exc)
+        except MessageError as exc:
             self.bad_messages += 1
+            self.last_error = str(exc)
         return None

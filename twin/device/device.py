@@ -14,8 +14,19 @@ speaks the binary protocol of ``firmware/PROTOCOL.md`` through a
     exactly for the same seed and calls.
 ``"wall"`` (``serial://``)
     The board runs on its own. Telemetry arrives in a background thread at 40 Hz whether or not
-    the host waits; durations and timeouts are wall-clock seconds; keepalive PINGs are sent
-    from a thread whenever the host is quiet, so the watchdog trips only if this process stops.
+    the host waits; durations and timeouts are wall-clock seconds.
+
+On both, the board's watchdog is fed by the host's control loop making progress: keepalive
+PINGs go out only from the host's own calls (commands; waits, which send those that fall due
+while they wait; :meth:`Device.latest`, :meth:`Device.drain` and :attr:`Device.time_s`, which
+send one if due), never from a thread of their own. A host that stops calling for the
+watchdog timeout (0.25 s by default) while enabled stops the rig, whether it hung or died.
+Waiting for an operator on purpose is done in :meth:`Device.attended`.
+
+A connection starts from a disabled board (connect sends DISABLE after the handshake), no
+data the board sends can stop the host from hearing it (bad frames are counted and skipped,
+:attr:`Device.stats`), and a host that cannot hear the board any more says so: the board is
+sent DISABLE and every call raises :class:`DeviceDisconnected` naming the cause.
 
 Example::
 
@@ -31,13 +42,13 @@ from __future__ import annotations
 
 import math
 import threading
-from typing import TYPE_CHECKING, Iterable, Sequence
+from typing import TYPE_CHECKING, ContextManager, Iterable, Sequence
 
 import numpy as np
 
 from twin.device import codec
 from twin.device.errors import CommandRejected, DeviceDisconnected, DeviceError, DeviceTimeout, ProtocolVersionError
-from twin.device.inbox import Inbox
+from twin.device.inbox import Inbox, LinkStats
 from twin.device.telemetry import DeviceInfo, Telemetry
 from twin.device.transport import Transport
 
@@ -47,7 +58,7 @@ if TYPE_CHECKING:
     from twin.device.sim_twin import SimTwin
     from twin.device.tracker import TipTracker
 
-__all__ = ["MODE_NAMES", "Device"]
+__all__ = ["MAX_LENGTH_SETPOINT_M", "MODE_NAMES", "Device"]
 
 # Names of the control modes in this API → the protocol's modes.
 MODE_NAMES = {"lengths": codec.Mode.LENGTHS, "pairs": codec.Mode.PAIRS, "tensions": codec.Mode.TENSION}
@@ -67,6 +78,18 @@ def _vector(name: str, values: Iterable[float], count: int) -> tuple[float, ...]
     if len(floats) != count or not all(map(math.isfinite, floats)):
         raise ValueError(f"{name} = {values!r}: expected {count} finite numbers")
     return floats
+
+
+# Length setpoints the firmware accepts (m): its kMaxLengthSetpointM, a value in mm sent as m
+# must not unwind the spools.
+MAX_LENGTH_SETPOINT_M = 0.05
+
+
+def _bounded(name: str, values: tuple[float, ...], low: float, high: float, unit: str, why: str) -> tuple[float, ...]:
+    for i, value in enumerate(values):
+        if not low <= value <= high:
+            raise ValueError(f"{name}[{i}] = {value!r}: outside {low:g}..{high:g} {unit} ({why})")
+    return values
 
 
 def _mask(name: str, channels: bool | Iterable[int]) -> int:
@@ -96,9 +119,9 @@ class Device:
         tracker: the EM tracker's fused tip poses, or None when no tracker is configured.
         twin: the simulated twin's ground truth and reset (``sim://``); None on a rig.
         command_timeout_s: longest wait for a command's answer (device clock, s).
-        keepalive_s: longest silence before the host sends a PING (device clock, s); keep it
-            well under the watchdog timeout (0.25 s by default). None sends no keepalives, so
-            the watchdog trips while the host is quiet.
+        keepalive_s: longest silence before the host's next call sends a PING (device clock,
+            s); keep it well under the watchdog timeout (0.25 s by default). None sends no
+            keepalives, so the watchdog trips while the host only waits.
         queue_size: samples kept for :meth:`drain`.
 
     Attributes:
@@ -127,10 +150,13 @@ class Device:
         self._twin = twin
         self._command_timeout_s = command_timeout_s
         self._keepalive_s = keepalive_s
-        self._inbox = Inbox(transport.time_s, queue_size=queue_size)
+        self._inbox = Inbox(transport.time_s, queue_size=queue_size, on_lost=self._disable_after_loss)
         self._send_lock = threading.Lock()
         self._seq = 0
         self._info: DeviceInfo | None = None
+        # The tension limit this host last set (N), the board's default until then: the bound
+        # on tension setpoints.
+        self._tension_limit_n = codec.SetLimits().tension_limit_n
 
     # ------------------------------------------------------------------ identity
     @property
@@ -173,15 +199,20 @@ class Device:
 
     # ------------------------------------------------------------------ connection
     def connect(self, *, timeout_s: float = 2.0) -> DeviceInfo:
-        """Open the link, check the protocol version (HELLO) and wait for the first sample.
+        """Open the link, check the protocol version (HELLO), disable the board and wait for
+        the first sample after that.
+
+        The board is disabled whatever state a previous host left it in (say one that died a
+        moment ago with the rig enabled): this host starts from coasting motors.
 
         Args:
             timeout_s: how long the port may take to appear and the board to answer (s).
 
         Raises:
             DeviceError: the port cannot be opened.
-            DeviceTimeout: no HELLO_REPLY or no telemetry in time.
-            ProtocolVersionError: the board speaks another protocol version.
+            DeviceTimeout: no HELLO_REPLY, no answer to DISABLE or no telemetry in time.
+            ProtocolVersionError: the board speaks another protocol version (it was sent
+                DISABLE, and nothing else).
         """
         if self._info is not None:
             return self._info
@@ -192,7 +223,6 @@ class Device:
         except BaseException:
             self._transport.close()
             raise
-        self._transport.keep_alive(self._keepalive_s, self._ping)
         self._info = info
         return info
 
@@ -218,6 +248,17 @@ class Device:
         self._shutdown()
         if self.tracker is not None:
             self.tracker.close()
+
+    def attended(self) -> ContextManager[None]:
+        """A block in which the host waits on purpose for something other than the board, e.g.
+        an operator's confirmation: the watchdog is fed meanwhile, as during :meth:`wait`.
+
+        Example::
+
+            with device.attended():
+                input("Hang 10 g at the tip, then press Enter: ")
+        """
+        return self._transport.attended()
 
     def __enter__(self) -> "Device":
         self.connect()
@@ -268,7 +309,15 @@ class Device:
             ki: duty per (m·s) or (N·s), >= 0.
             kd: duty·s per m or per N, >= 0.
             output_limit: bound on |duty| and on the integral term, in (0, 1].
+
+        Raises:
+            ValueError: a gain not finite or negative, or ``output_limit`` outside (0, 1].
         """
+        for name, value in (("kp", kp), ("ki", ki), ("kd", kd)):
+            if not (math.isfinite(value) and value >= 0.0):
+                raise ValueError(f"{name} = {value!r}: must be finite and >= 0")
+        if not 0.0 < output_limit <= 1.0:
+            raise ValueError(f"output_limit = {output_limit!r}: must be in (0, 1]")
         self._command(codec.SetGains(_mode(mode), float(kp), float(ki), float(kd), float(output_limit)))
 
     def set_calibration(
@@ -311,21 +360,44 @@ class Device:
         self._command(codec.SetLimits(float(tension_limit_n), round(watchdog_timeout_s * 1e3)))
 
     def set_lengths(self, lengths_m: Sequence[float]) -> None:
-        """Setpoints of ``"lengths"`` mode: 4 relative tendon lengths (m, positive = paid out)."""
-        self._command(codec.SetSetpoints.lengths(_vector("lengths_m", lengths_m, codec.CHANNELS)))
+        """Setpoints of ``"lengths"`` mode: 4 relative tendon lengths (m, positive = paid out,
+        within ±:data:`MAX_LENGTH_SETPOINT_M`).
+
+        Raises:
+            ValueError: not 4 finite numbers, or one beyond ±0.05 m (the value and its index named).
+        """
+        lengths = _vector("lengths_m", lengths_m, codec.CHANNELS)
+        limit = MAX_LENGTH_SETPOINT_M
+        self._command(codec.SetSetpoints.lengths(_bounded("lengths_m", lengths, -limit, limit, "m", "mm sent as m?")))
 
     def set_pairs(self, pairs_m: Sequence[float]) -> None:
-        """Setpoints of ``"pairs"`` mode: d₁₃ and d₂₄ (m); tendon 1 goes to c₁₃ + d₁₃ and
-        tendon 3 to c₁₃ − d₁₃, c the pair's mean length when the mode was entered."""
-        self._command(codec.SetSetpoints.pairs(_vector("pairs_m", pairs_m, codec.CHANNELS // 2)))
+        """Setpoints of ``"pairs"`` mode: d₁₃ and d₂₄ (m, within ±:data:`MAX_LENGTH_SETPOINT_M`);
+        tendon 1 goes to c₁₃ + d₁₃ and tendon 3 to c₁₃ − d₁₃, c the pair's mean length when the
+        mode was entered.
+
+        Raises:
+            ValueError: not 2 finite numbers, or one beyond ±0.05 m.
+        """
+        pairs = _vector("pairs_m", pairs_m, codec.CHANNELS // 2)
+        limit = MAX_LENGTH_SETPOINT_M
+        self._command(codec.SetSetpoints.pairs(_bounded("pairs_m", pairs, -limit, limit, "m", "mm sent as m?")))
 
     def set_tensions(self, tensions_n: Sequence[float]) -> None:
-        """Setpoints of ``"tensions"`` mode: 4 tendon tensions (N, 0…limit)."""
-        self._command(codec.SetSetpoints.tensions(_vector("tensions_n", tensions_n, codec.CHANNELS)))
+        """Setpoints of ``"tensions"`` mode: 4 tendon tensions (N, from 0 to the tension limit
+        this host last set with :meth:`set_limits`, 6 N until then).
+
+        Raises:
+            ValueError: not 4 finite numbers, or one outside 0..limit.
+        """
+        tensions = _vector("tensions_n", tensions_n, codec.CHANNELS)
+        tensions = _bounded("tensions_n", tensions, 0.0, self._tension_limit_n, "N", "the tension limit; set_limits")
+        self._command(codec.SetSetpoints.tensions(tensions))
 
     # ------------------------------------------------------------------ telemetry and time
     def latest(self) -> Telemetry:
-        """The most recent sample (kept after the board went away)."""
+        """The most recent sample (kept after the board went away); sends the keepalive PING
+        if one is due, as every call of the control loop does."""
+        self._transport.ping_if_due()
         if self._inbox.latest is None:
             raise DeviceError(f"{self.url}: no telemetry yet (call connect())")
         return self._inbox.latest
@@ -364,7 +436,8 @@ class Device:
 
     def drain(self) -> list[Telemetry]:
         """Every sample received since the last drain, oldest first (up to ``queue_size``);
-        works after the board went away."""
+        works after the board went away. Sends the keepalive PING if one is due."""
+        self._transport.ping_if_due()
         return self._inbox.drain()
 
     @property
@@ -376,6 +449,12 @@ class Device:
     def dropped_samples(self) -> int:
         """Samples pushed out of the drain queue because nobody drained it."""
         return self._inbox.dropped_samples
+
+    @property
+    def stats(self) -> LinkStats:
+        """What the host dropped or missed on the link, with the reason for the latest drop
+        (:class:`twin.device.inbox.LinkStats`)."""
+        return self._inbox.stats()
 
     @property
     def bad_frames(self) -> int:
@@ -399,10 +478,16 @@ class Device:
             )
         reply = self._inbox.hello_reply
         if reply.protocol_version != codec.PROTOCOL_VERSION:
+            self._send(codec.Disable())
             raise ProtocolVersionError(self.url, reply.protocol_version)
-        # Samples that came before the reply may be stale (old bytes on the line); wait for one after.
+        self._transport.keep_alive(self._keepalive_s, self._ping)
+        # Whatever a previous host left running stops before this one takes over.
+        self._await_answer(codec.Disable())
+        # Samples that came before may be stale (old bytes on the line, a state before the
+        # DISABLE); wait for one after.
         inbox = self._inbox
-        if not self._wait_for(lambda: inbox.sample_count > inbox.samples_before_hello_reply, timeout_s):
+        count = inbox.samples_before_answer
+        if not self._wait_for(lambda: inbox.sample_count > count, timeout_s):
             raise DeviceTimeout(f"{self.url}: handshake done but no telemetry within {timeout_s} s")
         return DeviceInfo.from_reply(reply, url=self.url, clock=self.clock)
 
@@ -411,25 +496,48 @@ class Device:
         self._info = None
 
     def _check_connected(self) -> None:
-        if self._inbox.error is not None:
-            raise DeviceDisconnected(str(self._inbox.error)) from self._inbox.error
+        self._raise_if_lost()
         if self._info is None:
             raise DeviceError(f"{self.url}: not connected (call connect())")
 
+    def _raise_if_lost(self) -> None:
+        error = self._inbox.error
+        if error is not None:
+            raise DeviceDisconnected(str(error)) from error
+
     def _send(self, message: codec.Message, *, expect_answer: bool = False) -> int:
+        # Nothing goes out once the link is lost (no PING keeps a board enabled for a host
+        # that cannot hear it), except the DISABLE of _disable_after_loss.
+        self._raise_if_lost()
+        return self._write(message, expect_answer=expect_answer)
+
+    def _write(self, message: codec.Message, *, expect_answer: bool = False) -> int:
         with self._send_lock:
             self._seq = (self._seq + 1) & 0xFFFF
             seq = self._seq
             if expect_answer:
-                self._inbox.expect(seq)
+                self._inbox.expect(seq, message.TYPE)
             self._transport.write(codec.encode_frame(message, seq))
         return seq
 
     def _ping(self) -> None:
         self._send(codec.Ping())
 
+    def _disable_after_loss(self, error: DeviceDisconnected) -> None:
+        """The host stopped hearing the board while the board may still hear it: tell it to
+        stop, best effort (its watchdog stops it anyway once nothing more arrives)."""
+        try:
+            self._write(codec.Disable())
+        except DeviceError:
+            pass
+
     def _command(self, message: codec.Message) -> None:
         self._check_connected()
+        self._await_answer(message)
+        if isinstance(message, codec.SetLimits):
+            self._tension_limit_n = message.tension_limit_n
+
+    def _await_answer(self, message: codec.Message) -> None:
         seq = self._send(message, expect_answer=True)
         try:
             answered = self._wait_for(lambda: self._inbox.answered(seq), self._command_timeout_s)
@@ -446,6 +554,5 @@ class Device:
     def _wait_for(self, predicate, timeout_s: float) -> bool:
         inbox = self._inbox
         done = self._transport.wait_until(lambda: inbox.error is not None or predicate(), timeout_s)
-        if inbox.error is not None:
-            raise DeviceDisconnected(str(inbox.error)) from inbox.error
+        self._raise_if_lost()
         return done

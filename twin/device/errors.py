@@ -25,7 +25,8 @@ class DeviceDisconnected(DeviceError, ConnectionError):
 
 
 class ProtocolVersionError(DeviceError):
-    """The board speaks another protocol version than this host.
+    """The board speaks another protocol version than this host. It was sent a DISABLE, in
+    case it understands one, and nothing else.
 
     Attributes:
         board_version: the version in the board's HELLO_REPLY.
@@ -35,7 +36,7 @@ class ProtocolVersionError(DeviceError):
     def __init__(self, url: str, board_version: int, host_version: int = codec.PROTOCOL_VERSION):
         super().__init__(
             f"{url}: board speaks protocol version {board_version}, this host speaks {host_version}; "
-            "flash the firmware that matches this twin (firmware/README.md)"
+            "sent it DISABLE and refused to go on; flash the firmware that matches this twin (firmware/README.md)"
         )
         self.board_version = board_version
         self.host_version = host_version

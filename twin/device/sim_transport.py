@@ -4,13 +4,16 @@ Bytes pass in memory through the same codec as on the wire. Time stands still be
 it advances only while the host waits (``Device.wait``, ``Device.wait_next``, a command
 awaiting its answer), one 5 ms board tick at a time, and while it does the transport sends the
 keepalive PINGs a live host would, at the same simulated instants every run. With the same
-seed, parameters and calls a run is therefore repeated exactly.
+seed, parameters and calls a run is therefore repeated exactly. Since no simulated time passes
+outside the host's waits, no PING falls due there: :meth:`SimTransport.ping_if_due` and
+:meth:`SimTransport.attended` have nothing to send.
 """
 
 from __future__ import annotations
 
+import contextlib
 import math
-from typing import Callable
+from typing import Callable, ContextManager
 
 from twin.device.board import EmulatedBoard, Reason
 from twin.device.inbox import Inbox
@@ -68,6 +71,12 @@ class SimTransport(Transport):
 
     def keep_alive(self, period_s: float | None, ping: Callable[[], None]) -> None:
         self._keepalive_s, self._ping = period_s, ping
+
+    def ping_if_due(self) -> None:
+        pass
+
+    def attended(self) -> ContextManager[None]:
+        return contextlib.nullcontext()
 
     def close(self) -> None:
         self._inbox = None

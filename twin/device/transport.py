@@ -3,17 +3,22 @@
 Two kinds exist and differ in their clock:
 
 * ``"wall"`` (:class:`twin.device.serial_transport.SerialTransport`): the board runs on its
-  own; a reader thread hands received bytes to the inbox as they arrive, a keepalive thread
-  pings when the host has been quiet, and waiting is sleeping.
+  own; a reader thread hands received bytes to the inbox as they arrive, and waiting is
+  sleeping.
 * ``"simulated"`` (:class:`twin.device.sim_transport.SimTransport`): the board is emulated in
   this process and time stands still unless the host waits; waiting steps the board, and
   bytes are delivered as they are produced.
+
+Either way the keepalive PINGs that feed the board's watchdog go out only from the host's own
+calls — while it waits, or when it calls in without waiting — never from a thread of their
+own: the watchdog then trips when the host's control loop stops making progress, whatever
+else in the process is still running.
 """
 
 from __future__ import annotations
 
 import abc
-from typing import Callable
+from typing import Callable, ContextManager
 
 from twin.device.inbox import Inbox
 
@@ -58,8 +63,19 @@ class Transport(abc.ABC):
 
     @abc.abstractmethod
     def keep_alive(self, period_s: float | None, ping: Callable[[], None]) -> None:
-        """Call ``ping()`` whenever nothing was written for ``period_s`` (None: never), so the
-        board's watchdog stays fed while the host is alive."""
+        """A PING is due whenever nothing was written for ``period_s`` (None: never); the
+        transport calls ``ping()`` when one is due during :meth:`wait_until`,
+        :meth:`ping_if_due` and :meth:`attended`, and at no other time."""
+
+    @abc.abstractmethod
+    def ping_if_due(self) -> None:
+        """The host called in without waiting (its control loop made progress): send the PING
+        that is due, if any. A failed write is not raised here; the inbox records it."""
+
+    @abc.abstractmethod
+    def attended(self) -> ContextManager[None]:
+        """A block in which the host, alive, waits on something other than the board (an
+        operator's confirmation): PINGs go out as they fall due until the block ends."""
 
     @abc.abstractmethod
     def close(self) -> None:

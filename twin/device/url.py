@@ -104,7 +104,14 @@ def open_device(
     if "igtl" in options:
         host, port = _host_port(url, options["igtl"])
         tracker = TipTracker(lambda: OpenIGTLinkSource(host, port), settings=settings)
-    return Device(SerialTransport(path, url=url), fixture=OperatorFixture(prompt), tracker=tracker, **device_args)
+
+    def ask(request: str) -> object:
+        # The operator may take longer than the watchdog timeout; the host is alive meanwhile.
+        with device.attended():
+            return prompt(request)
+
+    device = Device(SerialTransport(path, url=url), fixture=OperatorFixture(ask), tracker=tracker, **device_args)
+    return device
 
 
 def _seed(url: str, options: dict[str, str], seed: int | None) -> int:
