@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import datetime
 import json
+import shlex
 import sys
 import time
 from pathlib import Path
@@ -47,6 +48,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
     s = sub.add_parser("stiffness", help="stiffness characterisation (thesis 8.2): fit E and G on a device")
     _device_args(s)
+    s.add_argument("--resume", metavar="RUN_DIR", help="continue an interrupted run in this folder")
     s.set_defaults(func=run_stiffness_cmd)
 
 
@@ -60,6 +62,15 @@ def _device_args(p: argparse.ArgumentParser) -> None:
     add_param_args(p)
 
 
+# The invocation of a run, in its run folder (the hidden --twin-set stays in TWIN_TRUTH).
+RUN_RECORD = "run.json"
+TWIN_TRUTH = "twin_truth.json"
+
+
+class RunRefused(Exception):
+    """A run cannot start or resume as asked (the message says why, naming each difference)."""
+
+
 def _open(args, params):
     from twin.device import open_device
 
@@ -68,7 +79,10 @@ def _open(args, params):
         if not args.device.startswith("sim://"):
             raise SystemExit("twin: --twin-set applies to sim:// only")
         twin_params = params.replace(dict(parse_override(o) for o in args.twin_overrides), source="twin-set (hidden)")
-    device = open_device(args.device, params=twin_params, seed=args.seed)
+    try:
+        device = open_device(args.device, params=twin_params, seed=args.seed)
+    except ValueError as exc:  # a bad URL or option: nothing was opened
+        raise RunRefused(f"--device {args.device}: {exc}") from None
     device.connect()
     return device
 
@@ -87,49 +101,227 @@ def _calibration(args, params, device) -> dict:
     return cal
 
 
-def _run_folder(args, name: str) -> Path:
-    if getattr(args, "resume", None):
-        return Path(args.resume)
-    stamp = datetime.datetime.now().strftime("%Y%m%d-%H%M%S")
-    folder = Path(args.out) / f"{name}-{stamp}"
-    folder.mkdir(parents=True, exist_ok=False)
+def _invocation(args, command: str) -> dict:
+    """What decides the conditions of a run's measurements, as recorded in ``run.json``."""
+    return {"command": command, "device": args.device, "seed": args.seed, "quick": bool(getattr(args, "quick", False)),
+            "calibration": args.calibration, "params": args.params, "set": list(args.overrides)}
+
+
+def _resume_command(args, command: str, folder: Path) -> str:
+    """The command line that continues the run in ``folder`` under the same conditions."""
+    words = ["twin", command, "--resume", str(folder), "--device", args.device]
+    if args.seed is not None:
+        words += ["--seed", str(args.seed)]
+    if getattr(args, "quick", False):
+        words.append("--quick")
+    if args.calibration:
+        words += ["--calibration", args.calibration]
+    if args.params:
+        words += ["--params", args.params]
+    for option, values in (("--set", args.overrides), ("--twin-set", args.twin_overrides)):
+        for value in values:
+            words += [option, value]
+    return shlex.join(words)
+
+
+def _new_run_folder(parent: Path, name: str) -> Path:
+    """A fresh ``name-YYYYmmdd-HHMMSS`` folder under ``parent``; runs started in the same second
+    get ``-2``, ``-3``, ... (``mkdir`` either creates a folder or fails, so two never share one)."""
+    parent.mkdir(parents=True, exist_ok=True)
+    stamp = f"{name}-{datetime.datetime.now().strftime('%Y%m%d-%H%M%S')}"
+    for n in range(1, 1000):
+        folder = parent / (stamp if n == 1 else f"{stamp}-{n}")
+        try:
+            folder.mkdir()
+            return folder
+        except FileExistsError:
+            continue
+    raise RunRefused(f"{parent}: a thousand {stamp} run folders already exist")
+
+
+def _start_run(args, command: str) -> Path:
+    """Create the run folder of a new run and record its invocation in it."""
+    from twin.data.dataset import write_atomic
+
+    folder = _new_run_folder(Path(args.out), command)
+    try:
+        write_atomic(folder / RUN_RECORD, json.dumps(_invocation(args, command), indent=1))
+        if args.twin_overrides:
+            # The hidden truth stays out of the dataset folder, so analyses see only what a lab would.
+            write_atomic(folder / TWIN_TRUTH, json.dumps({"twin_set": args.twin_overrides}, indent=1))
+    except OSError:
+        for leftover in (folder / TWIN_TRUTH, folder / RUN_RECORD):
+            leftover.unlink(missing_ok=True)
+        folder.rmdir()
+        raise
     return folder
 
 
+def _check_resume(args, command: str, experiment: str, params) -> Path:
+    """The run folder of ``--resume``, once it is known to be a ``twin command`` run taken under
+    the conditions of this invocation (device, seed, parameters, twin settings, grid).
+
+    Raises:
+        RunRefused: not a run folder, a damaged dataset, or conditions that differ (each named).
+    """
+    import warnings
+
+    from twin.data.dataset import (METADATA, MEASUREMENTS, RUN_DATASET, DatasetError, DatasetWarning, read_dataset,
+                                   read_metadata, recorded_params)
+    from twin.params import ParameterError
+
+    folder = Path(args.resume)
+    where = f"--resume {folder}"
+    dataset = folder / RUN_DATASET
+    record_path = folder / RUN_RECORD
+    if not record_path.exists() and not (dataset / METADATA).exists():
+        raise RunRefused(f"{where}: not a run folder of twin {command} (it has neither {RUN_RECORD} nor "
+                         f"{RUN_DATASET}/{METADATA})")
+    record = None
+    if record_path.exists():
+        try:
+            record = json.loads(record_path.read_text())
+        except (OSError, ValueError) as exc:
+            raise RunRefused(f"{where}: {record_path} is unreadable ({exc})") from None
+        if not isinstance(record, dict):
+            raise RunRefused(f"{where}: {record_path} is unreadable (not a JSON object)")
+        if record.get("command") != command:
+            raise RunRefused(f"{where}: a twin {record.get('command')} run, not a twin {command} run")
+    differences = []
+
+    def differ(what: str, here, there) -> None:
+        if here != there:
+            differences.append(f"{what} {_shown(here)} here, {_shown(there)} in the run")
+
+    if (dataset / METADATA).exists():
+        try:
+            if (dataset / MEASUREMENTS).exists():
+                with warnings.catch_warnings():
+                    # A torn last row is for the writer to report, once, when it cuts it off.
+                    warnings.simplefilter("ignore", DatasetWarning)
+                    metadata = read_dataset(dataset).metadata
+            else:
+                metadata = read_metadata(dataset)
+        except DatasetError as exc:
+            raise RunRefused(f"{where}: its dataset cannot be resumed: {exc}") from None
+        if metadata.get("experiment") != experiment:
+            raise RunRefused(f"{where}: holds a {metadata.get('experiment')!r} dataset, not {experiment!r}")
+        if record is None:
+            differ("--device", args.device, metadata.get("device"))
+        try:
+            recorded = recorded_params(metadata).to_dict()
+        except ParameterError as exc:
+            raise RunRefused(f"{where}: the run's parameter set does not load today ({exc})") from None
+        changed = [(f"{section}.{key}", entry["value"], recorded.get(section, {}).get(key, {}).get("value"))
+                   for section, entries in params.to_dict().items() for key, entry in entries.items()]
+        changed = [c for c in changed if c[1] != c[2]]
+        for key, here, there in changed[:_SHOWN_PARAMETERS]:
+            differ(key, here, there)
+        if len(changed) > _SHOWN_PARAMETERS:
+            differences.append(f"{len(changed) - _SHOWN_PARAMETERS} more parameter(s)")
+    if record is not None:
+        differ("--device", args.device, record.get("device"))
+        if args.device.startswith("sim://"):
+            differ("--seed", args.seed, record.get("seed"))
+        if command == "validate":
+            differ("--quick", bool(args.quick), record.get("quick"))
+        differ("--calibration", args.calibration, record.get("calibration"))
+    truth_path = folder / TWIN_TRUTH
+    try:
+        twin_set = json.loads(truth_path.read_text())["twin_set"] if truth_path.exists() else []
+        differ("--twin-set", _twin_set(args.twin_overrides), _twin_set(twin_set))
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        raise RunRefused(f"{where}: {truth_path} is unreadable ({exc})") from None
+    if differences:
+        raise RunRefused(f"{where}: " + "; ".join(differences) + ". Resume with the run's settings, or start "
+                         "a new run (without --resume): rows taken under other conditions would be mixed in")
+    if record is None:
+        print(f"twin {command}: warning: {where}: no {RUN_RECORD} (a run from an older twin): its --seed, --quick "
+              "and --calibration could not be checked", file=sys.stderr)
+    return folder
+
+
+# Parameter differences a resume refusal lists one by one (another parameter file differs in many).
+_SHOWN_PARAMETERS = 6
+
+
+def _twin_set(overrides) -> dict:
+    """--twin-set values by key, read as values (so ``[0,0]`` and ``[0, 0]`` are the same)."""
+    return dict(parse_override(o) for o in overrides)
+
+
+def _shown(value) -> str:
+    """A setting as the resume refusal names it."""
+    if isinstance(value, bool):
+        return "on" if value else "off"
+    if value is None or value == {}:
+        return "none"
+    if isinstance(value, dict):
+        return " ".join(f"{k}={v!r}" for k, v in value.items())
+    return str(value)
+
+
+def _stopped(command: str, folder: Path, args, exc: BaseException) -> None:
+    """Why a run stopped, where its measurements are, and the command line that continues it."""
+    from twin.data.dataset import RUN_DATASET
+
+    why = f"{type(exc).__name__}: {exc}" if not isinstance(exc, KeyboardInterrupt) else "interrupted"
+    print(f"twin {command}: stopped: {why}", file=sys.stderr)
+    print(f"twin {command}: every complete measurement so far is in {folder / RUN_DATASET}; continue with:\n"
+          f"  {_resume_command(args, command, folder)}", file=sys.stderr)
+
+
+def _run_folder(args, command: str, experiment: str, params) -> Path:
+    """The run folder: ``--resume``'s once checked, else a new one."""
+    if args.twin_overrides and not args.device.startswith("sim://"):
+        raise RunRefused("--twin-set applies to sim:// only")
+    if getattr(args, "resume", None):
+        return _check_resume(args, command, experiment, params)
+    return _start_run(args, command)
+
+
 def run_validate(args: argparse.Namespace) -> int:
-    from twin.experiments.analysis import analyse_validation
-    from twin.data.dataset import RUN_DATASET, read_dataset
+    from twin.data.dataset import RUN_DATASET, DatasetError, read_dataset
     from twin.device.errors import DeviceError
+    from twin.experiments.analysis import analyse_validation
     from twin.experiments.protocols import ProtocolError, run_validation
     from twin.experiments.report import write_validation_report
     from twin.sim.plant import SimulationError
 
     params = params_from_args(args)
-    folder = _run_folder(args, "validate")
+    try:
+        folder = _run_folder(args, "validate", "validation", params)
+    except RunRefused as exc:
+        print(f"twin validate: {exc}", file=sys.stderr)
+        return 2
     grid = validation_grid()
     if args.quick:
         grid = [g for g in grid if g[1] in (0.0, 13.0, 26.2) and g[2] in (0.0, 90.0, 180.0, 270.0) and g[3] != 0.005]
-    if args.twin_overrides:
-        # The hidden truth stays out of the dataset folder, so analyses see only what a lab would.
-        (folder / "twin_truth.json").write_text(json.dumps({"twin_set": args.twin_overrides}, indent=1))
     print(f"twin validate: {len(grid)} configurations on {args.device}, run folder {folder}", file=sys.stderr)
     start = time.perf_counter()
-    device = _open(args, params)
     try:
-        calibration = _calibration(args, params, device)
-        run_validation(device, folder / RUN_DATASET, params, grid=grid, calibration=calibration)
-    except (ProtocolError, DeviceError, SimulationError) as exc:
-        print(f"twin validate: stopped: {type(exc).__name__}: {exc}. Every measurement so far is in "
-              f"{folder / RUN_DATASET}; continue with --resume {folder}", file=sys.stderr)
+        device = _open(args, params)
+        try:
+            calibration = _calibration(args, params, device)
+            run_validation(device, folder / RUN_DATASET, params, grid=grid, calibration=calibration)
+        finally:
+            device.close()
+        sweep_s = time.perf_counter() - start
+        dataset = read_dataset(folder / RUN_DATASET)
+        result = analyse_validation(dataset, params, progress=True)
+        picture = _picture(args, params, folder)
+        path = write_validation_report(result, folder, picture=picture,
+                                       facts={"sweep_wall_time_s": sweep_s, "device": args.device})
+    except RunRefused as exc:
+        print(f"twin validate: {exc}", file=sys.stderr)
+        return 2
+    except (ProtocolError, DeviceError, SimulationError, DatasetError, OSError) as exc:
+        # OSError: a full disk or another I/O error; the dataset writer left every complete row readable.
+        _stopped("validate", folder, args, exc)
         return 4
-    finally:
-        device.close()
-    sweep_s = time.perf_counter() - start
-    dataset = read_dataset(folder / RUN_DATASET)
-    result = analyse_validation(dataset, params, progress=True)
-    picture = _picture(args, params, folder)
-    path = write_validation_report(result, folder, picture=picture,
-                                   facts={"sweep_wall_time_s": sweep_s, "device": args.device})
+    except KeyboardInterrupt as exc:
+        _stopped("validate", folder, args, exc)
+        return 130
     s = result.summary()
     print(f"sweep {sweep_s:.1f} s wall; {s['rows']} configurations, {s['failed_predictions']} failed predictions; "
           f"prediction error median {s['median_error_mm']:.3f} mm, RMS {s['rms_error_mm']:.3f} mm, "
@@ -160,21 +352,37 @@ def _picture(args, params, folder: Path) -> Path | None:
 
 
 def run_stiffness_cmd(args: argparse.Namespace) -> int:
-    from twin.data.dataset import RUN_DATASET, read_dataset
-    from twin.experiments.protocols import run_stiffness
+    from twin.data.dataset import RUN_DATASET, DatasetError, read_dataset
+    from twin.device.errors import DeviceError
+    from twin.experiments.protocols import ProtocolError, run_stiffness
     from twin.experiments.stiffness import fit_stiffness, plot_error_surface
+    from twin.sim.plant import SimulationError
 
     params = params_from_args(args)
-    folder = _run_folder(args, "stiffness")
-    device = _open(args, params)
     try:
-        _calibration(args, params, device)
-        run_stiffness(device, folder / RUN_DATASET, params)
-    finally:
-        device.close()
-    result = fit_stiffness(read_dataset(folder / RUN_DATASET), params)
-    plot_error_surface(result, folder / "error_surface.png")
-    result.fit.params.save(folder / "fitted_params.toml")
+        folder = _run_folder(args, "stiffness", "stiffness", params)
+    except RunRefused as exc:
+        print(f"twin stiffness: {exc}", file=sys.stderr)
+        return 2
+    try:
+        device = _open(args, params)
+        try:
+            _calibration(args, params, device)
+            run_stiffness(device, folder / RUN_DATASET, params)
+        finally:
+            device.close()
+        result = fit_stiffness(read_dataset(folder / RUN_DATASET), params)
+        plot_error_surface(result, folder / "error_surface.png")
+        result.fit.params.save(folder / "fitted_params.toml")
+    except RunRefused as exc:
+        print(f"twin stiffness: {exc}", file=sys.stderr)
+        return 2
+    except (ProtocolError, DeviceError, SimulationError, DatasetError, OSError) as exc:
+        _stopped("stiffness", folder, args, exc)
+        return 4
+    except KeyboardInterrupt as exc:
+        _stopped("stiffness", folder, args, exc)
+        return 130
     for row in result.fit.table():
         print(f"{row['parameter']:28s} {row['value']:.5g}  ± {row['std_error']:.2g}  "
               f"(95%: {row['ci95_low']:.4g} … {row['ci95_high']:.4g})")
@@ -206,7 +414,11 @@ def run_calibrate_cmd(args: argparse.Namespace) -> int:
         print(f"refitted {path}")
         return 0
     params = params_from_args(args)
-    device = _open(args, params)
+    try:
+        device = _open(args, params)
+    except RunRefused as exc:
+        print(f"twin calibrate: {exc}", file=sys.stderr)
+        return 2
     try:
         if args.check:
             cal = load_calibration(path)

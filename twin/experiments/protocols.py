@@ -184,22 +184,22 @@ def run_validation(device, folder: str | Path, params: Params, *, grid: Sequence
                        calibration=calibration) as writer:
         done = writer.completed()
         todo = [(k, v) for k, v in groups.items() if not all(c in done for c, _ in v)]
-        bar = tqdm(total=sum(len(v) for _, v in todo), desc="validation sweep", unit="config",
-                   disable=not progress)
-        for (kappa, phi), configs in todo:
-            zero = pretension(device, pre, gravity_m_s2=params.environment.gravity_m_s2)
-            device.fixture.release_holder()
-            device.set_lengths(zero + tendon_length_changes_m(kappa, phi, params))
-            for config, mass in sorted(configs, key=lambda c: c[1]):
-                device.fixture.hang_tip_mass(mass)
-                settle(device, timeout_s=settle_timeout_s)
-                if config not in done:
-                    m = measure(device)
-                    writer.write(_row(config, kappa, phi, mass, m, zero))
-                bar.update(1)
-            device.fixture.hang_tip_mass(0.0)
-            device.disable()
-        bar.close()
+        # The bar closes (ends its line) also when a stop raises, so the reason prints below it.
+        with tqdm(total=sum(len(v) for _, v in todo), desc="validation sweep", unit="config",
+                  disable=not progress) as bar:
+            for (kappa, phi), configs in todo:
+                zero = pretension(device, pre, gravity_m_s2=params.environment.gravity_m_s2)
+                device.fixture.release_holder()
+                device.set_lengths(zero + tendon_length_changes_m(kappa, phi, params))
+                for config, mass in sorted(configs, key=lambda c: c[1]):
+                    device.fixture.hang_tip_mass(mass)
+                    settle(device, timeout_s=settle_timeout_s)
+                    if config not in done:
+                        m = measure(device)
+                        writer.write(_row(config, kappa, phi, mass, m, zero))
+                    bar.update(1)
+                device.fixture.hang_tip_mass(0.0)
+                device.disable()
     return Path(folder)
 
 
