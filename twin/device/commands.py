@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import argparse
+import os
 import signal
+import sys
 import threading
 
 from twin.cliargs import add_param_args, add_pose_args, params_from_args, rotation_from_args
@@ -18,7 +20,7 @@ def register(subparsers) -> None:
     )
     p.add_argument("--seed", type=int, default=0, help="sensor-noise seed of the twin")
     p.add_argument("--link", metavar="PATH", default=None,
-                   help="also make PATH a symbolic link to the port (stable across replugs)")
+                   help="also make PATH a symbolic link to the port (stable across replugs); PATH must not exist")
     add_pose_args(p)
     add_param_args(p)
     p.set_defaults(func=run_emulate)
@@ -33,6 +35,11 @@ def run_emulate(args: argparse.Namespace) -> int:
     from twin.device.board import TICK_S
     from twin.device.pty_board import PtyBoard
 
+    if args.link is not None and os.path.lexists(args.link):
+        # The link is made by renaming over PATH and removed on exit: an existing file there would be lost.
+        print(f"twin emulate: --link {args.link}: already exists; not replacing it (remove it or choose "
+              "another path)", file=sys.stderr)
+        return 2
     stop = threading.Event()
     previous = signal.signal(signal.SIGTERM, lambda signum, frame: stop.set())
     try:

@@ -126,8 +126,9 @@ class PtyBoard:
         for fd in self._fds:
             os.close(fd)
         self._fds = None
-        if self.link_path is not None:
-            self.link_path.unlink(missing_ok=True)
+        if self.link_path is not None and self.link_path.is_symlink() and \
+                os.readlink(self.link_path) == self._device_path:
+            self.link_path.unlink()  # only the link made here: whatever replaced it is not ours to remove
 
     def close(self) -> None:
         """Unplug and free the firmware."""
