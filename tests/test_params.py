@@ -1,6 +1,7 @@
 """The parameter seam: loading, provenance, overrides and refusal of bad values."""
 
 import math
+import re
 
 import pytest
 
@@ -74,3 +75,74 @@ def test_parse_override_bare_word_is_string():
 
 def test_default_path_exists():
     assert DEFAULT_PARAMS_PATH.is_file()
+
+
+def _file_with(tmp_path, key, value_text):
+    """The default parameter file with ``key``'s value replaced by the TOML text ``value_text``."""
+    section, name = key.split(".")
+    lines, current = [], None
+    for line in DEFAULT_PARAMS_PATH.read_text().splitlines():
+        if line.startswith("["):
+            current = line.strip("[]")
+        elif current == section and line.startswith(f"{name} = {{ value = "):
+            line = re.sub(r"value = [^,]+,", f"value = {value_text},", line, count=1)
+        lines.append(line)
+    path = tmp_path / "params.toml"
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+@pytest.mark.parametrize("key", ["sim.elements", "discs.count", "rig.encoder_counts_per_rev", "solver.steps"])
+@pytest.mark.parametrize("text, shown", [
+    ("inf", "inf"), ("-inf", "-inf"), ("nan", "nan"), ("1e300", "1e+300"), ("2.5", "2.5"), ("true", "True"),
+    ("99999999999999999999", "99999999999999999999"), ('"10"', "'10'"),
+])
+def test_integer_parameters_refuse_what_is_no_count_naming_file_key_and_value(tmp_path, key, text, shown):
+    path = _file_with(tmp_path, key, text)
+    with pytest.raises(ParameterError) as info:
+        load_params(path)
+    message = str(info.value)
+    assert message.startswith(f"{path}: {key} = {shown}: must be a whole number"), message
+
+
+@pytest.mark.parametrize("value", ["1e300", "2147483648", "-1e12"])
+def test_integer_overrides_out_of_range_are_refused_naming_key_and_value(value):
+    with pytest.raises(ParameterError, match=r"solver\.steps = .*: must be a whole number within ±2147483647"):
+        load_params(overrides=[f"solver.steps={value}"])
+
+
+def test_an_error_from_a_parameter_file_names_the_file(tmp_path):
+    path = _file_with(tmp_path, "backbone.length_m", "-0.06")
+    with pytest.raises(ParameterError, match=re.escape(f"{path}: backbone.length_m = -0.06: must be > 0")):
+        load_params(path)
+
+
+@pytest.mark.parametrize("content, reason", [
+    (bytes(range(256)) * 4, "not a TOML parameter file (byte 129 is not UTF-8 text"),
+    ('[backbone]\nlength_m = { value = 0.06, source = "caf\xe9" }\n'.encode("latin-1"), "is not UTF-8 text"),
+    (b"\0" * 64, "not a TOML parameter file (not valid TOML"),
+    (b"a parameter file, honestly\n", "not a TOML parameter file (not valid TOML"),
+    (b"backbone = 3\n", "[backbone] must be a table of keys"),
+])
+def test_a_file_that_is_not_a_toml_parameter_file_is_one_error_naming_it(tmp_path, content, reason):
+    path = tmp_path / "weird.toml"
+    path.write_bytes(content)
+    with pytest.raises(ParameterError) as info:
+        load_params(path)
+    assert str(info.value).startswith(f"{path}: ") and reason in str(info.value)
+
+
+@pytest.mark.parametrize("content, expected", [
+    (bytes(range(256)), "not a TOML parameter file"),
+    (None, "cannot read it"),
+])
+def test_the_cli_reports_a_bad_parameter_file_in_one_line(tmp_path, capsys, content, expected):
+    from twin.cli import main
+
+    path = tmp_path / "p.toml"
+    if content is not None:
+        path.write_bytes(content)
+    assert main(["predict", "--tensions", "1,0,0,0", "--params", str(path)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith("twin: parameter error: ") and str(path) in err
+    assert expected in err
