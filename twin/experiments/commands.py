@@ -280,48 +280,61 @@ def _run_folder(args, command: str, experiment: str, params) -> Path:
     return _start_run(args, command)
 
 
-def run_validate(args: argparse.Namespace) -> int:
-    from twin.data.dataset import RUN_DATASET, DatasetError, read_dataset
+def _run(args, command: str, experiment: str, body) -> int:
+    """The frame of a measuring command: the run folder (new, or ``--resume``'s once checked), then
+    ``body(folder, params)``, which returns the exit code. A run that cannot start or resume as
+    asked ends with 2; one stopped by the device, the protocol, a refused row or an I/O error (a
+    full disk) ends with 4, and Ctrl-C with 130, each after one line saying why and the command
+    line that continues the run."""
+    from twin.data.dataset import DatasetError
     from twin.device.errors import DeviceError
-    from twin.experiments.analysis import analyse_validation
-    from twin.experiments.protocols import ProtocolError, run_validation
-    from twin.experiments.report import write_validation_report
+    from twin.experiments.protocols import ProtocolError
     from twin.sim.plant import SimulationError
 
     params = params_from_args(args)
     try:
-        folder = _run_folder(args, "validate", "validation", params)
+        folder = _run_folder(args, command, experiment, params)
+        try:
+            return body(folder, params)
+        except (ProtocolError, DeviceError, SimulationError, DatasetError, OSError) as exc:
+            # OSError: a full disk or another I/O error; the dataset writer left every complete row readable.
+            _stopped(command, folder, args, exc)
+            return 4
+        except KeyboardInterrupt as exc:
+            _stopped(command, folder, args, exc)
+            return 130
     except RunRefused as exc:
-        print(f"twin validate: {exc}", file=sys.stderr)
+        print(f"twin {command}: {exc}", file=sys.stderr)
         return 2
+
+
+def run_validate(args: argparse.Namespace) -> int:
+    return _run(args, "validate", "validation", lambda folder, params: _validate(args, folder, params))
+
+
+def _validate(args, folder: Path, params) -> int:
+    from twin.data.dataset import RUN_DATASET, read_dataset
+    from twin.experiments.analysis import analyse_validation
+    from twin.experiments.protocols import run_validation
+    from twin.experiments.report import write_validation_report
+
     grid = validation_grid()
     if args.quick:
         grid = [g for g in grid if g[1] in (0.0, 13.0, 26.2) and g[2] in (0.0, 90.0, 180.0, 270.0) and g[3] != 0.005]
     print(f"twin validate: {len(grid)} configurations on {args.device}, run folder {folder}", file=sys.stderr)
     start = time.perf_counter()
+    device = _open(args, params)
     try:
-        device = _open(args, params)
-        try:
-            calibration = _calibration(args, params, device)
-            run_validation(device, folder / RUN_DATASET, params, grid=grid, calibration=calibration)
-        finally:
-            device.close()
-        sweep_s = time.perf_counter() - start
-        dataset = read_dataset(folder / RUN_DATASET)
-        result = analyse_validation(dataset, params, progress=True)
-        picture = _picture(args, params, folder)
-        path = write_validation_report(result, folder, picture=picture,
-                                       facts={"sweep_wall_time_s": sweep_s, "device": args.device})
-    except RunRefused as exc:
-        print(f"twin validate: {exc}", file=sys.stderr)
-        return 2
-    except (ProtocolError, DeviceError, SimulationError, DatasetError, OSError) as exc:
-        # OSError: a full disk or another I/O error; the dataset writer left every complete row readable.
-        _stopped("validate", folder, args, exc)
-        return 4
-    except KeyboardInterrupt as exc:
-        _stopped("validate", folder, args, exc)
-        return 130
+        calibration = _calibration(args, params, device)
+        run_validation(device, folder / RUN_DATASET, params, grid=grid, calibration=calibration)
+    finally:
+        device.close()
+    sweep_s = time.perf_counter() - start
+    dataset = read_dataset(folder / RUN_DATASET)
+    result = analyse_validation(dataset, params, progress=True)
+    picture = _picture(args, params, folder)
+    path = write_validation_report(result, folder, picture=picture,
+                                   facts={"sweep_wall_time_s": sweep_s, "device": args.device})
     s = result.summary()
     print(f"sweep {sweep_s:.1f} s wall; {s['rows']} configurations, {s['failed_predictions']} failed predictions; "
           f"prediction error median {s['median_error_mm']:.3f} mm, RMS {s['rms_error_mm']:.3f} mm, "
@@ -352,37 +365,23 @@ def _picture(args, params, folder: Path) -> Path | None:
 
 
 def run_stiffness_cmd(args: argparse.Namespace) -> int:
-    from twin.data.dataset import RUN_DATASET, DatasetError, read_dataset
-    from twin.device.errors import DeviceError
-    from twin.experiments.protocols import ProtocolError, run_stiffness
-    from twin.experiments.stiffness import fit_stiffness, plot_error_surface
-    from twin.sim.plant import SimulationError
+    return _run(args, "stiffness", "stiffness", lambda folder, params: _stiffness(args, folder, params))
 
-    params = params_from_args(args)
+
+def _stiffness(args, folder: Path, params) -> int:
+    from twin.data.dataset import RUN_DATASET, read_dataset
+    from twin.experiments.protocols import run_stiffness
+    from twin.experiments.stiffness import fit_stiffness, plot_error_surface
+
+    device = _open(args, params)
     try:
-        folder = _run_folder(args, "stiffness", "stiffness", params)
-    except RunRefused as exc:
-        print(f"twin stiffness: {exc}", file=sys.stderr)
-        return 2
-    try:
-        device = _open(args, params)
-        try:
-            _calibration(args, params, device)
-            run_stiffness(device, folder / RUN_DATASET, params)
-        finally:
-            device.close()
-        result = fit_stiffness(read_dataset(folder / RUN_DATASET), params)
-        plot_error_surface(result, folder / "error_surface.png")
-        result.fit.params.save(folder / "fitted_params.toml")
-    except RunRefused as exc:
-        print(f"twin stiffness: {exc}", file=sys.stderr)
-        return 2
-    except (ProtocolError, DeviceError, SimulationError, DatasetError, OSError) as exc:
-        _stopped("stiffness", folder, args, exc)
-        return 4
-    except KeyboardInterrupt as exc:
-        _stopped("stiffness", folder, args, exc)
-        return 130
+        _calibration(args, params, device)
+        run_stiffness(device, folder / RUN_DATASET, params)
+    finally:
+        device.close()
+    result = fit_stiffness(read_dataset(folder / RUN_DATASET), params)
+    plot_error_surface(result, folder / "error_surface.png")
+    result.fit.params.save(folder / "fitted_params.toml")
     for row in result.fit.table():
         print(f"{row['parameter']:28s} {row['value']:.5g}  ± {row['std_error']:.2g}  "
               f"(95%: {row['ci95_low']:.4g} … {row['ci95_high']:.4g})")
