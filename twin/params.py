@@ -357,7 +357,7 @@ def _coerce(key: str, value: Any, annotation: Any) -> Any:
                 isinstance(value, float) and not value.is_integer()):
             raise ParameterError(f"{key} = {value!r}: must be a whole number")
         if abs(value) > _INT_MAX:
-            raise ParameterError(f"{key} = {value!r}: must be a whole number of at most {_INT_MAX}")
+            raise ParameterError(f"{key} = {value!r}: must be a whole number within ±{_INT_MAX}")
         return int(value)
     if annotation is float:
         if isinstance(value, bool) or not isinstance(value, (int, float)):

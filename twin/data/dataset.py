@@ -193,6 +193,9 @@ def write_atomic(path: str | Path, text: str) -> Path:
             fh.flush()
             os.fsync(fh.fileno())
         os.replace(temporary, path)
+    except OSError as exc:
+        temporary.unlink(missing_ok=True)
+        raise OSError(exc.errno, exc.strerror, str(path)) from exc
     except BaseException:
         temporary.unlink(missing_ok=True)
         raise
@@ -282,7 +285,12 @@ class DatasetWriter:
             meta = _metadata(experiment=experiment, device=device, params=params, base_rotation=base_rotation,
                              calibration=calibration, notes=notes)
             write_atomic(self.folder / METADATA, json.dumps(meta, indent=1))
-            write_atomic(self.path, _line(COLUMNS))
+            try:
+                write_atomic(self.path, _line(COLUMNS))
+            except OSError:
+                # No half-made dataset: without its header the folder is plainly not a dataset yet.
+                (self.folder / METADATA).unlink(missing_ok=True)
+                raise
             complete_bytes = None
         self._fd = os.open(self.path, os.O_RDWR | os.O_APPEND)
         try:
