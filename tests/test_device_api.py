@@ -12,7 +12,7 @@ import pytest
 
 from twin.calibration import run_calibration
 from twin.device import CommandRejected, DeviceError, OperatorFixture, open_device
-from twin.device.codec import Mode, NackError, State
+from twin.device.codec import Drive, Mode, NackError, State
 from twin.params import load_params
 
 
@@ -214,3 +214,46 @@ def test_twin_emulate_prints_a_port_that_the_driver_connects_to():
         out, _ = process.communicate(timeout=10)
     assert process.returncode == 0
     assert out.startswith("stopped after")
+
+
+@pytest.mark.parametrize("call, message", [
+    (lambda d: d.set_lengths([0.0, 0.0, 0.06, 0.0]), r"lengths_m\[2\] = 0.06: outside -0.05..0.05 m"),
+    (lambda d: d.set_lengths([5.0, 0.0, 0.0, 0.0]), r"lengths_m\[0\] = 5.0: outside -0.05..0.05 m \(mm sent as m\?\)"),
+    (lambda d: d.set_pairs([0.0, -0.2]), r"pairs_m\[1\] = -0.2: outside -0.05..0.05 m"),
+    (lambda d: d.set_pairs([np.inf, 0.0]), r"pairs_m = \[inf, 0.0\]: expected 2 finite numbers"),
+    (lambda d: d.set_tensions([1.0, -0.5, 1.0, 1.0]), r"tensions_n\[1\] = -0.5: outside 0..6 N"),
+    (lambda d: d.set_tensions([1.0, 1.0, 1.0, 6.5]), r"tensions_n\[3\] = 6.5: outside 0..6 N \(the tension limit"),
+    (lambda d: d.set_gains("lengths", kp=np.nan, ki=0.0, kd=0.0), r"kp = nan: must be finite and >= 0"),
+    (lambda d: d.set_gains("lengths", kp=1.0, ki=-1.0, kd=0.0), r"ki = -1.0: must be finite and >= 0"),
+    (lambda d: d.set_gains("tensions", kp=1.0, ki=0.0, kd=np.inf), r"kd = inf: must be finite and >= 0"),
+    (lambda d: d.set_gains("lengths", kp=1.0, ki=0.0, kd=0.0, output_limit=0.0), r"output_limit = 0.0: must be in \(0, 1\]"),
+    (lambda d: d.set_gains("lengths", kp=1.0, ki=0.0, kd=0.0, output_limit=1.5), r"output_limit = 1.5: must be in \(0, 1\]"),
+])
+def test_setpoints_and_gains_out_of_range_are_refused_by_the_host_naming_argument_and_value(call, message):
+    with open_device("sim://") as device:
+        device.enable()
+        # A ValueError, not the board's CommandRejected: refused before anything was sent.
+        with pytest.raises(ValueError, match=message):
+            call(device)
+
+
+def test_setpoints_at_the_bounds_reach_the_board():
+    with open_device("sim://") as device:
+        device.enable()
+        with pytest.raises(CommandRejected, match="WRONG_MODE"):
+            device.set_tensions([6.0, 0.0, 0.0, 0.0])  # within the limit: the board decides
+        device.set_lengths([0.05, -0.05, 0.0, 0.0])  # the firmware's ±50 mm, inclusive: acknowledged
+        device.disable()
+
+
+def test_connecting_disables_a_board_left_enabled():
+    with open_device("sim://?seed=3") as device:
+        device.tare()
+        device.enable()
+        device.set_lengths([-0.001, 0.0, 0.001, 0.0])
+        device.wait(0.2)
+        assert device.latest().enabled
+        device.reconnect()  # a new host on a board that stayed powered and enabled
+        sample = device.latest()
+        assert sample.state is State.DISABLED and sample.fault_flags == 0
+        assert all(drive is not Drive.DRIVE for drive in sample.drives) and not np.any(sample.motor_commands)
