@@ -14,7 +14,6 @@ from __future__ import annotations
 import collections
 import dataclasses
 import faulthandler
-import itertools
 import math
 import os
 import select
@@ -30,9 +29,9 @@ from typing import Callable
 import numpy as np
 import pytest
 
-from twin.device import CommandRejected, DeviceDisconnected, DeviceTimeout, SimTwin, open_device
+from twin.device import DeviceDisconnected, DeviceTimeout, SimTwin, open_device
 from twin.device import codec as c
-from twin.device.codec import Fault, NackError, State
+from twin.device.codec import Fault, State
 from twin.device.inbox import Inbox
 from twin.device.pty_board import PtyBoard
 
@@ -227,6 +226,14 @@ def enable_and_hold(device, lengths_m=(-0.0005, 0.0, 0.0005, 0.0)) -> None:
     device.set_lengths(list(lengths_m))
 
 
+def holding_host(url: str, **options):
+    """A connected device at ``url`` driving the board to hold small length setpoints."""
+    device = open_device(url, **options)
+    device.connect()
+    enable_and_hold(device)
+    return device
+
+
 def assert_samples_are_the_boards(samples, proxy: Proxy) -> None:
     """Every sample the host took is one the board sent, unchanged."""
     sent = {m.sample_seq: m for _, m in list(proxy.truth)}
@@ -240,15 +247,13 @@ def assert_samples_are_the_boards(samples, proxy: Proxy) -> None:
 # ----------------------------------------------------------------------------- bad frames
 def test_bad_frames_played_to_a_host_are_counted_and_skipped_and_it_keeps_hearing_the_board():
     with PtyBoard(seed=3) as board, Proxy(board.port) as proxy:
-        device = open_device(proxy.url)
-        device.connect()
-        enable_and_hold(device)
+        device = holding_host(proxy.url)
         device.drain()
         for name, make, reason in BAD_FRAMES:
             before = device.stats.bad_messages
             proxy.inject(make(_injected(proxy.latest_truth())))
-            first, second = device.wait_next(timeout_s=0.2), device.wait_next(timeout_s=0.2)
-            assert second.seq == first.seq + 1, name
+            device.wait_next(timeout_s=0.2)
+            device.wait_next(timeout_s=0.2)
             assert device.stats.bad_messages == before + 1, name
             assert reason in device.stats.last_error, name
         # Garbage: a run of random bytes ending in a delimiter, then a frame cut short.
@@ -263,20 +268,22 @@ def test_bad_frames_played_to_a_host_are_counted_and_skipped_and_it_keeps_hearin
         assert device.connected
         device.set_lengths([0.0, 0.0, 0.0, 0.0])
         assert device.wait_next().enabled and proxy.latest_truth().state == State.ENABLED
-        assert_samples_are_the_boards(device.drain(), proxy)
+        # Not one good sample missed meanwhile, and none taken that the board did not send.
+        samples = device.drain()
+        assert [s.seq for s in samples] == list(range(samples[0].seq, samples[0].seq + len(samples)))
+        assert device.lost_samples == 0
+        assert_samples_are_the_boards(samples, proxy)
         device.close()
 
 
 def test_bit_flips_both_ways_are_dropped_and_no_corrupted_command_is_acted_on():
     rngs = {"to_host": np.random.default_rng(1), "to_board": np.random.default_rng(2)}
     flipped = {"to_host": 0, "to_board": 0}
-    # Fewer to the board: a run of corrupted commands as long as the watchdog timeout stops it.
-    rates = {"to_host": 0.2, "to_board": 0.1}
     corrupting = threading.Event()
 
     def corrupt(direction: str):
         def to(frame: bytes) -> bytes:
-            if corrupting.is_set() and len(frame) > 1 and rngs[direction].random() < rates[direction]:
+            if corrupting.is_set() and len(frame) > 1 and rngs[direction].random() < 0.2:
                 flipped[direction] += 1
                 return flip_one_bit(frame, rngs[direction])
             return frame
@@ -287,6 +294,9 @@ def test_bit_flips_both_ways_are_dropped_and_no_corrupted_command_is_acted_on():
         # A short command timeout: a command or its answer corrupted on the way costs little.
         device = open_device(proxy.url, command_timeout_s=0.1)
         device.connect()
+        # Commands lost for 0.25 s together would trip the watchdog, as they should; this test
+        # is about what the board does with the commands it gets.
+        device.set_limits(watchdog_timeout_s=2.0)
         enable_and_hold(device, hold_m)
         held = float(np.float32(hold_m[0]))
         first = device.wait_next()
@@ -302,15 +312,11 @@ def test_bit_flips_both_ways_are_dropped_and_no_corrupted_command_is_acted_on():
                 device.set_lengths([target, 0.0, 0.0, 0.0])
             except DeviceTimeout:
                 pass  # the command or its ACK was corrupted: not acted on, or acted on unacknowledged
-            except CommandRejected as exc:
-                # Every command of 0.25 s corrupted: the watchdog stopped the board, as it should.
-                assert exc.error is NackError.NOT_ENABLED and proxy.latest_truth().fault_flags == Fault.WATCHDOG
-                break
             device.wait_next(timeout_s=0.3)
         corrupting.clear()
         time.sleep(0.1)  # what was corrupted arrives
         samples = device.drain()
-        assert flipped["to_host"] > 10 and flipped["to_board"] > 4
+        assert flipped["to_host"] > 10 and flipped["to_board"] > 5
         # The host dropped exactly the frames corrupted on the way to it, and every sample it
         # took is the board's, unchanged.
         assert device.stats.bad_frames - bad_frames == flipped["to_host"]
@@ -320,9 +326,8 @@ def test_bit_flips_both_ways_are_dropped_and_no_corrupted_command_is_acted_on():
         truth = [m for _, m in proxy.truth]
         assert truth[-1].rx_bad_frames == flipped["to_board"]
         since = next(k for k, m in enumerate(truth) if m.sample_seq == first.seq)
-        enabled = list(itertools.takewhile(lambda m: m.state == State.ENABLED, truth[since:]))
-        assert len(enabled) > 20
-        assert {float(m.targets[0]) for m in enabled} <= sent
+        assert all(m.state == State.ENABLED for m in truth[since:])
+        assert {float(m.targets[0]) for m in truth[since:]} <= sent
         device.close()
 
 
@@ -332,6 +337,7 @@ KILLED_HOST = textwrap.dedent("""
     from twin.device import open_device
     device = open_device(sys.argv[1])
     device.connect()
+    device.set_limits(watchdog_timeout_s=float(sys.argv[2]))
     device.tare()
     device.set_gains("lengths", kp=60.0, ki=100.0, kd=0.0)
     device.enable()
@@ -342,8 +348,8 @@ KILLED_HOST = textwrap.dedent("""
 """)
 
 
-def _start_host(url: str) -> subprocess.Popen:
-    host = subprocess.Popen([sys.executable, "-c", KILLED_HOST, url], stdout=subprocess.PIPE, text=True)
+def _start_host(url: str, watchdog_s: float = WATCHDOG_S) -> subprocess.Popen:
+    host = subprocess.Popen([sys.executable, "-c", KILLED_HOST, url, str(watchdog_s)], stdout=subprocess.PIPE, text=True)
     assert host.stdout.readline().strip() == "ENABLED"
     return host
 
@@ -376,14 +382,16 @@ def test_a_killed_host_trips_the_watchdog_and_the_next_host_finds_the_board_disa
 
 
 def test_a_host_restarted_at_once_finds_the_board_disabled_not_driving_the_dead_hosts_setpoints():
+    # A watchdog of 2 s, so that the new host surely connects before it trips (the old host
+    # leaves its limits on the board).
     with PtyBoard(seed=6) as board, Proxy(board.port) as proxy:
-        host = _start_host(proxy.url)
+        host = _start_host(proxy.url, watchdog_s=2.0)
         assert SimTwin(board.board).drive_mode == "pwm"
         killed_s = _kill(host)
         with open_device(proxy.url) as device:
             connected_s = time.monotonic()
             sample = device.latest()
-            assert connected_s - killed_s < WATCHDOG_S  # before the watchdog could have tripped
+            assert connected_s - killed_s < 1.0
             assert sample.state is State.DISABLED and sample.fault_flags == 0  # DISABLE, not the watchdog
             assert not_driving(proxy.latest_truth())
             assert device.wait_next().state is State.DISABLED
@@ -391,9 +399,7 @@ def test_a_host_restarted_at_once_finds_the_board_disabled_not_driving_the_dead_
 
 def test_a_host_whose_control_loop_hangs_trips_the_watchdog():
     with PtyBoard(seed=7) as board:
-        device = open_device(board.url)
-        device.connect()
-        enable_and_hold(device)
+        device = holding_host(board.url)
         device.wait(0.2)
         device.drain()
         last = device.latest()  # the loop's last call before it hangs
@@ -422,9 +428,7 @@ def test_an_operator_prompt_keeps_the_board_enabled():
 # ----------------------------------------------------------------------------- a deaf host
 def test_a_reader_that_stops_disables_the_board_and_every_call_names_the_cause(monkeypatch):
     with PtyBoard(seed=9) as board, Proxy(board.port) as proxy:
-        device = open_device(proxy.url)
-        device.connect()
-        enable_and_hold(device)
+        device = holding_host(proxy.url)
         device.wait(0.1)
         assert not not_driving(proxy.latest_truth())
         received = device.drain()
@@ -438,8 +442,11 @@ def test_a_reader_that_stops_disables_the_board_and_every_call_names_the_cause(m
         with pytest.raises(DeviceDisconnected, match=r"reader thread stopped \(RuntimeError\('decoder bug'\)\)"):
             device.wait(2.0)
         assert time.monotonic() - start < 0.2 and not device.connected
-        time.sleep(2 * TELEMETRY_S)
-        # The DISABLE arrived: the board reports itself disabled, its motors undriven.
+        # The DISABLE arrived: the board reports itself disabled (the watchdog would have said
+        # FAULT, and later), its motors undriven.
+        deadline_s = time.monotonic() + WATCHDOG_S
+        while proxy.latest_truth().state != State.DISABLED and time.monotonic() < deadline_s:
+            time.sleep(0.005)
         assert proxy.latest_truth().state == State.DISABLED and not_driving(proxy.latest_truth())
         for call in (device.wait_next, device.enable, device.ping, lambda: device.set_lengths([0.0] * 4)):
             with pytest.raises(DeviceDisconnected, match="reader thread stopped"):
@@ -455,9 +462,7 @@ def test_a_reader_that_stops_disables_the_board_and_every_call_names_the_cause(m
 
 def test_an_unplugged_board_raises_disconnected_promptly_and_the_data_is_kept():
     with PtyBoard(seed=10) as board:
-        device = open_device(board.url)
-        device.connect()
-        enable_and_hold(device)
+        device = holding_host(board.url)
         device.wait(0.3)
         threading.Timer(0.1, board.unplug).start()
         start = time.monotonic()
