@@ -26,7 +26,7 @@ import numpy as np
 from twin.control.compensation import hold_tensions
 from twin.control.pretension import pretension_straight
 from twin.control.gains import TUNED_TENSION_GAINS
-from twin.experiments.protocols import measure, settle
+from twin.experiments.protocols import measure, wait_for_rest
 from twin.experiments.report import markdown_table
 from twin.params import Params
 from twin.pcc import tendon_length_changes_m
@@ -38,7 +38,7 @@ __all__ = ["CocontractionStudy", "run_cocontraction_study"]
 # Settling tolerance of the pair tensions' window means under a length mismatch (N). With the
 # pair shortened against itself the two length loops hunt around their encoder counts — the
 # fight itself: 0.02 N RMS per sample at 20 counts (measured on the twin) — and window means
-# wander by more than settle()'s default 0.01 N, so that run never came to rest.
+# wander by more than wait_for_rest()'s default 0.01 N, so that run never came to rest.
 HUNTING_TOLERANCE_N = 0.05
 
 
@@ -113,7 +113,6 @@ def run_cocontraction_study(device, params: Params, *, kappas_per_m=(4.5, 8.7, 1
                             settle_timeout_s: float = 6.0) -> CocontractionStudy:
     """Run both parts of the study on a connected device with a fixture and a tracker."""
     model = RodModel.from_params(params)
-    g = params.environment.gravity_m_s2
     count_m = device.info.tendon_m_per_count
     device.disable()
     device.set_gains("tensions", **TUNED_TENSION_GAINS)
@@ -123,7 +122,7 @@ def run_cocontraction_study(device, params: Params, *, kappas_per_m=(4.5, 8.7, 1
         device.set_lengths(zero + tendon_length_changes_m(kappa, 0.0, params))
         for mass in (0.0, 0.010):
             device.fixture.hang_tip_mass(mass)
-            settle(device, timeout_s=settle_timeout_s)
+            wait_for_rest(device, timeout_s=settle_timeout_s)
             m = measure(device)
             if mass == 0.0:
                 unloaded[kappa] = m.tensions_n
@@ -135,11 +134,11 @@ def run_cocontraction_study(device, params: Params, *, kappas_per_m=(4.5, 8.7, 1
     for counts in offsets_counts:
         shift = np.array([1.0, 0.0, 1.0, 0.0]) * counts * count_m
         device.set_lengths(pcc - shift)
-        settle(device, timeout_s=settle_timeout_s, tension_tolerance_n=HUNTING_TOLERANCE_N)
+        wait_for_rest(device, timeout_s=settle_timeout_s, tension_tolerance_n=HUNTING_TOLERANCE_N)
         mismatch.append(_pair_row("lengths", measure(device), offset_counts=counts, offset_um=counts * count_m * 1e6))
     if kappa not in unloaded:
         device.set_lengths(pcc)
-        settle(device, timeout_s=settle_timeout_s)
+        wait_for_rest(device, timeout_s=settle_timeout_s)
         unloaded[kappa] = measure(device).tensions_n
 
     pretension_straight(device, params, mode="tensions")
@@ -148,7 +147,7 @@ def run_cocontraction_study(device, params: Params, *, kappas_per_m=(4.5, 8.7, 1
         device.set_tensions(hold_tensions(model, unloaded[kappa], np.zeros(3), **bounds).tensions_n)
         for mass in (0.0, 0.010):
             device.fixture.hang_tip_mass(mass)
-            settle(device, timeout_s=settle_timeout_s)
+            wait_for_rest(device, timeout_s=settle_timeout_s)
             m = measure(device)
             bending.append(_pair_row("tensions", m, kappa_per_m=kappa, mass_g=mass * 1e3,
                                      tip_z_mm=m.tip_position_m[2] * 1e3))

@@ -43,7 +43,7 @@ from twin.control.compensation import correct_tensions, hold_tensions
 from twin.control.pretension import pretension_straight
 from twin.control.gains import TUNED_TENSION_GAINS
 from twin.device import CommandRejected
-from twin.experiments.protocols import ProtocolError, measure, settle
+from twin.experiments.protocols import ProtocolError, measure, wait_for_rest
 from twin.experiments.report import markdown_table
 from twin.params import Params
 from twin.pcc import GRID_KAPPA_PER_M, GRID_PHI_DEG, tendon_length_changes_m
@@ -257,7 +257,7 @@ def run_compensation_trial(device, params: Params, *, configs: Sequence[tuple[fl
         zero = pretension_straight(device, params, mode="lengths")
         pcc_lengths = zero + tendon_length_changes_m(kappa, phi, params)
         device.set_lengths(pcc_lengths)
-        settle(device, timeout_s=settle_timeout_s)
+        wait_for_rest(device, timeout_s=settle_timeout_s)
         unloaded = measure(device, duration_s=target_measure_s)
         target = unloaded.tip_position_m
         fault = ""
@@ -302,7 +302,7 @@ def _run_mass(device, row: dict, model: RodModel, plan, target, mass: float, loa
               correction_rest_s: float, measure_s: float, settle_timeout_s: float) -> None:
     """One tip mass of a configuration, from length mode at the PCC lengths back to it; fills ``row``."""
     device.fixture.hang_tip_mass(mass)
-    settle(device, timeout_s=settle_timeout_s)
+    wait_for_rest(device, timeout_s=settle_timeout_s)
     loaded = measure(device, duration_s=measure_s)
     uncompensated = float(np.linalg.norm(loaded.tip_position_m - target))
     row["uncompensated_mm"] = uncompensated * 1e3
@@ -349,5 +349,5 @@ def _ramp_tensions(device, start_n, end_n, steps: int) -> None:
 def _rest_and_measure(device, target, rest_s: float, measure_s: float, settle_timeout_s: float) -> np.ndarray:
     """Wait ``rest_s``, check the tip is at rest, and return the mean tracked tip minus ``target`` (m)."""
     device.wait(rest_s)
-    settle(device, timeout_s=settle_timeout_s)
+    wait_for_rest(device, timeout_s=settle_timeout_s)
     return measure(device, duration_s=measure_s).tip_position_m - target

@@ -20,7 +20,7 @@ from twin.params import Params
 from twin.pcc import tendon_length_changes_m, validation_grid
 from twin.pose import HORIZONTAL, matrix_to_quat
 
-__all__ = ["ProtocolError", "Measurement", "measure", "settle", "pretension", "run_validation",
+__all__ = ["ProtocolError", "Measurement", "measure", "wait_for_rest", "pretension", "run_validation",
            "run_stiffness", "calibrate_device", "nominal_calibration"]
 
 
@@ -86,7 +86,7 @@ def measure(device, *, duration_s: float = 0.25) -> Measurement:
     )
 
 
-def settle(device, *, tension_tolerance_n: float = 0.01, tip_tolerance_m: float = 3e-4, window_s: float = 0.1,
+def wait_for_rest(device, *, tension_tolerance_n: float = 0.01, tip_tolerance_m: float = 3e-4, window_s: float = 0.1,
            timeout_s: float = 4.0) -> float:
     """Wait until the endoscope is at rest: the ``window_s`` means of the tensions and of the
     tracked tip change by less than the tolerances (set above the sensors' noise on window means:
@@ -193,7 +193,7 @@ def run_validation(device, folder: str | Path, params: Params, *, grid: Sequence
                 device.set_lengths(zero + tendon_length_changes_m(kappa, phi, params))
                 for config, mass in sorted(configs, key=lambda c: c[1]):
                     device.fixture.hang_tip_mass(mass)
-                    settle(device, timeout_s=settle_timeout_s)
+                    wait_for_rest(device, timeout_s=settle_timeout_s)
                     if config not in done:
                         m = measure(device)
                         writer.write(_row(config, kappa, phi, mass, m, zero))
@@ -226,7 +226,7 @@ def run_stiffness(device, folder: str | Path, params: Params, *, masses_kg=(0.0,
         configs = [(r * len(masses_kg) + i, r, m) for r in range(repeats) for i, m in enumerate(masses_kg)]
         for config, repeat, mass in tqdm(configs, desc="stiffness", unit="load", disable=not progress):
             device.fixture.hang_tip_mass(mass)
-            settle(device)
+            wait_for_rest(device)
             if config not in done:
                 writer.write(_row(config, 0.0, 0.0, mass, measure(device), zero, repeat=repeat))
         device.fixture.hang_tip_mass(0.0)
