@@ -80,7 +80,10 @@ def test_continuous_tendons_bend_the_rod_into_the_arc_converging_as_the_midpoint
 
 def test_continuous_pretension_leaves_the_rod_alone_and_disc_chords_bend_it():
     def sag_m(routing: str, tension_n: float) -> float:
-        params = load_params(overrides=[f'sim.tendon_routing="{routing}"', "sim.axial_joints=false"])
+        # Without shear slides: the tendons' tension also stiffens shear (their second-order
+        # length), which lessens the sag by 3 µm at 12 N; that is the next test's.
+        params = load_params(overrides=[f'sim.tendon_routing="{routing}"', "sim.axial_joints=false",
+                                        "sim.shear_joints=false"])
         plant = Plant(params, base_rotation=HORIZONTAL)
         plant.set_tensions(np.full(4, tension_n))
         assert plant.settle(tol_m=1e-8).settled
@@ -89,6 +92,46 @@ def test_continuous_pretension_leaves_the_rod_alone_and_disc_chords_bend_it():
     assert sag_m("continuous", 3.0) == pytest.approx(sag_m("continuous", 0.0), abs=1e-6)
     # Each chord across a bent joint lies towards the centre of curvature of the sag.
     assert sag_m("discs", 3.0) > sag_m("discs", 0.0) + 1e-4
+
+
+@pytest.mark.parametrize("torsion", ["EJ", "GJ"])
+def test_the_tendons_tension_stiffens_twist_by_sum_t_r_squared(torsion):
+    # A tendon at r grows by r²θ²/(2L) when the rod twists by θ: under tension T it resists the
+    # twist as a spring of T·r²/L, so a tip moment M twists the rod by M L / (K_t + ΣT·r²).
+    params = load_params(overrides=["environment.gravity_m_s2=0.0", f'backbone.torsion="{torsion}"'])
+    b, tension_n, moment_nm = params.backbone, 2.0, 1e-3
+    plant = Plant(params, base_rotation=UP)
+    plant.set_tensions(np.full(4, tension_n))
+    tip = plant.model.body(f"b{plant.layout.elements}").id
+    for _ in range(40):
+        plant.data.xfrc_applied[tip, 3:] = plant.tip_pose()[1] @ np.array([0.0, 0.0, moment_nm])
+        plant.step(0.05)
+    rotation = plant.tip_pose()[1]
+    twist = np.arctan2(rotation[1, 0], rotation[0, 0])
+    stiffened = moment_nm * b.length_m / (b.torsional_stiffness_nm2 + 4 * tension_n * params.tendons.radius_m**2)
+    assert twist == pytest.approx(stiffened, rel=1e-4)
+    assert twist < 0.9 * moment_nm * b.length_m / b.torsional_stiffness_nm2
+
+
+def test_the_tendons_tension_stiffens_shear_as_in_the_predictor():
+    # With the thesis's G (GA = 1.35 N) the tendons' 8 N carry most of the shear stiffness: the
+    # tip load's deflection falls by a fifth, in the predictor as in the twin.
+    from twin.rod import RodModel, solve
+
+    params = load_params(overrides=["backbone.mass_kg=1e-7", *THESIS_G])
+    force_n = 1e-3 * params.environment.gravity_m_s2
+    deflections = {}
+    for tension_n in (0.0, 2.0):
+        plant = Plant(params, base_rotation=HORIZONTAL)
+        plant.set_tensions(np.full(4, tension_n))
+        plant.set_tip_mass_kg(1e-3)
+        assert plant.settle(tol_m=1e-9, timeout_s=5.0).settled
+        rod = solve(RodModel.from_params(params), np.full(4, tension_n), tip_force_n=(0.0, 0.0, -force_n),
+                    base_rotation=HORIZONTAL)
+        deflections[tension_n] = (-plant.tip_pose()[0][2], -rod.tip_position_m[2])
+    (twin_bare, rod_bare), (twin, rod) = deflections[0.0], deflections[2.0]
+    assert twin == pytest.approx(rod, rel=5e-3)
+    assert twin < 0.85 * twin_bare and rod < 0.85 * rod_bare
 
 
 def test_the_tendons_shorten_the_backbone_by_their_compression():

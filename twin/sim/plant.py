@@ -30,7 +30,8 @@ import numpy as np
 from twin import effects
 from twin.params import Params, load_params
 from twin.pose import HORIZONTAL
-from twin.sim.model import ACTUATOR_GROUPS, SPOOL_TRAVEL_M, Layout, build_model, tendon_stiffness_n_per_m
+from twin.sim.model import (ACTUATOR_GROUPS, SPOOL_TRAVEL_M, Layout, TendonLength, build_model,
+                             tendon_stiffness_n_per_m)
 from twin.sim.motor import MotorConstants
 from twin.sim.native_loop import Mode, PlantLoop, Reason
 from twin.sim.sensors import LoadCellSample, NoiseStream, TrackerSample, probe_layout
@@ -113,7 +114,7 @@ class Plant:
         self._holder = np.array([m.equality(f"holder{j}").id for j in range(1, p.discs.count + 1)])
         self._path_sites = np.array([[m.site(f"hole{i}").id] + [m.site(f"t{i}_s{j + 1}").id for j in range(
             self.layout.site_s_m.size)] for i in range(n)])
-        self._slack_length_m = m.tendon_lengthspring[:, 1].copy()
+        taut_length_m = m.tendon_lengthspring[:, 1].copy()
         self._tendon_stiffness = tendon_stiffness_n_per_m(p)
         self._dt = m.opt.timestep
         self._hooks = effects.step_hooks(p, m)
@@ -138,7 +139,18 @@ class Plant:
         s.tracker_noise_rad = p.sensors.tracker_noise_rad
         s.tracker_rate_hz = p.rig.tracker_rate_hz
         s.m_per_count = p.rig.tendon_m_per_count
-        s.slack_length_m[:n] = self._slack_length_m.tolist()
+        s.slack_length_m[:n] = taut_length_m.tolist()
+        s.taut_length_m[:n] = taut_length_m.tolist()
+        # The slack edges as the loop moves them (a view, not a copy).
+        self._slack_length_m = np.ctypeslib.as_array(s.slack_length_m)[:n]
+        if self.layout.routing == "continuous":
+            # The loop reads these buffers every step: they live as long as the plant.
+            geometry = TendonLength.from_params(p, self.layout).geometric_stiffness(m)
+            self._geometry, self._geometry_index = geometry.loop_arrays()
+            s.geometry = self._geometry.ctypes.data
+            s.geometry_index = self._geometry_index.ctypes.data
+            s.stiffened_joints = geometry.joints.shape[0]
+            s.coupled_pairs = geometry.pairs.shape[0]
         s.loadcell_offset_counts[:n] = [float(x) for x in p.sensors.loadcell_offset_counts]
         s.loadcell_gain[:n] = np.asarray(gain, dtype=float).tolist()
         s.loadcell_offset_n[:n] = np.asarray(offset_n, dtype=float).tolist()

@@ -62,6 +62,8 @@ enum { BL_DRIVE_COAST = 0, BL_DRIVE_ON = 1 };
   S(ptr, firmware)              /* the firmware core's handle */                                        \
   S(ptr, tick_fn)               /* the firmware's tick */                                               \
   S(ptr, pending_fn)            /* the firmware's count of bytes queued for the host */                 \
+  S(f64p, geometry)             /* tendons' second-order length (twin.sim.model.GeometricStiffness) */  \
+  S(ptr, geometry_index)        /* int32: its joints' ids and addresses */                              \
   /* plant constants */                                                                                 \
   S(f64, step_s)                /* physics step sim.timestep_s (s) */                                   \
   S(f64, engage_stretch_m)      /* a tendon stretched less than this gets the engagement check */       \
@@ -77,7 +79,8 @@ enum { BL_DRIVE_COAST = 0, BL_DRIVE_ON = 1 };
   S(f64, tracker_noise_rad)     /* RMS per axis component (rad) */                                      \
   S(f64, tracker_rate_hz)                                                                               \
   S(f64, m_per_count)           /* tendon per encoder count (m) */                                      \
-  A(f64, slack_length_m, BL_MAX_CHANNELS)                                                               \
+  A(f64, slack_length_m, BL_MAX_CHANNELS)       /* slack edge of each tendon's spring now (m) */       \
+  A(f64, taut_length_m, BL_MAX_CHANNELS)        /* ... in the straight pose (m) */                     \
   A(f64, loadcell_offset_counts, BL_MAX_CHANNELS)                                                       \
   A(f64, loadcell_gain, BL_MAX_CHANNELS)      /* a load cell senses gain · T + offset (effects) */     \
   A(f64, loadcell_offset_n, BL_MAX_CHANNELS)                                                            \
@@ -102,6 +105,8 @@ enum { BL_DRIVE_COAST = 0, BL_DRIVE_ON = 1 };
   S(i32, noise_size)            /* draws in the buffer */                                               \
   S(i32, noise_cursor)          /* the next draw to take */                                             \
   S(i32, tip_site)                                                                                      \
+  S(i32, stiffened_joints)      /* rows of geometry: joints the tendons' tension stiffens */           \
+  S(i32, coupled_pairs)         /* ... then pairs of joints it couples */                              \
   S(i32, base_substeps)         /* physics steps each step is cut into always (effects' stability) */  \
   S(i32, engage_substeps)       /* ... while a tendon could engage */                                   \
   S(i32, current_substeps)      /* what mjModel.opt.timestep is cut to now */                           \
@@ -314,6 +319,50 @@ static void sample_tracker(const mjData* d, bl_state* s) {
 
 // ---------------------------------------------------------------------------------------- stepping
 
+// The continuous tendons to second order in the joint coordinates ξ (twin.sim.model.TendonLength):
+// MuJoCo's fixed tendon is c·ξ, the tendon's length ℓ0 + c·ξ + ½ ξᵀHξ. With each tendon's tension
+// T from the last step: a stiffened joint's stiffness is its own plus Σ T_i H_i,jj, which the
+// discrete integrator takes implicitly like the joint's own; a coupled pair of joints pulls on each
+// other with −Σ T_i H_i,ab ξ, explicitly (small beside the joints' own stiffness, which damps it);
+// and each tendon's slack edge moves in by ½ ξᵀH_iξ, so that its spring stretches with its length.
+static void tendon_geometry(mjModel* m, mjData* d, bl_state* s) {
+  int n = s->channels;
+  double tension[BL_MAX_CHANNELS], lengthening[BL_MAX_CHANNELS];
+  for (int i = 0; i < n; ++i) {
+    tension[i] = spring_tension_n(d, s, i);
+    lengthening[i] = 0.0;
+  }
+  const double* row = s->geometry;
+  const int32_t* index = (const int32_t*)s->geometry_index;
+  for (int j = 0; j < s->stiffened_joints; ++j, row += 1 + n, index += 2) {
+    double q = d->qpos[index[1]];
+    double stiffness = row[0];
+    for (int i = 0; i < n; ++i) {
+      stiffness += tension[i] * row[1 + i];
+      lengthening[i] += 0.5 * row[1 + i] * q * q;
+    }
+    m->jnt_stiffness[index[0]] = stiffness;
+  }
+  for (int p = 0; p < s->coupled_pairs; ++p) {
+    d->qfrc_applied[index[4 * p + 1]] = 0.0;
+    d->qfrc_applied[index[4 * p + 3]] = 0.0;
+  }
+  for (int p = 0; p < s->coupled_pairs; ++p, row += n, index += 4) {
+    double qa = d->qpos[index[0]], qb = d->qpos[index[2]];
+    double stiffness = 0.0;
+    for (int i = 0; i < n; ++i) {
+      stiffness += tension[i] * row[i];
+      lengthening[i] += row[i] * qa * qb;
+    }
+    d->qfrc_applied[index[1]] -= stiffness * qb;
+    d->qfrc_applied[index[3]] -= stiffness * qa;
+  }
+  for (int i = 0; i < n; ++i) {
+    s->slack_length_m[i] = s->taut_length_m[i] - lengthening[i];
+    m->tendon_lengthspring[2 * i + 1] = s->slack_length_m[i];
+  }
+}
+
 // Could a tendon that is slack or nearly so engage within the next ``chunk`` steps with a full
 // step's spike over the limit? The closing speed is bounded from the last step: the tendon's
 // speed, plus its acceleration (ten_J · qacc, the last step's velocity change per second) and
@@ -351,7 +400,9 @@ static int plant_chunk(mjModel* m, mjData* d, bl_state* s, int chunk) {
     m->opt.timestep = s->step_s / substeps;
     s->current_substeps = substeps;
   }
+  bool geometry = s->stiffened_joints || s->coupled_pairs;
   for (int k = 0; k < chunk * substeps; ++k) {
+    if (geometry) tendon_geometry(m, d, s);
     if (hook) hook();
     step(m, d);
     for (int i = 0; i < s->channels; ++i) {
@@ -398,6 +449,8 @@ int bl_plant_reset(mjModel* m, mjData* d, bl_state* s) {
   s->mode = -1;
   set_mode(m, d, s, BL_PWM);
   s->jump_accel_m_s2 = 0.0;
+  // Straight and slack after mj_resetData: each tendon's own slack edge, the joints' own stiffness.
+  if (s->stiffened_joints || s->coupled_pairs) tendon_geometry(m, d, s);
   ((bl_mj_fn)s->forward_fn)(m, d);
   if (s->noise_size - s->noise_cursor < noise_per_sample(s)) return BL_NOISE;
   s->loadcell_index = -1;
