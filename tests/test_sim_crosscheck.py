@@ -2,9 +2,15 @@
 the cause studies are `twin crosscheck`, reports/crosscheck/)."""
 
 import numpy as np
+import pytest
 
+from twin.cli import main
 from twin.params import load_params
-from twin.sim.crosscheck import crosscheck, write_report
+from twin.pose import UP
+from twin.rod import RodModel, solve
+from twin.sim import Plant
+from twin.sim.crosscheck import (GOAL_MEDIAN_PCT, GOAL_WORST_PCT, QUICK_GRID, ROBOTS, crosscheck, crosscheck_status,
+                                 robot_params, write_report)
 
 # Both tendon planes and one between them, the largest curvature, with and without a tip mass.
 CONFIGS = [(180, 26.2, 0.0, 0.0), (197, 26.2, 150.0, 0.01), (117, 13.0, 90.0, 0.0), (2, 0.0, 0.0, 0.01)]
@@ -28,3 +34,63 @@ def test_disc_routing_bends_further_than_the_predictor_and_the_report_says_so(tm
     path = write_report(continuous, [("disc routing", False, discs)], tmp_path, params)
     text = path.read_text()
     assert "| disc routing |" in text and (tmp_path / "crosscheck.csv").read_text().count("\n") == 2
+
+
+@pytest.mark.parametrize("robot", sorted(ROBOTS))
+def test_every_robot_meets_the_goal_on_the_reduced_grid(robot):
+    # The largest curvature in every plane with the 10 g mass, where each robot's worst
+    # configurations of the full grid lie (`twin crosscheck --robot all` runs that).
+    result = crosscheck(robot_params(robot), configs=QUICK_GRID)
+    assert result.settled.all() and result.rod_converged.all()
+    summary = result.summary()
+    assert summary["median_pct"] <= GOAL_MEDIAN_PCT and summary["worst_pct"] <= GOAL_WORST_PCT
+    assert result.meets_goal
+
+
+def test_without_the_tendons_second_order_length_the_soft_shear_robot_misses_the_goal():
+    # With GA = 1.35 N the tendons' tension carries most of the shear stiffness; the fixed tendon
+    # alone (first order) leaves it out.
+    result = crosscheck(robot_params("soft-shear"), configs=QUICK_GRID, tendon_sites="linear")
+    assert result.settled.all()
+    assert not result.meets_goal and result.summary()["median_pct"] > 2 * GOAL_MEDIAN_PCT
+    assert result.verdict().startswith("GOAL MISSED")
+
+
+def test_under_helical_routing_the_pretension_twists_the_tip_as_in_the_predictor():
+    # Half a turn of helix: each tendon's tangent leans by atan(ρω), so its tension twists the
+    # rod, uz = −ΣT ρ²ω/|q| / (K_t + ΣT ρ²/|q|³), |q| = √(1 + ρ²ω²): −16.7° at the tip.
+    params = robot_params("helical", {"environment.gravity_m_s2": 0.0})
+    b, t = params.backbone, params.tendons
+    tensions = np.full(t.count, t.pretension_n)
+    plant = Plant(params, base_rotation=UP)
+    plant.set_tensions(tensions)
+    assert plant.settle(tol_m=1e-8).settled
+    rod = solve(RodModel.from_params(params), tensions, base_rotation=UP)
+    omega = 2 * np.pi * t.helix_turns / b.length_m
+    q = np.hypot(1.0, t.radius_m * omega)
+    total = tensions.sum()
+    hand = -total * t.radius_m**2 * omega / q / (b.torsional_stiffness_nm2 + total * t.radius_m**2 / q**3) * b.length_m
+
+    def twist_deg(rotation):
+        return np.degrees(np.arctan2(rotation[1, 0], rotation[0, 0]))
+
+    assert twist_deg(plant.tip_pose()[1]) == pytest.approx(twist_deg(rod.tip_rotation), abs=0.1)
+    assert twist_deg(rod.tip_rotation) == pytest.approx(np.degrees(hand), abs=0.1)
+    assert np.degrees(hand) < -15.0
+
+
+def test_crosscheck_exits_nonzero_and_says_so_when_the_goal_is_missed(tmp_path, capsys):
+    # The rig's chords between discs bend the rod further than the predictor's continuous routing.
+    code = main(["crosscheck", "--quick", "--set", 'sim.tendon_routing="discs"', "--out", str(tmp_path)])
+    assert code == 1
+    assert "GOAL MISSED" in (tmp_path / "crosscheck.md").read_text()
+    assert "goal missed" in capsys.readouterr().err
+    assert main(["crosscheck", "--quick", "--robot", "helical", "--out", str(tmp_path / "helical")]) == 0
+    assert "**Goal met**" in (tmp_path / "helical" / "crosscheck.md").read_text()
+
+
+def test_the_status_of_a_twin_out_of_bounds_carries_a_warning():
+    assert crosscheck_status().meets_goal and crosscheck_status().warning is None
+    status = crosscheck_status(load_params(overrides=['sim.tendon_routing="discs"']))
+    assert not status.meets_goal and status.worst_pct > GOAL_WORST_PCT
+    assert "out of bounds" in status.warning and status.verdict in status.warning
