@@ -3,11 +3,17 @@
 The benchmark runs the plant as the device layer does: four spools driven by the DC-motor
 model from PWM, tendons, load cells at 80 Hz and the tracker at 40 Hz, at the default time
 step, on a pretensioned endoscope bent by one motor. Settling a static configuration (ideal
-tensions, from straight) is timed as well.
+tensions, from straight) is timed as well, and the PWM run is repeated at twice and four times
+the element count, each figure beside its element count.
+
+The cost grows faster than the element count: MuJoCo's joint-space mass matrix of a serial
+chain is dense, so each step factors it (and M + hD + h²K) in Σ depth² ≈ nv³/6 multiply-adds,
+and multiplies and solves with it in nv²/2; the chain has at least two bend hinges per element.
 """
 
 from __future__ import annotations
 
+import math
 import time
 
 import numpy as np
@@ -15,10 +21,14 @@ import numpy as np
 from twin.params import Params, load_params
 from twin.sim.plant import Plant
 
-__all__ = ["bench_sim"]
+__all__ = ["SCALING_FACTORS", "bench_sim"]
+
+# Element counts of the scaling runs, as multiples of sim.elements.
+SCALING_FACTORS = (1, 2, 4)
 
 
-def bench_sim(params: Params | None = None, *, duration_s: float = 2.0, elements: int | None = None) -> dict:
+def bench_sim(params: Params | None = None, *, duration_s: float = 2.0, elements: int | None = None,
+              scaling: bool = True) -> dict:
     """Time the default twin.
 
     Args:
@@ -26,6 +36,7 @@ def bench_sim(params: Params | None = None, *, duration_s: float = 2.0, elements
         duration_s: simulated time per timed run (s); the best of five runs is kept (shared
             machines vary by ±30% from one second to the next).
         elements: override of ``sim.elements``.
+        scaling: also time the PWM run at :data:`SCALING_FACTORS` × the element count.
 
     Returns:
         ``steps_per_s``, ``realtime_factor`` (simulated s per wall s; the tendons of the braked
@@ -34,18 +45,14 @@ def bench_sim(params: Params | None = None, *, duration_s: float = 2.0, elements
         ``taut_realtime_factor`` (the same after settling a bend held by tension sources, every
         tendon taut), ``timestep_s``,
         ``elements``, ``dofs``, ``settle_wall_s`` and ``settle_sim_s`` (a tension step from
-        straight, to 1 µm), ``settled``.
+        straight, to 1 µm), ``settled``; with ``scaling``, ``scaling``: one
+        ``{"elements", "dofs", "realtime_factor", "steps_per_s"}`` per element count, and
+        ``scaling_exponent``: d log(wall time per step) / d log(elements) from the first to the
+        last (1 is linear).
     """
     params = params if params is not None else load_params()
     plant = Plant(params, elements=elements)
-    plant.set_tensions(np.full(plant.tendon_count, params.tendons.pretension_n))
-    plant.settle()
-    duty = np.zeros(plant.tendon_count)
-    duty[0] = -0.02
-    plant.set_motor_pwm(duty)
-    short = plant.short_steps
-    best = _best_realtime_factor(plant, duration_s)
-    short = plant.short_steps - short
+    best, short = _pwm_realtime_factor(plant, duration_s)
     plant.reset()
     tensions = np.full(plant.tendon_count, params.tendons.pretension_n)
     tensions[0] += 1.0
@@ -53,7 +60,7 @@ def bench_sim(params: Params | None = None, *, duration_s: float = 2.0, elements
     settle = plant.settle()
     # The same bend held by tension sources: every tendon taut, so every step is a full one.
     taut = _best_realtime_factor(plant, duration_s)
-    return {
+    figures = {
         "steps_per_s": best / plant.timestep_s,
         "realtime_factor": best,
         "short_steps": short,
@@ -65,6 +72,31 @@ def bench_sim(params: Params | None = None, *, duration_s: float = 2.0, elements
         "settle_sim_s": settle.sim_time_s,
         "settled": settle.settled,
     }
+    if scaling:
+        runs = []
+        for factor in SCALING_FACTORS:
+            scaled = Plant(params, elements=factor * plant.layout.elements)
+            rtf = best if factor == 1 else _pwm_realtime_factor(scaled, duration_s)[0]
+            runs.append({"elements": scaled.layout.elements, "dofs": int(scaled.model.nv), "realtime_factor": rtf,
+                         "steps_per_s": rtf / scaled.timestep_s})
+        figures["scaling"] = runs
+        first, last = runs[0], runs[-1]
+        figures["scaling_exponent"] = (math.log(first["realtime_factor"] / last["realtime_factor"])
+                                       / math.log(last["elements"] / first["elements"]))
+    return figures
+
+
+def _pwm_realtime_factor(plant: Plant, duration_s: float) -> tuple[float, int]:
+    """(best real-time factor, short steps taken) of the device layer's drive: pretensioned,
+    settled, then one motor pulling at 2% duty with the others braked."""
+    plant.set_tensions(np.full(plant.tendon_count, plant.params.tendons.pretension_n))
+    plant.settle()
+    duty = np.zeros(plant.tendon_count)
+    duty[0] = -0.02
+    plant.set_motor_pwm(duty)
+    short = plant.short_steps
+    best = _best_realtime_factor(plant, duration_s)
+    return best, plant.short_steps - short
 
 
 def _best_realtime_factor(plant: Plant, duration_s: float, runs: int = 5) -> float:
