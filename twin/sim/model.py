@@ -287,12 +287,9 @@ class TendonLength:
 
     @classmethod
     def from_params(cls, params: Params, layout: "Layout") -> "TendonLength":
+        """The tendons of ``params`` over the joints of ``layout``'s chain (:func:`station_joints`)."""
         n, h = layout.elements, layout.element_length_m
-        joints, kinds = [], []
-        for k in range(1, n + 1):
-            for suffix, _, _, strain in station_joints(params, k, elements=n):
-                joints.append(f"b{k}_{suffix}")
-                kinds.append(suffix)
+        joints = [f"b{k}_{joint[0]}" for k in range(1, n + 1) for joint in station_joints(params, k, elements=n)]
         index = {name: j for j, name in enumerate(joints)}
         s_e = h * (np.arange(1, n + 1) - 0.5)
         xy, slope = tendon_route(params, s_e)
@@ -302,29 +299,30 @@ class TendonLength:
         norm = np.linalg.norm(q0, axis=2)
         t = q0 / norm[..., None]
         p = (np.eye(3)[None, None] - t[..., :, None] * t[..., None, :]) / norm[..., None, None]
-        slide_block = _blocks(n, params.sim.slide_stride)
-        twist_block = _blocks(n, params.sim.twist_stride)
+        # Each element's joints, one slot per kind (−1: the chain has none), and what they lump.
+        slide_block, twist_block = _blocks(n, params.sim.slide_stride), _blocks(n, params.sim.twist_stride)
+        kinds = ("sx", "sy", "az", "tz", "bx", "by")
+        slot = np.full((n, len(kinds)), -1)
+        lumped = np.ones((n, len(kinds)))
+        for e in range(1, n + 1):
+            for a, kind in enumerate(kinds):
+                middle, size = (slide_block[e] if kind in ("sx", "sy", "az") else twist_block[e] if kind == "tz"
+                                else (e, 1))
+                slot[e - 1, a] = index.get(f"b{middle}_{kind}", -1)
+                lumped[e - 1, a] = size
+        # c = ∂q/∂(strain) per kind, (count, n, kinds, 3): e_x, e_y, e_z, then e_z, e_x, e_y × r.
+        unit = np.broadcast_to(np.eye(3), (count, n, 3, 3))
+        columns = np.concatenate([unit, np.cross(np.eye(3)[[2, 0, 1]][None, None], r[:, :, None, :])], axis=2)
+        present = slot >= 0
+        grad = np.einsum("tek,teak->tea", t, columns) / lumped
+        hess = np.einsum("teak,tekl,tebl->teab", columns, p, columns) / (lumped[:, :, None] * lumped[:, None, :] * h)
         gradient = np.zeros((count, len(joints)))
         hessian = np.zeros((count, len(joints), len(joints)))
-        unit = np.eye(3)
-        for e in range(1, n + 1):
-            covering = []  # (joint index, c (count, 3), elements lumped)
-            for suffix, (middle, lumped) in (("sx", slide_block[e]), ("sy", slide_block[e]),
-                                             ("az", slide_block[e]), ("tz", twist_block[e])):
-                name = f"b{middle}_{suffix}"
-                if name in index:
-                    covering.append((index[name], suffix, lumped))
-            covering += [(index[f"b{e}_bx"], "bx", 1), (index[f"b{e}_by"], "by", 1)]
-            re = r[:, e - 1]
-            columns = {"sx": np.broadcast_to(unit[0], re.shape), "sy": np.broadcast_to(unit[1], re.shape),
-                       "az": np.broadcast_to(unit[2], re.shape), "bx": np.cross(unit[0], re),
-                       "by": np.cross(unit[1], re), "tz": np.cross(unit[2], re)}
-            te, pe = t[:, e - 1], p[:, e - 1]
-            for j, kind, lumped in covering:
-                gradient[:, j] += np.einsum("ij,ij->i", te, columns[kind]) / lumped
-                for k, other, lumped_k in covering:
-                    hessian[:, j, k] += np.einsum("ia,iab,ib->i", columns[kind], pe, columns[other]) / (
-                        lumped * lumped_k * h)
+        e_idx, a_idx = np.nonzero(present)
+        np.add.at(gradient, (slice(None), slot[e_idx, a_idx]), grad[:, e_idx, a_idx])
+        pairs = [(e, a, b) for e, a in zip(e_idx, a_idx) for b in np.nonzero(present[e])[0]]
+        pe, pa, pb = (np.array(x) for x in zip(*pairs))
+        np.add.at(hessian, (slice(None), slot[pe, pa], slot[pe, pb]), hess[:, pe, pa, pb])
         return cls(tuple(joints), gradient, hessian)
 
     def geometric_stiffness(self, model: mujoco.MjModel, *, rtol: float = 1e-12) -> GeometricStiffness:

@@ -70,11 +70,15 @@ def readme_text(params: Params) -> str:
         f"| axial stiffness | {b.axial_stiffness_n:.6g} N | backbone.axial_stiffness_n |",
         f"| joint stiffness bend / twist | {b.bending_stiffness_nm2 / h:.6g} / {b.torsional_stiffness_nm2 / h:.6g} N·m/rad | EI/h, K_t/h; a twist hinge takes the K_t/h of each element it lumps in series |",
         f"| station joints | bx, by at every station; {twist}; {slides} | sim.shear_joints, "
-        "sim.axial_joints, sim.slide_stride, sim.twist_stride; even stations bend about y before x |",
+        "sim.axial_joints, sim.slide_stride, sim.twist_stride; even stations bend about y before x, every "
+        "other twist station twists before its bends |",
         f"| slide stiffness shear / axial, per element lumped | {b.shear_stiffness_n / h:.6g} / "
         f"{b.axial_stiffness_n / h:.6g} N/m | GA/h, EA/h, divided by the elements a slide lumps |",
         f"| joint damping | sim.damping_time_s × stiffness | stiffness-proportional |",
         f"| tendon stiffness | {tendon_stiffness_n_per_m(params):.6g} N/m | 1 / max(effects.tendon_compliance_m_per_n, {INEXTENSIBLE_COMPLIANCE_M_PER_N:g}) |",
+        "| tension stiffening (continuous routing) | + ΣT·ρ²/h on each twist hinge, + ΣT/h on each shear slide "
+        "(divided by the elements it lumps; straight routing) | the tendons' second-order length "
+        "(twin.sim.model.TendonLength), applied by the plant loop each step from the tensions |",
         f"| motor constant K | {motor.torque_constant_nm_per_a:.6g} N·m/A | V / ω₀ at the gearbox output |",
         f"| motor resistance R | {motor.resistance_ohm:.6g} Ω | K·V / τ_stall |",
         f"| spool transmission | {motor.transmission_rad_per_m:.6g} rad/m | 1 / spool radius |",
