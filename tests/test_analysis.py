@@ -55,3 +55,22 @@ def test_report_has_tables_and_figures(make_dataset, tmp_path):
     summary = json.loads((tmp_path / "summary.json").read_text())
     assert summary["rows"] == 24 and summary["wall_time_s"] == 1.0
     assert summary["rms_error_mm"] == pytest.approx(analyse_validation(data, PARAMS).summary()["rms_error_mm"])
+
+
+def test_a_report_on_a_twin_out_of_bounds_carries_the_warning(make_dataset, tmp_path):
+    from argparse import Namespace
+
+    from twin.experiments.commands import _twin_warnings
+
+    def args(*twin_set):
+        return Namespace(device="sim://", twin_overrides=list(twin_set))
+
+    # The rig's straight chords between discs put the twin 2.7 mm (median) off the predictor.
+    warnings = _twin_warnings(args('sim.tendon_routing="discs"'), PARAMS)
+    assert len(warnings) == 1 and "out of bounds" in warnings[0]
+    assert _twin_warnings(args(), PARAMS) == []
+    assert _twin_warnings(Namespace(device="serial:///dev/ttyACM0", twin_overrides=[]), PARAMS) == []
+    data = make_dataset(synthetic_rows(PARAMS, grid_cases()))
+    path = write_validation_report(analyse_validation(data, PARAMS), tmp_path, warnings=warnings)
+    assert path.read_text().splitlines()[2] == f"**{warnings[0]}**"
+    assert json.loads((tmp_path / "summary.json").read_text())["warnings"] == warnings

@@ -71,14 +71,32 @@ class RunRefused(Exception):
     """A run cannot start or resume as asked (the message says why, naming each difference)."""
 
 
+def _twin_params(args, params):
+    """The parameter set the device is built with: on sim://, the model's with ``--twin-set``."""
+    if not args.twin_overrides:
+        return params
+    if not args.device.startswith("sim://"):
+        raise SystemExit("twin: --twin-set applies to sim:// only")
+    return params.replace(dict(parse_override(o) for o in args.twin_overrides), source="twin-set (hidden)")
+
+
+def _twin_warnings(args, params) -> list[str]:
+    """On sim://, the warning that the twin's own cross-check against the predictor is out of
+    bounds (so differences may be the twin's, not the model's); printed and put in the report."""
+    if not args.device.startswith("sim://"):
+        return []
+    from twin.sim.crosscheck import crosscheck_status
+
+    warning = crosscheck_status(_twin_params(args, params)).warning
+    if warning:
+        print(f"twin: {warning}", file=sys.stderr)
+    return [warning] if warning else []
+
+
 def _open(args, params):
     from twin.device import open_device
 
-    twin_params = params
-    if args.twin_overrides:
-        if not args.device.startswith("sim://"):
-            raise SystemExit("twin: --twin-set applies to sim:// only")
-        twin_params = params.replace(dict(parse_override(o) for o in args.twin_overrides), source="twin-set (hidden)")
+    twin_params = _twin_params(args, params)
     try:
         device = open_device(args.device, params=twin_params, seed=args.seed)
     except ValueError as exc:  # a bad URL or option: nothing was opened
@@ -333,7 +351,7 @@ def _validate(args, folder: Path, params) -> int:
     dataset = read_dataset(folder / RUN_DATASET)
     result = analyse_validation(dataset, params, progress=True)
     picture = _picture(args, params, folder)
-    path = write_validation_report(result, folder, picture=picture,
+    path = write_validation_report(result, folder, picture=picture, warnings=_twin_warnings(args, params),
                                    facts={"sweep_wall_time_s": sweep_s, "device": args.device})
     s = result.summary()
     print(f"sweep {sweep_s:.1f} s wall; {s['rows']} configurations, {s['failed_predictions']} failed predictions; "

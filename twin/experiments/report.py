@@ -28,15 +28,19 @@ def markdown_table(rows: Sequence[Mapping], columns: Sequence[str] | None = None
 
 
 def write_validation_report(result: ValidationResult, folder: str | Path, *, title: str = "Validation sweep",
-                            picture: Path | None = None, facts: Mapping[str, object] | None = None) -> Path:
-    """Write ``report.md``, ``summary.json``, ``errors.csv``-like table and the figures into ``folder``."""
+                            picture: Path | None = None, facts: Mapping[str, object] | None = None,
+                            warnings: Sequence[str] = ()) -> Path:
+    """Write ``report.md``, ``summary.json``, ``errors.csv``-like table and the figures into ``folder``;
+    ``warnings`` (e.g. a twin whose cross-check is out of bounds) open the report."""
     folder = Path(folder)
     figures = plot_validation(result, folder / "figures")
     summary = result.summary()
     summary.update(facts or {})
+    summary["warnings"] = list(warnings)
     (folder / "summary.json").write_text(json.dumps(summary, indent=1))
     meta = result.dataset.metadata
     lines = [f"# {title}", ""]
+    lines += [f"**{w}**" for w in warnings] + ([""] if warnings else [])
     lines += [f"Device `{meta.get('device')}`, {summary['rows']} static measurements, experiment "
               f"`{meta.get('experiment')}`, recorded {meta.get('created')}.", ""]
     if picture is not None and Path(picture).exists():
