@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from twin.experiments.protocols import nominal_calibration
+from twin.experiments.protocols import nominal_calibration, pretension
 from twin.params import Params
 
 __all__ = ["pretension_straight"]
@@ -51,11 +51,6 @@ def pretension_straight(device, params: Params, *, mode: str, tension_n: float |
     device.set_calibration(gain_counts_per_n=calibration["gain_counts_per_n"],
                            offset_counts=calibration["offset_counts"])
     device.set_limits(tension_limit_n=limit)
-    device.fixture.hang_calibration_mass(tension / params.environment.gravity_m_s2 * 1e3, range(4))
-    device.fixture.engage_holder()
-    device.tare(loadcells=False, lengths=True)
-    device.set_mode(mode)
-    device.enable()
-    device.fixture.remove_calibration_masses()
+    pretension(device, params, mode=mode, tension_n=tension, tare_lengths=True)
     device.fixture.release_holder()
     return device.latest().tendon_lengths_m.copy()

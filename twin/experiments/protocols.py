@@ -132,29 +132,37 @@ def nominal_calibration(params: Params) -> dict:
             "offset_counts": list(s.loadcell_offset_counts), "source": "nominal (sensors.* of the parameter set)"}
 
 
-def pretension(device, tension_n: float, *, gravity_m_s2: float, settle_s: float = 0.3) -> np.ndarray:
-    """Hold the endoscope straight in the reference holder and pretension every tendon to ``tension_n``.
+def pretension(device, params: Params, *, mode: str = "lengths", tension_n: float | None = None,
+               settle_s: float = 0.0, tare_lengths: bool = False) -> None:
+    """Pretension every tendon of the endoscope held straight in the reference holder, and hand
+    the tendons to the board in ``mode``.
 
     The thesis wound the tendons by hand until the load cells read 1.2–1.5 N (§8.3); here the same
     is done by hanging a dead weight of ``tension_n``/g over each tendon's load-cell pulley (the
     fixture: the operator on the rig, ideal weights on the twin), after which the board, enabled
-    in length mode, holds those lengths and the weights come off. Leaves the holder engaged.
+    in ``mode``, holds the tendons and the weights come off. Call it on a disabled board. Leaves
+    the holder engaged.
 
-    Returns the relative lengths (m) of the pretensioned straight endoscope: the zero of the PCC
-    length setpoints.
+    Args:
+        device: a connected :class:`twin.device.Device` with a fixture.
+        params: the parameter set (gravity; the default pretension ``tendons.pretension_n``).
+        mode: the mode the board is enabled in.
+        tension_n: pretension per tendon (N).
+        settle_s: device time to let the weights settle in the closed holder (s).
+        tare_lengths: zero the encoders' lengths in the pretensioned straight pose first.
     """
+    tension = params.tendons.pretension_n if tension_n is None else float(tension_n)
     # Equal dead weights first: they pull a bent endoscope (from the previous configuration) back
     # to nearly straight, so the holder closes on a straight endoscope, not snaps a bent one.
-    device.disable()
-    device.fixture.hang_calibration_mass(tension_n / gravity_m_s2 * 1e3, range(4))
+    device.fixture.hang_calibration_mass(tension / params.environment.gravity_m_s2 * 1e3, range(params.tendons.count))
     device.fixture.engage_holder()
-    device.wait(settle_s)
-    device.set_mode("lengths")
+    if settle_s > 0:
+        device.wait(settle_s)
+    if tare_lengths:
+        device.tare(loadcells=False, lengths=True)
+    device.set_mode(mode)
     device.enable()
     device.fixture.remove_calibration_masses()
-    device.wait(0.05)
-    _check_state(device.latest())
-    return device.latest().tendon_lengths_m.copy()
 
 
 def run_validation(device, folder: str | Path, params: Params, *, grid: Sequence[tuple] | None = None,
@@ -188,7 +196,12 @@ def run_validation(device, folder: str | Path, params: Params, *, grid: Sequence
         with tqdm(total=sum(len(v) for _, v in todo), desc="validation sweep", unit="config",
                   disable=not progress) as bar:
             for (kappa, phi), configs in todo:
-                zero = pretension(device, pre, gravity_m_s2=params.environment.gravity_m_s2)
+                device.disable()
+                pretension(device, params, tension_n=pre, settle_s=0.3)
+                device.wait(0.05)
+                _check_state(device.latest())
+                # The relative lengths of the pretensioned straight endoscope: the zero of the PCC setpoints.
+                zero = device.latest().tendon_lengths_m.copy()
                 device.fixture.release_holder()
                 device.set_lengths(zero + tendon_length_changes_m(kappa, phi, params))
                 for config, mass in sorted(configs, key=lambda c: c[1]):
