@@ -73,9 +73,7 @@ def open_device(
     options = _query(url, parts.scheme, parts.query)
     params = params if params is not None else load_params()
     settings = FusionSettings.from_params(params)
-    # The parameter set's tension limit is what the board drives with: Device.enable sends it.
-    device_args = dict(command_timeout_s=command_timeout_s, keepalive_s=keepalive_s, queue_size=queue_size,
-                       tension_limit_n=params.rig.tension_limit_n)
+    device_args = dict(command_timeout_s=command_timeout_s, keepalive_s=keepalive_s, queue_size=queue_size)
 
     if parts.scheme == "sim":
         if parts.netloc or parts.path not in ("", "/"):
