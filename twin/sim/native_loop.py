@@ -20,7 +20,6 @@ import importlib.util
 import subprocess
 from pathlib import Path
 
-import numpy as np
 
 from twin.sim.sensors import NoiseStream
 
@@ -137,16 +136,6 @@ def load() -> "_Library":
     mujoco_fns = {name: ctypes.cast(getattr(mujoco_lib, name), ctypes.c_void_p).value
                   for name in ("mj_step", "mj_forward")}
     return _Library(lib, int(lib.bl_max_channels()), mujoco_fns)
-
-
-@functools.lru_cache(maxsize=1)
-def available() -> bool:
-    """True when the plant loop can be built and loaded here."""
-    try:
-        load()
-    except NativeLoopError:
-        return False
-    return True
 
 
 class _Library:

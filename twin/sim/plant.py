@@ -34,7 +34,7 @@ from twin.sim.model import (ACTUATOR_GROUPS, SPOOL_TRAVEL_M, Layout, TendonLengt
                              tendon_stiffness_n_per_m)
 from twin.sim.motor import MotorConstants
 from twin.sim.native_loop import Mode, PlantLoop, Reason
-from twin.sim.sensors import LoadCellSample, NoiseStream, TrackerSample, probe_layout
+from twin.sim.sensors import HX711_RANGE_COUNTS, LoadCellSample, NoiseStream, TrackerSample, probe_layout
 
 __all__ = ["ENGAGE_MAX_STEP_S", "MODES", "Plant", "SettleResult", "SimulationError"]
 
@@ -134,6 +134,7 @@ class Plant:
         s.tendon_stiffness_n_per_m = self._tendon_stiffness
         s.loadcell_gain_counts_per_n = p.sensors.loadcell_gain_counts_per_n
         s.loadcell_noise_n = p.sensors.loadcell_noise_n
+        s.loadcell_min_counts, s.loadcell_max_counts = HX711_RANGE_COUNTS
         s.loadcell_rate_hz = p.rig.loadcell_rate_hz
         s.tracker_noise_m = p.sensors.tracker_noise_m
         s.tracker_noise_rad = p.sensors.tracker_noise_rad

@@ -73,6 +73,8 @@ enum { BL_DRIVE_COAST = 0, BL_DRIVE_ON = 1 };
   S(f64, reflected_mass_kg)     /* rotor inertia reflected to the tendon (kg) */                        \
   S(f64, tendon_stiffness_n_per_m)                                                                      \
   S(f64, loadcell_gain_counts_per_n)                                                                    \
+  S(f64, loadcell_min_counts)   /* the HX711's output range: its codes saturate there */                \
+  S(f64, loadcell_max_counts)                                                                           \
   S(f64, loadcell_noise_n)      /* RMS (N) */                                                           \
   S(f64, loadcell_rate_hz)                                                                              \
   S(f64, tracker_noise_m)       /* RMS per axis (m) */                                                  \
@@ -269,7 +271,7 @@ static void sample_loadcells(const mjData* d, bl_state* s) {
     double sensed = s->loadcell_gain[i] * tension + s->loadcell_offset_n[i];
     if (z) sensed = sensed + s->loadcell_noise_n * z[i];
     double code = nearbyint(s->loadcell_offset_counts[i] + s->loadcell_gain_counts_per_n * sensed);
-    s->raw_counts[i] = (int32_t)fmin(fmax(code, -8388608.0), 8388607.0);
+    s->raw_counts[i] = (int32_t)fmin(fmax(code, s->loadcell_min_counts), s->loadcell_max_counts);
   }
   s->loadcell_index += 1;
   s->loadcell_time_s = d->time;
