@@ -22,6 +22,26 @@ bool all_finite(const float* values, size_t n) {
 
 bool valid_mode(uint8_t mode) { return mode < kModes; }
 
+bool within(float x, float lowest, float highest) { return x >= lowest && x <= highest; }
+
+// The PID gains SET_GAINS accepts for `mode` (config.h); NaN fails every comparison.
+bool valid_gains(Mode mode, const msg::SetGains& m) {
+  const bool tension = mode == Mode::kTension;
+  return within(m.kp, 0.0f, tension ? kMaxTensionKp : kMaxLengthKp) &&
+         within(m.ki, 0.0f, tension ? kMaxTensionKi : kMaxLengthKi) &&
+         within(m.kd, 0.0f, tension ? kMaxTensionKd : kMaxLengthKd) && m.output_limit > 0.0f &&
+         m.output_limit <= 1.0f;
+}
+
+// A calibration channel SET_CALIBRATION accepts (config.h, firmware/PROTOCOL.md): counts rise
+// with tension at a plausible rate, and the offset leaves the tension limit inside the 24-bit
+// range. Compared as counts per N, so that the bounds are the datasheet-like numbers.
+bool valid_calibration(float gain_n_per_count, float offset_counts) {
+  if (!(gain_n_per_count > 0.0f)) return false;
+  return within(1.0f / gain_n_per_count, kMinGainCountsPerN, kMaxGainCountsPerN) &&
+         within(offset_counts, -kMaxOffsetCounts, kMaxOffsetCounts);
+}
+
 }  // namespace
 
 void Firmware::handle(const RawFrame& frame) {
@@ -57,7 +77,11 @@ uint8_t Firmware::dispatch(const RawFrame& frame, uint8_t (Firmware::*handler)(c
   return (this->*handler)(message);
 }
 
+// Any HELLO starts a new session and so stops the motors (end_session); one of another version
+// also withdraws the handshake. Either way it is answered with this board's version, so that a
+// host of another version can say which one to flash.
 uint8_t Firmware::on_hello(const msg::Hello& m) {
+  end_session();
   handshake_ok_ = m.protocol_version == kProtocolVersion;
   send(msg::HelloReply{kProtocolVersion,
                        {kFirmwareVersionMajor, kFirmwareVersionMinor, kFirmwareVersionPatch},
@@ -91,6 +115,12 @@ uint8_t Firmware::on_tare(const msg::Tare& m) {
   const uint8_t all = (1u << kChannels) - 1;
   if ((m.loadcell_mask | m.length_mask) & ~all) return nack(NackError::kBadValue);
   if (m.loadcell_mask & stale_mask()) return nack(NackError::kBadValue);
+  for (size_t i = 0; i < kChannels; ++i) {
+    const bool tared = (m.loadcell_mask & (1u << i)) != 0;
+    if (tared && !within(static_cast<float>(raw_counts_[i]), -kMaxOffsetCounts, kMaxOffsetCounts)) {
+      return nack(NackError::kBadValue);
+    }
+  }
   for (size_t i = 0; i < kChannels; ++i) {
     if (m.loadcell_mask & (1u << i)) offset_counts_[i] = static_cast<float>(raw_counts_[i]);
     if (m.length_mask & (1u << i)) origin_counts_[i] = counts_[i];
@@ -126,10 +156,7 @@ uint8_t Firmware::on_set_setpoints(const msg::SetSetpoints& m) {
 
 uint8_t Firmware::on_set_gains(const msg::SetGains& m) {
   if (!valid_mode(m.mode)) return nack(NackError::kBadValue);
-  const float values[] = {m.kp, m.ki, m.kd, m.output_limit};
-  if (!all_finite(values, 4)) return nack(NackError::kBadValue);
-  if (m.kp < 0.0f || m.ki < 0.0f || m.kd < 0.0f) return nack(NackError::kBadValue);
-  if (!(m.output_limit > 0.0f && m.output_limit <= 1.0f)) return nack(NackError::kBadValue);
+  if (!valid_gains(static_cast<Mode>(m.mode), m)) return nack(NackError::kBadValue);
   controller_.set_gains(static_cast<Mode>(m.mode), PidGains{m.kp, m.ki, m.kd, m.output_limit});
   return kAck;
 }
@@ -139,8 +166,8 @@ uint8_t Firmware::on_set_calibration(const msg::SetCalibration& m) {
   if (!all_finite(m.gain_n_per_count, kChannels) || !all_finite(m.offset_counts, kChannels)) {
     return nack(NackError::kBadValue);
   }
-  for (float g : m.gain_n_per_count) {
-    if (g == 0.0f) return nack(NackError::kBadValue);
+  for (size_t i = 0; i < kChannels; ++i) {
+    if (!valid_calibration(m.gain_n_per_count[i], m.offset_counts[i])) return nack(NackError::kBadValue);
   }
   for (size_t i = 0; i < kChannels; ++i) {
     gain_n_per_count_[i] = m.gain_n_per_count[i];
@@ -158,6 +185,7 @@ uint8_t Firmware::on_set_limits(const msg::SetLimits& m) {
     return nack(NackError::kBadValue);
   }
   safety_.set_limits(m.tension_limit_n, m.watchdog_timeout_ms);
+  set_tension_limit(m.tension_limit_n);
   return kAck;
 }
 

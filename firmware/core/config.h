@@ -45,6 +45,87 @@ constexpr uint16_t kMaxWatchdogMs = 10000;
 // must not unwind the spools.
 constexpr float kMaxLengthSetpointM = 0.05f;
 
+// The motor at the tendon (thesis §4; rig.motor_stall_torque_nm, rig.motor_no_load_speed_rpm):
+// at full duty a stalled spool pulls the tendon with 0.5 N·m / 3.25 mm = 154 N and an unloaded
+// one winds 1500 rpm × 2π × 3.25 mm = 0.51 m/s. A stalled motor's pull is its duty times the
+// stall force: the bound on tension below rests on that.
+constexpr float kMotorStallTorqueNm = 0.5f;
+constexpr float kMotorNoLoadSpeedRpm = 1500.0f;
+constexpr float kStallForceN = static_cast<float>(kMotorStallTorqueNm / kSpoolRadiusM);
+constexpr float kNoLoadSpeedMPerS = static_cast<float>(kMotorNoLoadSpeedRpm * 2.0 * kPi / 60.0 * kSpoolRadiusM);
+
+// Tension bounded by construction (firmware/PROTOCOL.md, "Tension bound"). A motor may wind in
+// with at most kPullForceFraction of the tension limit as stall force, so no duty the PID asks
+// for can hold a tendon above the limit. And it may wind in only so fast that the blow of a
+// tendon snapping taut keeps every tendon under kBlowBoundFraction of the limit: a slack tendon
+// taken up at speed w stops its spool (2.7 kg of reflected rotor) against the rod and the other
+// spools through ~1e5 N/m of tendon, a blow of about w · kBlowImpedanceNsPerM on the tendons
+// already taut, which carry the cap at most. So no spool winds in faster than
+// (kBlowBoundFraction − kPullForceFraction) · limit / kBlowImpedanceNsPerM: 4.6 mm/s at 6 N.
+constexpr float kPullForceFraction = 0.9f;
+constexpr float kBlowBoundFraction = 1.2f;
+constexpr float kBlowImpedanceNsPerM = 390.0f;
+// A tendon that reads more than kTautFraction of the cap has no slack to take up: its spool may
+// wind kTautSpeedFactor times faster, which the tension loop needs to follow its setpoints
+// (its tension then rises with the rod's stiffness, where the load cell sees it).
+constexpr float kTautFraction = 0.1f;
+constexpr float kTautSpeedFactor = 2.0f;
+// Back-EMF damping of a motor at the tendon (N·s/m): stall force over no-load speed.
+constexpr float kMotorDampingNsPerM = kStallForceN / kNoLoadSpeedMPerS;
+// Length references ramp towards their targets at the winding speed limit, paying out as well
+// (a tendon paid out faster than its antagonist winds in goes slack), and never faster than
+// this (m/s, for large limits): a step becomes a ramp the PID tracks.
+constexpr float kMaxLengthRateMPerS = 0.02f;
+// ... and no further than this (m) ahead of the tendon's length.
+constexpr float kMaxLengthLeadM = 0.00025f;
+// Spool speeds are measured tick to tick (5 ms on the Teensy: 0.19 mm/s per encoder count), over
+// at least this (µs).
+constexpr uint32_t kSpeedWindowUs = 1000;
+// A spool slower than this (m/s) is still. A motor that stops driving brakes (shorted: 300 N·s/m
+// at the tendon) until its spool stays still in the brake, and only then coasts: a spool still
+// winding in would wind on, and one let go under tension would fly out while the rod springs
+// back, and the tendon snap taut again. Still in the brake means a tension under 0.3 N.
+constexpr float kStillSpeedMPerS = 0.001f;
+
+// A motor that has pulled with kAtCapFraction of its cap or more against a still spool for
+// kAtCapUs trips the tension limit: its tendon then carries 0.9 of the limit, whatever the load
+// cell reads, and its target is not to be reached within the limit.
+constexpr float kAtCapFraction = 0.999f;
+constexpr uint32_t kAtCapUs = 200000;
+
+// Load-cell plausibility: a spool that has stood still for kImplausibleUs while its motor winds
+// in with a stall force F ≥ kPlausibleMinForceN must read at least kPlausibleFraction · F −
+// kPlausibleMarginN; a channel reading less trips a fault (it is miscalibrated, unplugged or
+// its tendon off the pulley). Gearbox friction takes some of F, hence the
+// wide margin; a gain within the calibration bounds below (25 %) never trips it.
+constexpr uint32_t kImplausibleUs = 100000;
+constexpr float kPlausibleMinForceN = 0.6f;
+constexpr float kPlausibleFraction = 1.0f / 3.0f;
+constexpr float kPlausibleMarginN = 0.2f;
+
+// Calibrations SET_CALIBRATION accepts. Gain: counts rise with tension, within 25 % of the
+// nominal 45,000 counts/N (load-cell rated output ±10 %, HX711 excitation and gain a few %
+// more; a larger error is a wrong cell, wiring or unit, and it scales the tension loop's gain
+// away from what its gains were tuned for). Offset: within 2^20 counts
+// of zero, an eighth of the HX711's 24-bit range, so that the largest limit (50 N) at the
+// largest gain still reads below saturation. Readings at either end of the 24-bit range are not
+// trusted at all.
+constexpr float kMinGainCountsPerN = 36000.0f;
+constexpr float kMaxGainCountsPerN = 56250.0f;
+constexpr float kMaxOffsetCounts = 1048576.0f;
+constexpr int32_t kLoadcellMaxCounts = 8388607;
+constexpr int32_t kLoadcellMinCounts = -8388608;
+
+// Largest PID gains SET_GAINS accepts, per unit of the mode: length modes in duty per m, tension
+// in duty per N (100 to 300× the defaults). At them a 1-count (0.94 µm) error already commands
+// about 1 % duty and a noise-level (5 mN) one 0.5 %; and every product stays finite.
+constexpr float kMaxLengthKp = 1.0e4f;
+constexpr float kMaxLengthKi = 1.0e5f;
+constexpr float kMaxLengthKd = 1.0e2f;
+constexpr float kMaxTensionKp = 1.0f;
+constexpr float kMaxTensionKi = 1.0e2f;
+constexpr float kMaxTensionKd = 1.0e-1f;
+
 // Nominal load-cell calibration until the host sends its regression (45,000 counts/N:
 // HX711 at gain 128 with a 1 kg cell, models/endoscope.toml [sensors]).
 constexpr float kDefaultGainNPerCount = 1.0f / 45000.0f;

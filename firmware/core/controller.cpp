@@ -19,8 +19,6 @@ constexpr size_t kPairs = kChannels / 2;
 constexpr PidGains kDefaultLengthGains{60.0f, 100.0f, 0.0f, 1.0f};
 constexpr PidGains kDefaultTensionGains{0.003f, 0.3f, 0.0f, 0.2f};
 
-float clamp_range(float x, float lo, float hi) { return x < lo ? lo : (x > hi ? hi : x); }
-
 }  // namespace
 
 Controller::Controller()
@@ -65,6 +63,7 @@ void Controller::restart(const Measurements& now) {
   for (size_t i = 0; i < kChannels; ++i) {
     pid_[i].reset(measured(now, i));
     last_duty_[i] = 0.0f;
+    references_[i] = mode_ == Mode::kTension ? targets_[i] : now.lengths_m[i];
   }
 }
 
@@ -74,11 +73,35 @@ void Controller::set_setpoints(const float values[kChannels]) {
 }
 
 void Controller::step(const Measurements& now, float dt_s, float duty[kChannels]) {
+  const float limit = gains(mode_).output_limit;
+  const float lowest[kChannels] = {-limit, -limit, -limit, -limit};
+  step(now, dt_s, lowest, duty);
+}
+
+void Controller::step(const Measurements& now, float dt_s, const float lowest[kChannels], float duty[kChannels]) {
   const PidGains& g = gains(mode_);
+  const float ramp_m = length_rate_m_s_ * dt_s;
   for (size_t i = 0; i < kChannels; ++i) {
+    float& reference = references_[i];
+    // A ramping length is fed forward as the duty its speed takes an unloaded motor, so that the
+    // integral holds only the load and has nothing to unwind when the ramp ends.
+    float feedforward = 0.0f;
+    if (mode_ == Mode::kTension) {
+      reference = targets_[i];
+    } else {
+      // Nor does it run ahead of a tendon that cannot follow (a motor at its pull limit): the
+      // error stays small, and so does the overshoot when the tendon catches up.
+      const float lead_m = reference - now.lengths_m[i];
+      const float most_m = clamp_range(kMaxLengthLeadM - lead_m, 0.0f, ramp_m);
+      const float least_m = -clamp_range(kMaxLengthLeadM + lead_m, 0.0f, ramp_m);
+      const float move_m = clamp_range(targets_[i] - reference, least_m, most_m);
+      reference += move_m;
+      feedforward = move_m / dt_s / kNoLoadSpeedMPerS;
+    }
     // In tension mode the loop runs on −tension: paying out (positive duty) lowers tension.
     const float sign = mode_ == Mode::kTension ? -1.0f : 1.0f;
-    duty[i] = pid_[i].step(g, sign * targets_[i], measured(now, i), dt_s);
+    const float low = lowest[i] > -g.output_limit ? lowest[i] : -g.output_limit;
+    duty[i] = pid_[i].step(g, sign * reference, measured(now, i), dt_s, low, g.output_limit, feedforward);
     last_duty_[i] = duty[i];
   }
 }

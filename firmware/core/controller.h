@@ -5,6 +5,9 @@
 //             out; c is the pair's mean length when the mode was entered;
 //   tension — each motor tracks a tension setpoint (N) on its calibrated load cell.
 // Positive duty pays tendon out: it lengthens the tendon and lowers its tension.
+// In the length modes each PID tracks a reference that moves towards its target at no more than
+// length_rate(), so a step is driven as a ramp, its speed fed forward: no spool is jerked, and
+// no tendon paid out so fast that it goes slack and snaps taut again when the rod moves.
 #pragma once
 
 #include <cstddef>
@@ -28,6 +31,10 @@ class Controller {
   const PidGains& gains(Mode mode) const { return gains_[static_cast<size_t>(mode)]; }
   void set_gains(Mode mode, const PidGains& gains) { gains_[static_cast<size_t>(mode)] = gains; }
 
+  // Fastest the length references move (m/s).
+  float length_rate() const { return length_rate_m_s_; }
+  void set_length_rate(float length_rate_m_s) { length_rate_m_s_ = length_rate_m_s; }
+
   // Switches mode and holds (see hold()), with each PID's integral starting at the duty of the
   // last step, so the motors keep pulling as they were instead of letting go: entering tension
   // mode from a length-held bend under load no longer kicks the tip by millimetres.
@@ -38,17 +45,24 @@ class Controller {
   void hold(const Measurements& now, float tension_limit_n);
 
   // Restarts the PIDs from the current measurement and a stopped motor, keeping the setpoints
-  // (motion resumes after a pause without a derivative kick).
+  // (motion resumes after a pause without a derivative kick, the length references ramping
+  // from where the tendons are).
   void restart(const Measurements& now);
 
   // Setpoints in the active mode's units (validated by the caller); pairs use values[0..1].
   void set_setpoints(const float values[kChannels]);
 
-  // One control period: writes duty[kChannels] in [-limit, limit] and updates targets().
+  // One control period: writes duty[kChannels] in [−limit, limit].
   void step(const Measurements& now, float dt_s, float duty[kChannels]);
+  // The same with motor i's duty, and its PID's integral, no lower than lowest[i] (≤ 0): what the
+  // motor can be given (Guard::lowest_duty), so that no integral winds up against it.
+  void step(const Measurements& now, float dt_s, const float lowest[kChannels], float duty[kChannels]);
 
-  // Per-motor target of the last step or hold: m (length modes) or N (tension).
+  // Per-motor target of the last setpoints or hold: m (length modes) or N (tension).
   const float* targets() const { return targets_; }
+
+  // What each PID tracks now: the ramped length (m), or the tension target (N).
+  const float* references() const { return references_; }
 
  private:
   float measured(const Measurements& now, size_t channel) const;
@@ -60,6 +74,8 @@ class Controller {
   float setpoints_[kChannels] = {};
   float pair_centres_m_[kChannels / 2] = {};
   float targets_[kChannels] = {};
+  float references_[kChannels] = {};
+  float length_rate_m_s_ = kMaxLengthRateMPerS;
   float last_duty_[kChannels] = {};  // duty of the last step; 0 after restart()
 };
 

@@ -6,6 +6,7 @@ namespace twinfw {
 
 Firmware::Firmware() {
   for (float& g : gain_n_per_count_) g = kDefaultGainNPerCount;
+  set_tension_limit(kDefaultTensionLimitN);
 }
 
 void Firmware::receive(const uint8_t* data, size_t size) {
@@ -26,13 +27,25 @@ const Outputs& Firmware::tick(uint32_t now_us, const Inputs& inputs) {
   }
   const Measurements now = measure();
   const uint8_t stale = stale_mask();
-  const bool may_move = safety_.update(time_us_, now.tensions_n, stale);
+  guard_.observe(time_us_, counts_, now.tensions_n, stale);
+  bool may_move = safety_.update(time_us_, now.tensions_n, stale);
+  if (may_move) {
+    const uint16_t faults = guard_faults(stale);
+    if (faults != 0) {
+      safety_.trip(faults);
+      may_move = false;
+    }
+  }
   if (due(next_control_us_, kControlPeriodUs) && may_move) {
     if (motion_held_) controller_.restart(now);
     motion_held_ = false;
-    controller_.step(now, kControlPeriodS, outputs_.duty);
+    // The PIDs ask only for what the guard will give: no integral winds up against it.
+    float lowest[kChannels];
+    for (size_t i = 0; i < kChannels; ++i) lowest[i] = guard_.lowest_duty(i);
+    controller_.step(now, kControlPeriodS, lowest, command_);
   }
   set_outputs(may_move);
+  guard_.applied(outputs_.drive);
   if (due(next_telemetry_us_, kTelemetryPeriodUs)) send_telemetry(now, stale);
   return outputs_;
 }
@@ -52,12 +65,49 @@ bool Firmware::due(uint64_t& deadline_us, uint32_t period_us) const {
   return true;
 }
 
+// Driving, held (ENABLED with a stale load cell: brake) or let go (DISABLED, FAULT: brake until
+// the spool stands still, then coast); the guard bounds what the motors get in every case.
 void Firmware::set_outputs(bool may_move) {
-  const bool enabled = safety_.state() == State::kEnabled;
-  if (!may_move) motion_held_ = true;
+  if (may_move) {
+    guard_.drive(command_, outputs_.duty, outputs_.drive);
+    return;
+  }
+  motion_held_ = true;
+  for (float& c : command_) c = 0.0f;
+  if (safety_.state() == State::kEnabled) {
+    guard_.hold(outputs_.duty, outputs_.drive);
+  } else {
+    guard_.release(outputs_.duty, outputs_.drive);
+  }
+}
+
+// Fault flags of what the guard sees (Guard::faults) and of fresh load-cell readings at either
+// end of the HX711's range (saturated: the tension could be anything).
+uint16_t Firmware::guard_faults(uint8_t stale_mask) {
+  uint16_t flags = guard_.faults(time_us_, outputs_.duty, outputs_.drive);
   for (size_t i = 0; i < kChannels; ++i) {
-    if (!may_move) outputs_.duty[i] = 0.0f;
-    outputs_.drive[i] = may_move ? Drive::kDrive : (enabled ? Drive::kBrake : Drive::kCoast);
+    const bool fresh = (stale_mask & (1u << i)) == 0;
+    if (fresh && (raw_counts_[i] >= kLoadcellMaxCounts || raw_counts_[i] <= kLoadcellMinCounts)) {
+      flags = static_cast<uint16_t>(flags | fault::kLoadcellImplausible | fault::implausible_channel(i));
+    }
+  }
+  return flags;
+}
+
+// Length references ramp at the winding speed limit, paying out too: a tendon paid out faster
+// than its antagonist winds in goes slack, and the rod snaps it taut.
+void Firmware::set_tension_limit(float tension_limit_n) {
+  guard_.set_tension_limit(tension_limit_n);
+  const float rate = guard_.winding_speed_limit();
+  controller_.set_length_rate(rate < kMaxLengthRateMPerS ? rate : kMaxLengthRateMPerS);
+}
+
+// A HELLO starts a host's session: whatever the last host left driving stops (FAULT stays, so
+// its flags can be read).
+void Firmware::end_session() {
+  if (safety_.state() == State::kEnabled) {
+    safety_.disable();
+    set_outputs(false);
   }
 }
 

@@ -11,6 +11,7 @@
 #include "config.h"
 #include "controller.h"
 #include "frame.h"
+#include "guard.h"
 #include "messages.h"
 #include "safety.h"
 #include "tx_queue.h"
@@ -71,12 +72,17 @@ class Firmware {
   bool due(uint64_t& deadline_us, uint32_t period_us) const;
   Measurements measure() const;
   uint8_t stale_mask() const;
+  uint16_t guard_faults(uint8_t stale_mask);
   void set_outputs(bool may_move);
+  void set_tension_limit(float tension_limit_n);
+  void end_session();
 
   FrameDecoder rx_;
   TxQueue<kTxQueueBytes> tx_;
   Controller controller_;
   Safety safety_;
+  Guard guard_;
+  float command_[kChannels] = {};  // the PIDs' duties of the last control period
   Outputs outputs_{};
 
   bool started_ = false;

@@ -52,8 +52,11 @@ namespace fault {
 constexpr uint16_t kWatchdog = 1u << 0;      // latched: host silent for the watchdog timeout
 constexpr uint16_t kTensionLimit = 1u << 1;  // latched: a tension exceeded the limit
 constexpr uint16_t kLoadcellStale = 1u << 2; // live: motion held while a load cell is stale
+constexpr uint16_t kLoadcellImplausible = 1u << 3;  // latched: a load cell cannot be believed
 // Latched: which channel exceeded the tension limit (bits 8..11).
 constexpr uint16_t tension_channel(size_t channel) { return static_cast<uint16_t>(1u << (8 + channel)); }
+// Latched: which channel's load cell was implausible (bits 12..15).
+constexpr uint16_t implausible_channel(size_t channel) { return static_cast<uint16_t>(1u << (12 + channel)); }
 }  // namespace fault
 
 namespace msg {

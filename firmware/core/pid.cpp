@@ -2,21 +2,25 @@
 
 namespace twinfw {
 
-namespace {
-float clamp(float x, float limit) { return x > limit ? limit : (x < -limit ? -limit : x); }
-}  // namespace
-
 void Pid::reset(float measurement, float output) {
   integral_ = output;
   last_measurement_ = measurement;
 }
 
-float Pid::step(const PidGains& gains, float setpoint, float measurement, float dt_s) {
+// The integral stays within the output limit; and it does not grow further while the output is
+// held at `lowest` or `highest` in the same direction (conditional integration), so that a range
+// narrowed for a moment neither winds it up nor wipes out the load it holds.
+float Pid::step(const PidGains& gains, float setpoint, float measurement, float dt_s, float lowest, float highest,
+               float feedforward) {
   const float error = setpoint - measurement;
-  integral_ = clamp(integral_ + gains.ki * error * dt_s, gains.output_limit);
   const float derivative = -gains.kd * (measurement - last_measurement_) / dt_s;
   last_measurement_ = measurement;
-  return clamp(gains.kp * error + integral_ + derivative, gains.output_limit);
+  const float increment = gains.ki * error * dt_s;
+  const float rest = gains.kp * error + derivative + feedforward;
+  const float unclamped = rest + integral_ + increment;
+  const bool held = (unclamped < lowest && increment < 0.0f) || (unclamped > highest && increment > 0.0f);
+  if (!held) integral_ = clamp_range(integral_ + increment, -gains.output_limit, gains.output_limit);
+  return clamp_range(rest + integral_, lowest, highest);
 }
 
 }  // namespace twinfw

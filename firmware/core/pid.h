@@ -12,6 +12,14 @@ struct PidGains {
   float output_limit;  // |output| and |integral| bound, > 0
 };
 
+// `x` limited to [lowest, highest] (lowest ≤ 0 ≤ highest); NaN gives 0, so that no NaN, from
+// whatever arithmetic, reaches an integral or a motor.
+inline float clamp_range(float x, float lowest, float highest) {
+  if (x > highest) return highest;
+  if (x < lowest) return lowest;
+  return x == x ? x : 0.0f;
+}
+
 class Pid {
  public:
   // Bumpless start: the integral restarts at `output`, the output the motor had (0 when it was
@@ -19,7 +27,15 @@ class Pid {
   // `measurement` instead of differencing against a stale value.
   void reset(float measurement, float output = 0.0f);
 
-  float step(const PidGains& gains, float setpoint, float measurement, float dt_s);
+  // One period with output and integral in [−output_limit, output_limit].
+  float step(const PidGains& gains, float setpoint, float measurement, float dt_s) {
+    return step(gains, setpoint, measurement, dt_s, -gains.output_limit, gains.output_limit);
+  }
+
+  // One period with the output in [lowest, highest] (lowest ≤ 0 ≤ highest), the integral not
+  // growing past either; `feedforward` is added to the output before it is clamped.
+  float step(const PidGains& gains, float setpoint, float measurement, float dt_s, float lowest, float highest,
+             float feedforward = 0.0f);
 
  private:
   float integral_ = 0.0f;

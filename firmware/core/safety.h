@@ -29,7 +29,7 @@ class Safety {
   // stale ones); returns whether the motors may move.
   bool update(uint64_t now_us, const float tensions_n[kChannels], uint8_t stale_mask);
 
- private:
+  // Enters FAULT with `flags` added to the latched ones.
   void trip(uint16_t flags);
 
   State state_ = State::kDisabled;

@@ -7,3 +7,4 @@ void test_codec();
 void test_controller();
 void test_firmware();
 void test_safety();
+void test_guard();

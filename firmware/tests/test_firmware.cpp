@@ -157,6 +157,107 @@ void tare_sets_origins() {
   CHECK(b.replies.last.tensions_n[0] > 0.1f);  // untouched channel keeps its nominal offset 0
 }
 
+void calibrations_outside_physical_bounds_are_refused() {
+  Bench b;
+  b.send(msg::Hello{kProtocolVersion});
+  auto refused = [&b](float gain_n_per_count, float offset_counts) {
+    const int nacks = b.replies.nacks;
+    b.send(msg::SetCalibration{{1 / Bench::kRawPerN, gain_n_per_count, 1 / Bench::kRawPerN, 1 / Bench::kRawPerN},
+                               {Bench::kRawOffset, offset_counts, Bench::kRawOffset, Bench::kRawOffset}});
+    return b.replies.nacks == nacks + 1 && b.replies.last_nack_error == static_cast<uint8_t>(NackError::kBadValue);
+  };
+  CHECK(refused(-1 / Bench::kRawPerN, 0.0f));  // counts falling with tension
+  CHECK(refused(1e-30f, 0.0f));                // 1e30 counts/N
+  CHECK(refused(1 / (10 * Bench::kRawPerN), 0.0f));  // reads a tenth of the tension
+  CHECK(refused(10 / Bench::kRawPerN, 0.0f));        // reads ten times it
+  CHECK(refused(1 / Bench::kRawPerN, 1e9f));         // offset beyond the 24-bit range
+  CHECK(refused(1 / Bench::kRawPerN, -1.1e6f));
+  CHECK(refused(0.0f, 0.0f));
+  CHECK(refused(NAN, 0.0f));
+  // The bounds themselves are accepted: 36,000 and 56,250 counts/N, ±2^20 counts.
+  const int acks = b.replies.acks;
+  b.send(msg::SetCalibration{{1 / kMinGainCountsPerN, 1 / kMaxGainCountsPerN, 1 / Bench::kRawPerN, 1 / Bench::kRawPerN},
+                             {kMaxOffsetCounts, -kMaxOffsetCounts, 0.0f, 0.0f}});
+  CHECK(b.replies.acks == acks + 1);
+}
+
+void gains_beyond_their_bounds_are_refused() {
+  Bench b;
+  b.send(msg::Hello{kProtocolVersion});
+  const int nacks = b.replies.nacks;
+  b.send(msg::SetGains{0, 3e38f, 0.0f, 3e38f, 1.0f});  // finite, and a NaN duty once multiplied out
+  b.send(msg::SetGains{0, kMaxLengthKp * 1.01f, 0.0f, 0.0f, 1.0f});
+  b.send(msg::SetGains{1, 60.0f, kMaxLengthKi * 1.01f, 0.0f, 1.0f});
+  b.send(msg::SetGains{2, kMaxTensionKp * 1.01f, 0.0f, 0.0f, 0.2f});
+  b.send(msg::SetGains{2, 0.003f, 0.3f, kMaxTensionKd * 1.01f, 0.2f});
+  CHECK(b.replies.nacks == nacks + 5 && b.replies.last_nack_error == static_cast<uint8_t>(NackError::kBadValue));
+  const int acks = b.replies.acks;
+  b.send(msg::SetGains{0, kMaxLengthKp, kMaxLengthKi, kMaxLengthKd, 1.0f});
+  b.send(msg::SetGains{2, kMaxTensionKp, kMaxTensionKi, kMaxTensionKd, 1.0f});
+  CHECK(b.replies.acks == acks + 2);
+}
+
+void hello_leaves_the_board_disabled() {
+  Bench b;
+  CHECK(b.start());
+  b.send(msg::SetSetpoints{0, {0.002f, 0.0f, 0.0f, 0.0f}});
+  b.run_fed(0.1);
+  // A new host says HELLO: whatever the last one left driving stops.
+  b.send(msg::Hello{kProtocolVersion});
+  CHECK(b.fw.state() == State::kDisabled && b.replies.hello_replies == 2);
+  b.send(msg::Enable{});
+  CHECK(b.fw.state() == State::kEnabled);
+  // A host of another version: disabled too, and it cannot enable.
+  b.send(msg::Hello{static_cast<uint16_t>(kProtocolVersion + 1)});
+  CHECK(b.fw.state() == State::kDisabled && b.replies.hello.protocol_version == kProtocolVersion);
+  b.send(msg::Enable{});
+  CHECK(b.fw.state() == State::kDisabled && b.replies.last_nack_error == static_cast<uint8_t>(NackError::kNoHandshake));
+  // A HELLO leaves a fault latched, for the new host to read.
+  b.send(msg::Hello{kProtocolVersion});
+  b.send(msg::Enable{});
+  b.run(0.3);  // no PING: the watchdog trips
+  CHECK(b.fw.state() == State::kFault);
+  b.send(msg::Hello{kProtocolVersion});
+  CHECK(b.fw.state() == State::kFault && (b.fw.faults() & fault::kWatchdog));
+}
+
+void a_tare_outside_the_offset_bound_is_refused() {
+  Bench b;
+  b.send(msg::Hello{kProtocolVersion});
+  b.extra_tension_n[0] = 30.0f;  // 1.35 million counts over the 8200 offset
+  b.run(0.05);
+  b.send(msg::Tare{0b0001, 0});
+  CHECK(b.replies.nacks == 1 && b.replies.last_nack_error == static_cast<uint8_t>(NackError::kBadValue));
+  b.send(msg::Tare{0b0010, 0});
+  CHECK(b.replies.acks == 1);
+}
+
+void a_saturated_load_cell_faults() {
+  Bench b;
+  CHECK(b.start());
+  b.run_fed(0.1);
+  // Below the HX711's negative rail (−2^23): a reading that says nothing about the tension. (At
+  // the positive rail any accepted calibration reads far over the limit, which trips first.)
+  b.extra_tension_n[3] = -200.0f;
+  b.run(0.02);
+  CHECK(b.fw.state() == State::kFault);
+  CHECK(b.fw.faults() & fault::kLoadcellImplausible);
+  CHECK(b.fw.faults() & fault::implausible_channel(3));
+}
+
+void a_length_step_is_driven_as_a_ramp() {
+  Bench b;
+  CHECK(b.start());
+  b.send(msg::SetSetpoints{0, {-0.01f, 0.0f, 0.0f, 0.0f}});
+  b.run_fed(0.5);
+  // No faster than the winding speed limit, 4.6 mm/s at 6 N: 2.3 mm of the 10 in 0.5 s.
+  const double limit_m = 0.3 * 6.0 / kBlowImpedanceNsPerM * 0.5;
+  CHECK(b.length_m(0) < 0.0f && b.length_m(0) > -limit_m - 5e-5);
+  CHECK_NEAR(b.replies.last.targets[0], -0.01, 1e-7);  // the target is the setpoint
+  b.run_fed(2.5);
+  CHECK_NEAR(b.length_m(0), -0.01, 1e-4);
+}
+
 }  // namespace
 
 void test_firmware() {
@@ -168,4 +269,10 @@ void test_firmware() {
   garbage_is_counted_and_ignored();
   commands_are_validated();
   tare_sets_origins();
+  calibrations_outside_physical_bounds_are_refused();
+  gains_beyond_their_bounds_are_refused();
+  hello_leaves_the_board_disabled();
+  a_tare_outside_the_offset_bound_is_refused();
+  a_saturated_load_cell_faults();
+  a_length_step_is_driven_as_a_ramp();
 }

@@ -1,3 +1,5 @@
+#include <cmath>
+
 #include "check.h"
 #include "pid.h"
 #include "suites.h"
@@ -58,6 +60,35 @@ void step_response_settles() {
   CHECK(peak < 0.22f);
 }
 
+void huge_gains_never_give_nan() {
+  // kp · error and kd · rate overflow to +inf and −inf: their sum is NaN, which the clamp turns
+  // into 0 rather than pass to a motor. (The firmware refuses such gains; this is the last line.)
+  const PidGains g{3e38f, 0.0f, 3e38f, 1.0f};
+  Pid pid;
+  pid.reset(0.0f);
+  const float out = pid.step(g, 10.0f, -2.0f, kDt);
+  CHECK(out == out && out >= -1.0f && out <= 1.0f);
+  CHECK(clamp_range(NAN, -0.5f, 1.0f) == 0.0f);
+  CHECK(clamp_range(INFINITY, -0.5f, 1.0f) == 1.0f && clamp_range(-INFINITY, -0.5f, 1.0f) == -0.5f);
+}
+
+void asymmetric_clamp_and_feedforward() {
+  const PidGains g{1.0f, 10.0f, 0.0f, 1.0f};
+  Pid pid;
+  pid.reset(0.0f);
+  // Winding in (negative) bounded at −0.1; the integral does not wind up against the bound, so
+  // with the error gone the output is back at 0 at once. The feedforward is added first.
+  CHECK_NEAR(pid.step(g, -5.0f, 0.0f, kDt, -0.1f, 1.0f), -0.1, 1e-7);
+  for (int i = 0; i < 100; ++i) pid.step(g, -5.0f, 0.0f, kDt, -0.1f, 1.0f);
+  CHECK_NEAR(pid.step(g, 0.0f, 0.0f, kDt, -0.1f, 1.0f), 0.0, 1e-6);
+  // A bound narrowed for a moment leaves the integral (the load it holds) as it was.
+  pid.reset(0.0f, -0.05f);
+  CHECK_NEAR(pid.step(g, 0.0f, 0.0f, kDt, 0.0f, 1.0f), 0.0, 0.0);
+  CHECK_NEAR(pid.step(g, 0.0f, 0.0f, kDt, -0.1f, 1.0f), -0.05, 1e-7);
+  pid.reset(0.0f);
+  CHECK_NEAR(pid.step(g, 0.0f, 0.0f, kDt, -0.1f, 1.0f, 0.25f), 0.25, 1e-6);
+}
+
 }  // namespace
 
 void test_pid() {
@@ -65,4 +96,6 @@ void test_pid() {
   integrator_clamp_prevents_windup();
   derivative_on_measurement();
   step_response_settles();
+  huge_gains_never_give_nan();
+  asymmetric_clamp_and_feedforward();
 }

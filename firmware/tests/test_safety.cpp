@@ -102,12 +102,16 @@ void never_sampled_is_stale() {
   CHECK(b.replies.last.stale_mask == 0b0001);
 }
 
-void disable_coasts_at_once() {
+void disable_brakes_a_moving_spool_then_coasts() {
   Bench b;
   CHECK(b.start());
   b.send(msg::SetSetpoints{0, {0.005f, 0.0f, 0.0f, 0.0f}});
   b.run(0.02);
   b.send(msg::Disable{});
+  // Each motor brakes until its spool has stood still for a tick in the brake: motor 1, paying
+  // out, would otherwise fly on. The bench's spools stop at once, so they coast from the second tick.
+  b.run(0.001);
+  CHECK(b.fw.state() == State::kDisabled && all_drive(b.out, Drive::kBrake));
   b.run(0.001);
   CHECK(b.fw.state() == State::kDisabled && all_drive(b.out, Drive::kCoast));
 }
@@ -132,6 +136,6 @@ void test_safety() {
   tension_limit_faults_one_channel();
   stale_loadcell_blocks_motion();
   never_sampled_is_stale();
-  disable_coasts_at_once();
+  disable_brakes_a_moving_spool_then_coasts();
   clock_wrap_keeps_schedules();
 }

@@ -1,0 +1,118 @@
+#include "guard.h"
+
+#include "pid.h"
+
+namespace twinfw {
+
+namespace {
+bool still(float speed_m_s, float threshold_m_s) { return speed_m_s <= threshold_m_s && speed_m_s >= -threshold_m_s; }
+}  // namespace
+
+Guard::Guard() { set_tension_limit(kDefaultTensionLimitN); }
+
+void Guard::set_tension_limit(float tension_limit_n) {
+  cap_n_ = kPullForceFraction * tension_limit_n;
+  // The blow a spool winding in at w deals when its tendon snaps taut lands on the tendons
+  // already taut, at most at the cap: the speed that keeps them under the bound.
+  speed_limit_m_s_ = (kBlowBoundFraction - kPullForceFraction) * tension_limit_n / kBlowImpedanceNsPerM;
+}
+
+void Guard::observe(uint64_t now_us, const int32_t counts[kChannels], const float tensions_n[kChannels],
+                    uint8_t stale_mask) {
+  for (size_t i = 0; i < kChannels; ++i) tensions_n_[i] = tensions_n[i];
+  stale_mask_ = stale_mask;
+  if (measured_ && now_us - window_start_us_ < kSpeedWindowUs) return;
+  const float window_s = static_cast<float>(now_us - window_start_us_) * 1e-6f;
+  for (size_t i = 0; i < kChannels; ++i) {
+    // Positive counts pay out: winding in counts down.
+    const float moved_m = static_cast<float>(static_cast<int64_t>(window_counts_[i]) - counts[i]) * kTendonMPerCount;
+    winding_speed_m_s_[i] = measured_ ? moved_m / window_s : 0.0f;
+    window_counts_[i] = counts[i];
+  }
+  window_start_us_ = now_us;
+  measured_ = true;
+}
+
+// A tendon that reads taut has no slack to be taken up with a blow: its spool may wind faster.
+float Guard::winding_speed_limit(size_t i) const {
+  const bool taut = !(stale_mask_ & (1u << i)) && tensions_n_[i] > kTautFraction * cap_n_;
+  return taut ? kTautSpeedFactor * speed_limit_m_s_ : speed_limit_m_s_;
+}
+
+// Lowest duty motor i may have now: the most negative, as winding in is negative. At rest the
+// cap; winding in at w, a pull falling linearly to what only balances the back-EMF damping at
+// the speed limit, so that the spool cannot accelerate past the limit and any tension slows it.
+float Guard::lowest_duty(size_t i) const {
+  const float w = winding_speed_m_s_[i];
+  const float limit = winding_speed_limit(i);
+  const float pull_n = cap_n_ * (1.0f - w / limit) + kMotorDampingNsPerM * limit;
+  return -clamp_range(pull_n, 0.0f, cap_n_) / kStallForceN;
+}
+
+void Guard::drive(const float command[kChannels], float duty[kChannels], Drive drive[kChannels]) {
+  for (size_t i = 0; i < kChannels; ++i) {
+    duty[i] = clamp_range(command[i], lowest_duty(i), 1.0f);
+    drive[i] = Drive::kDrive;
+    stopping_[i] = true;
+  }
+}
+
+void Guard::hold(float duty[kChannels], Drive drive[kChannels]) {
+  for (size_t i = 0; i < kChannels; ++i) {
+    duty[i] = 0.0f;
+    drive[i] = Drive::kBrake;
+    stopping_[i] = true;
+  }
+}
+
+// A spool that stays still while braked has nothing left to give: no rotor energy, and no
+// tendon pulling it out through the brake (that would turn it at tension / 300 N·s/m).
+void Guard::release(float duty[kChannels], Drive drive[kChannels]) {
+  for (size_t i = 0; i < kChannels; ++i) {
+    if (stopping_[i] && braked_[i] && still(winding_speed_m_s_[i], kStillSpeedMPerS)) stopping_[i] = false;
+    duty[i] = 0.0f;
+    drive[i] = stopping_[i] ? Drive::kBrake : Drive::kCoast;
+  }
+}
+
+void Guard::applied(const Drive drive[kChannels]) {
+  for (size_t i = 0; i < kChannels; ++i) braked_[i] = drive[i] == Drive::kBrake;
+}
+
+uint8_t Lasting::update(uint64_t now_us, uint8_t holding, uint32_t duration_us) {
+  uint8_t lasted = 0;
+  for (size_t i = 0; i < kChannels; ++i) {
+    const uint8_t bit = static_cast<uint8_t>(1u << i);
+    if (!(holding & bit)) continue;
+    if (!(holding_ & bit)) since_us_[i] = now_us;
+    if (now_us - since_us_[i] >= duration_us) lasted = static_cast<uint8_t>(lasted | bit);
+  }
+  holding_ = holding;
+  return lasted;
+}
+
+uint16_t Guard::faults(uint64_t now_us, const float duty[kChannels], const Drive drive[kChannels]) {
+  uint8_t low = 0;
+  uint8_t at_cap = 0;
+  for (size_t i = 0; i < kChannels; ++i) {
+    if (drive[i] != Drive::kDrive || !still(winding_speed_m_s_[i], kStillSpeedMPerS)) continue;
+    const uint8_t bit = static_cast<uint8_t>(1u << i);
+    // A still spool pulls its tendon with the motor's stall force at its duty.
+    const float pull_n = -duty[i] * kStallForceN;
+    const bool fresh = !(stale_mask_ & bit);
+    if (fresh && pull_n >= kPlausibleMinForceN && tensions_n_[i] < kPlausibleFraction * pull_n - kPlausibleMarginN) {
+      low = static_cast<uint8_t>(low | bit);
+    }
+    if (pull_n >= kAtCapFraction * cap_n_) at_cap = static_cast<uint8_t>(at_cap | bit);
+  }
+  const uint8_t implausible = implausible_.update(now_us, low, kImplausibleUs);
+  const uint8_t over = at_cap_.update(now_us, at_cap, kAtCapUs);
+  uint16_t flags = 0;
+  for (size_t i = 0; i < kChannels; ++i) {
+    if (implausible & (1u << i)) flags = static_cast<uint16_t>(flags | fault::kLoadcellImplausible | fault::implausible_channel(i));
+    if (over & (1u << i)) flags = static_cast<uint16_t>(flags | fault::kTensionLimit | fault::tension_channel(i));
+  }
+  return flags;
+}
+
+}  // namespace twinfw

@@ -1,0 +1,93 @@
+// The last stage before the H-bridges, which holds whatever the PIDs ask (firmware/PROTOCOL.md,
+// "Tension bound"):
+//   * a motor winds in with at most kPullForceFraction of the tension limit as stall force, so
+//     no duty can hold a tendon above the limit, and ever less of it as its spool approaches
+//     the winding speed limit, which it so cannot pass: the rotor never carries the energy to
+//     jerk a tendon over the limit when the tendon snaps taut;
+//   * a motor that stops driving (disabled, fault) brakes until its spool stays still in the
+//     brake, and only then coasts, so that stored energy, the rotor's or the rod's, goes into
+//     the brake and not into a tendon;
+//   * a motor that has pulled with all it may against a still spool for kAtCapUs trips the
+//     tension limit, as the motor's pull measures it (a stalled spool's tendon carries the
+//     motor's pull, whatever its load cell says): the target cannot be reached within the limit;
+//   * a load cell reading far less than its stalled motor pulls is reported implausible.
+// Spool speeds come from the encoders, over windows of kSpeedWindowUs.
+#pragma once
+
+#include <cstddef>
+#include <cstdint>
+
+#include "config.h"
+#include "messages.h"
+
+namespace twinfw {
+
+// Which channels have held a condition without a break for a duration.
+class Lasting {
+ public:
+  // `holding` (bit i: channel i holds it now) at `now_us`; returns the channels that have held
+  // it for `duration_us` or more.
+  uint8_t update(uint64_t now_us, uint8_t holding, uint32_t duration_us);
+
+ private:
+  uint8_t holding_ = 0;
+  uint64_t since_us_[kChannels] = {};
+};
+
+class Guard {
+ public:
+  Guard();
+
+  // The tension limit (N) the pull and speed limits derive from.
+  void set_tension_limit(float tension_limit_n);
+  // Largest duty a motor may wind in with, at rest (a positive number).
+  float pull_limit() const { return cap_n_ / kStallForceN; }
+  // Fastest a spool may wind in its tendon from slack (m/s).
+  float winding_speed_limit() const { return speed_limit_m_s_; }
+  // Fastest spool `channel` may wind in now (m/s): kTautSpeedFactor times more while its tendon
+  // reads taut.
+  float winding_speed_limit(size_t channel) const;
+
+  // What the sensors say at device time `now_us`, every tick: encoder counts, tensions (N) and
+  // which load cells are stale (bit i).
+  void observe(uint64_t now_us, const int32_t counts[kChannels], const float tensions_n[kChannels],
+               uint8_t stale_mask);
+  // Spool speed (m/s, positive = winding in) over the last window.
+  float winding_speed_m_s(size_t channel) const { return winding_speed_m_s_[channel]; }
+
+  // Lowest duty motor `channel` may have now (≤ 0; winding in is negative), from its spool's
+  // speed.
+  float lowest_duty(size_t channel) const;
+  // Motors driven with `command`, each clamped to [lowest_duty(i), 1] (NaN gives 0).
+  void drive(const float command[kChannels], float duty[kChannels], Drive drive[kChannels]);
+  // All motors brake, holding their spools.
+  void hold(float duty[kChannels], Drive drive[kChannels]);
+  // Motors let go: each brakes until its spool has stayed still (kStillSpeedMPerS) over a window
+  // in the brake, then coasts until it drives again.
+  void release(float duty[kChannels], Drive drive[kChannels]);
+
+  // The drives a tick gave the motors: what they have until the next tick.
+  void applied(const Drive drive[kChannels]);
+
+  // Fault flags (with their channel bits) of what `duty` and `drive`, the outputs the motors had
+  // since the last tick, did to still spools: TENSION_LIMIT for a motor at its cap for
+  // kAtCapUs, LOADCELL_IMPLAUSIBLE for a fresh tension implausibly low against a motor's pull for
+  // kImplausibleUs. 0 when none.
+  uint16_t faults(uint64_t now_us, const float duty[kChannels], const Drive drive[kChannels]);
+
+ private:
+  float cap_n_ = 0.0f;           // largest pull of a motor on its tendon (N)
+  float speed_limit_m_s_ = 0.0f;
+  bool measured_ = false;
+  uint64_t window_start_us_ = 0;
+  int32_t window_counts_[kChannels] = {};
+  float winding_speed_m_s_[kChannels] = {};
+  float tensions_n_[kChannels] = {};
+  uint8_t stale_mask_ = 0;
+  bool stopping_[kChannels] = {};  // let go since driving: brakes until still in the brake
+  bool braked_[kChannels] = {};    // the last tick gave the motor the brake
+  Lasting implausible_;
+  Lasting at_cap_;
+};
+
+}  // namespace twinfw

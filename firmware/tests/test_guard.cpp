@@ -1,0 +1,162 @@
+#include <cmath>
+
+#include "check.h"
+#include "guard.h"
+#include "suites.h"
+
+using namespace twinfw;
+
+namespace {
+
+constexpr float kLimitN = 6.0f;
+const float kRelaxed[kChannels] = {1.0f, 1.0f, 1.0f, 1.0f};
+
+// A guard that has seen spools moving at `winding_m_s` (positive = winding in) for 5 ms.
+Guard moving(const float winding_m_s[kChannels], const float tensions_n[kChannels] = kRelaxed) {
+  Guard g;
+  g.set_tension_limit(kLimitN);
+  int32_t counts[kChannels] = {};
+  g.observe(0, counts, tensions_n, 0);
+  for (size_t i = 0; i < kChannels; ++i) {
+    counts[i] = static_cast<int32_t>(std::lround(-winding_m_s[i] * 0.005 / kTendonMPerCount));
+  }
+  g.observe(5000, counts, tensions_n, 0);
+  return g;
+}
+
+void a_motor_winds_in_with_at_most_the_cap_and_nan_gives_zero() {
+  const float still[kChannels] = {};
+  Guard g = moving(still);
+  const float command[kChannels] = {-1.0f, 1.0f, NAN, -0.01f};
+  float duty[kChannels];
+  Drive drive[kChannels];
+  g.drive(command, duty, drive);
+  // 0.9 of the 6 N limit over the 154 N stall force; paying out is not bounded.
+  CHECK_NEAR(duty[0], -0.9 * 6.0 / kStallForceN, 1e-6);
+  CHECK_NEAR(duty[1], 1.0, 0.0);
+  CHECK(duty[2] == 0.0f);
+  CHECK_NEAR(duty[3], -0.01, 1e-7);
+  for (Drive d : drive) CHECK(d == Drive::kDrive);
+  // A lower limit lowers the cap with it.
+  g.set_tension_limit(2.0f);
+  g.drive(command, duty, drive);
+  CHECK_NEAR(duty[0], -0.9 * 2.0 / kStallForceN, 1e-6);
+}
+
+void the_winding_speed_limit_takes_the_pull_away() {
+  Guard reference;
+  reference.set_tension_limit(kLimitN);
+  const float limit = reference.winding_speed_limit();
+  // (1.2 − 0.9) · 6 N over 390 N·s/m.
+  CHECK_NEAR(limit, 0.3 * 6.0 / 390.0, 1e-6);
+  const float speeds[kChannels] = {0.0f, 0.5f * limit, limit, 2.0f * limit};
+  const float slack[kChannels] = {};
+  Guard g = moving(speeds, slack);
+  const float pull = -1.0f;
+  const float command[kChannels] = {pull, pull, pull, pull};
+  float duty[kChannels];
+  Drive drive[kChannels];
+  g.drive(command, duty, drive);
+  const double cap = 0.9 * 6.0 / kStallForceN;
+  CHECK_NEAR(duty[0], -cap, 1e-6);
+  CHECK(duty[1] > -cap && duty[1] < 0.0f);
+  // At the limit only what balances the back-EMF damping: the spool cannot speed up (to within
+  // the speed's encoder quantum, 0.19 mm/s, worth 0.2 N of pull).
+  CHECK_NEAR(duty[2], -kMotorDampingNsPerM * limit / kStallForceN, 1.5e-3);
+  CHECK(duty[3] == 0.0f);  // beyond it, nothing
+  // Paying out is never held back.
+  const float out[kChannels] = {1.0f, 1.0f, 1.0f, 1.0f};
+  g.drive(out, duty, drive);
+  for (float d : duty) CHECK(d == 1.0f);
+  // A taut tendon (over a tenth of the cap) may be wound in twice as fast: at the slack limit
+  // its motor still pulls.
+  const float taut[kChannels] = {1.0f, 1.0f, 1.0f, 1.0f};
+  Guard t = moving(speeds, taut);
+  CHECK_NEAR(t.winding_speed_limit(2), 2.0 * limit, 1e-7);
+  t.drive(command, duty, drive);
+  CHECK(duty[2] < -0.5 * cap && duty[3] < 0.0f);
+}
+
+void a_released_motor_brakes_until_its_spool_stands_still_in_the_brake() {
+  Guard g;
+  g.set_tension_limit(kLimitN);
+  const float command[kChannels] = {-0.01f, -0.01f, -0.01f, -0.01f};
+  float duty[kChannels];
+  Drive drive[kChannels];
+  int32_t counts[kChannels] = {};
+  g.observe(0, counts, kRelaxed, 0);
+  g.drive(command, duty, drive);
+  g.applied(drive);
+  // Released while spool 0 winds in at 10 mm/s and the others stand still: all brake first
+  // (the brake has not acted yet), then the still ones coast and spool 0 brakes on.
+  g.release(duty, drive);
+  for (Drive d : drive) CHECK(d == Drive::kBrake);
+  g.applied(drive);
+  counts[0] -= static_cast<int32_t>(0.01 * 0.005 / kTendonMPerCount);
+  g.observe(5000, counts, kRelaxed, 0);
+  g.release(duty, drive);
+  CHECK(drive[0] == Drive::kBrake && drive[1] == Drive::kCoast && drive[2] == Drive::kCoast);
+  g.applied(drive);
+  g.observe(10000, counts, kRelaxed, 0);
+  g.release(duty, drive);
+  for (Drive d : drive) CHECK(d == Drive::kCoast);
+  for (float d : duty) CHECK(d == 0.0f);
+  // Coasting stays coasting until the motor drives again.
+  counts[1] += 50;
+  g.applied(drive);
+  g.observe(15000, counts, kRelaxed, 0);
+  g.release(duty, drive);
+  CHECK(drive[1] == Drive::kCoast);
+}
+
+void a_motor_at_its_cap_against_a_still_spool_trips_the_tension_limit() {
+  const float still[kChannels] = {};
+  const float tensions[kChannels] = {5.4f, 1.0f, 1.0f, 1.0f};
+  Guard g = moving(still, tensions);
+  const float cap = -0.9f * 6.0f / kStallForceN;
+  const float duty[kChannels] = {cap, -0.005f, 0.0f, 0.01f};
+  const Drive drive[kChannels] = {Drive::kDrive, Drive::kDrive, Drive::kDrive, Drive::kDrive};
+  CHECK(g.faults(10000, duty, drive) == 0);
+  CHECK(g.faults(10000 + kAtCapUs - 1000, duty, drive) == 0);
+  CHECK(g.faults(10000 + kAtCapUs, duty, drive) == (fault::kTensionLimit | fault::tension_channel(0)));
+}
+
+void a_cell_reading_far_under_its_stalled_motors_pull_is_implausible() {
+  const float still[kChannels] = {};
+  // Channel 1 reads a tenth of what its motor pulls at stall (3 N); channel 2 half of it.
+  const float tensions[kChannels] = {1.0f, 0.3f, 1.5f, 0.0f};
+  Guard g = moving(still, tensions);
+  const float pull = -3.0f / kStallForceN;
+  const float duty[kChannels] = {-0.5f / kStallForceN, pull, pull, 0.0f};
+  const Drive drive[kChannels] = {Drive::kDrive, Drive::kDrive, Drive::kDrive, Drive::kBrake};
+  CHECK(g.faults(10000, duty, drive) == 0);
+  const uint16_t flags = g.faults(10000 + kImplausibleUs, duty, drive);
+  CHECK(flags == (fault::kLoadcellImplausible | fault::implausible_channel(1)));
+  // A break in the condition starts the count again.
+  const float fine[kChannels] = {1.0f, 3.0f, 1.5f, 0.0f};
+  int32_t counts[kChannels] = {};
+  g.observe(20000 + kImplausibleUs, counts, fine, 0);
+  CHECK(g.faults(20000 + kImplausibleUs, duty, drive) == 0);
+  g.observe(30000 + kImplausibleUs, counts, tensions, 0);
+  CHECK(g.faults(30000 + kImplausibleUs, duty, drive) == 0);
+}
+
+void lasting_counts_unbroken_spans() {
+  Lasting l;
+  CHECK(l.update(0, 0b0011, 100) == 0);
+  CHECK(l.update(99, 0b0011, 100) == 0);
+  CHECK(l.update(100, 0b0001, 100) == 0b0001);
+  CHECK(l.update(150, 0b0011, 100) == 0b0001);  // channel 1 broke off at 100
+  CHECK(l.update(250, 0b0011, 100) == 0b0011);
+}
+
+}  // namespace
+
+void test_guard() {
+  a_motor_winds_in_with_at_most_the_cap_and_nan_gives_zero();
+  the_winding_speed_limit_takes_the_pull_away();
+  a_released_motor_brakes_until_its_spool_stands_still_in_the_brake();
+  a_motor_at_its_cap_against_a_still_spool_trips_the_tension_limit();
+  a_cell_reading_far_under_its_stalled_motors_pull_is_implausible();
+  lasting_counts_unbroken_spans();
+}
