@@ -5,7 +5,8 @@
 //
 // Timing: an IntervalTimer flags a tick every 5 ms (200 Hz, so the core's 100 Hz control and
 // 40 Hz telemetry both fall on ticks); the tick itself runs in loop(), outside interrupt
-// context, together with USB and the HX711 polling.
+// context, together with USB and the HX711 polling. Each tick feeds the chip's watchdog
+// (watchdog.h): a loop that stops ticking resets the board, and a reset coasts the motors.
 
 #include <Encoder.h>
 #include <IntervalTimer.h>
@@ -14,6 +15,7 @@
 #include "motors.h"
 #include "pins.h"
 #include "src/core/firmware.h"
+#include "watchdog.h"
 
 namespace {
 
@@ -76,6 +78,8 @@ void setup() {
   loadCells.begin();
   Serial.begin(115200);  // USB serial: the rate is ignored, it runs at USB speed
   tickTimer.begin(onTick, kTickPeriodUs);
+  // Last, once everything that may take long has run: from here loop() must tick every 100 ms.
+  hw_watchdog::arm();
 }
 
 void loop() {
@@ -86,6 +90,7 @@ void loop() {
     for (int i = 0; i < 4; ++i) inputs.encoder_counts[i] = encoders[i]->read();
     motors.apply(firmware.tick(nowUs, inputs));
     inputs.new_sample_mask = 0;
+    hw_watchdog::feed();
   }
   sendToHost();
 }
