@@ -159,3 +159,46 @@ def test_tick_names_bad_arguments():
     fw.close()
     with pytest.raises(ValueError, match="closed"):
         fw.take_tx()
+
+
+def _nack_error(board: Board, seq: int):
+    (nack,) = [n for n in board.replies(c.Nack) if n.acked_seq == seq]
+    return nack.error
+
+
+@pytest.mark.parametrize("gain_n_per_count, offset_counts, why", [
+    (-1 / RAW_PER_N, RAW_OFFSET, "counts falling with tension"),
+    (1e-30, RAW_OFFSET, "1e30 counts/N"),
+    (1 / (10 * RAW_PER_N), RAW_OFFSET, "a cell read ten times low"),
+    (1 / RAW_PER_N, 1e9, "an offset beyond the HX711's range"),
+])
+def test_the_board_refuses_calibrations_outside_physical_bounds(gain_n_per_count, offset_counts, why):
+    board = Board()
+    board.send(c.Hello())
+    seq = board.send(c.SetCalibration((1 / RAW_PER_N, gain_n_per_count, 1 / RAW_PER_N, 1 / RAW_PER_N),
+                                      (RAW_OFFSET, offset_counts, RAW_OFFSET, RAW_OFFSET)))
+    assert _nack_error(board, seq) == c.NackError.BAD_VALUE, why
+
+
+def test_the_board_refuses_gains_that_multiply_out_to_nan():
+    board = Board()
+    board.send(c.Hello())
+    seq = board.send(c.SetGains(c.Mode.LENGTHS, kp=3e38, ki=0.0, kd=3e38, output_limit=1.0))
+    assert _nack_error(board, seq) == c.NackError.BAD_VALUE
+
+
+def test_any_hello_stops_an_enabled_board():
+    # A host restarted within the watchdog's 250 ms, or one of another version, must not take
+    # over a board still driving the setpoints of the host before.
+    for hello in (c.Hello(), c.Hello(protocol_version=c.PROTOCOL_VERSION + 1)):
+        board = _enabled_board()
+        board.send(c.SetSetpoints.lengths([0.002, 0.0, 0.0, 0.0]))
+        board.run(0.05)
+        assert board.replies(c.TelemetryMessage)[-1].state == c.State.ENABLED
+        board.send(hello)
+        board.run(0.03)
+        t = board.replies(c.TelemetryMessage)[-1]
+        assert t.state == c.State.DISABLED and np.all(board.duty == 0.0)
+        seq = board.send(c.Enable())
+        accepted = hello.protocol_version == c.PROTOCOL_VERSION
+        assert (board.replies(c.Ack)[-1].acked_seq == seq) if accepted else (_nack_error(board, seq) == c.NackError.NO_HANDSHAKE)

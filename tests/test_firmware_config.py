@@ -43,6 +43,11 @@ def constant(name: str) -> float:
     ("kDefaultTensionLimitN", PARAMS.rig.tension_limit_n),
     ("kDefaultGainNPerCount", 1.0 / PARAMS.sensors.loadcell_gain_counts_per_n),
     ("kChannels", PARAMS.tendons.count),
+    ("kMotorStallTorqueNm", PARAMS.rig.motor_stall_torque_nm),
+    ("kMotorNoLoadSpeedRpm", PARAMS.rig.motor_no_load_speed_rpm),
+    # The calibration bounds: 25 % either way of the parameter set's nominal gain.
+    ("kMinGainCountsPerN", PARAMS.sensors.loadcell_gain_counts_per_n / 1.25),
+    ("kMaxGainCountsPerN", PARAMS.sensors.loadcell_gain_counts_per_n * 1.25),
 ])
 def test_a_compiled_default_is_the_parameter_sets_value(name, expected):
     assert constant(name) == pytest.approx(expected, rel=1e-12)
@@ -53,3 +58,13 @@ def test_the_parser_reads_what_it_claims():
     with pytest.raises(AssertionError):
         constant("kNoSuchConstant")
     assert constant("kMaxTensionLimitN") == 50.0
+
+
+def test_the_driver_refuses_what_the_firmware_refuses():
+    from twin.device import device
+
+    low, high = device.CALIBRATION_GAIN_COUNTS_PER_N
+    assert (low, high) == (constant("kMinGainCountsPerN"), constant("kMaxGainCountsPerN"))
+    assert device.MAX_OFFSET_COUNTS == constant("kMaxOffsetCounts")
+    assert device.MAX_TENSION_LIMIT_N == constant("kMaxTensionLimitN")
+    assert device.MAX_LENGTH_SETPOINT_M == pytest.approx(constant("kMaxLengthSetpointM"), rel=1e-7)

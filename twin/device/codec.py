@@ -133,15 +133,21 @@ class NackError(enum.IntEnum):
 
 
 class Fault(enum.IntFlag):
-    """Telemetry fault flags: WATCHDOG and TENSION_LIMIT latch until ENABLE; LOADCELL_STALE is live."""
+    """Telemetry fault flags: WATCHDOG, TENSION_LIMIT and LOADCELL_IMPLAUSIBLE latch until
+    ENABLE; LOADCELL_STALE is live. The channel bits say which channel tripped."""
 
     WATCHDOG = 1 << 0
     TENSION_LIMIT = 1 << 1
     LOADCELL_STALE = 1 << 2
+    LOADCELL_IMPLAUSIBLE = 1 << 3
     TENSION_CHANNEL_1 = 1 << 8
     TENSION_CHANNEL_2 = 1 << 9
     TENSION_CHANNEL_3 = 1 << 10
     TENSION_CHANNEL_4 = 1 << 11
+    IMPLAUSIBLE_CHANNEL_1 = 1 << 12
+    IMPLAUSIBLE_CHANNEL_2 = 1 << 13
+    IMPLAUSIBLE_CHANNEL_3 = 1 << 14
+    IMPLAUSIBLE_CHANNEL_4 = 1 << 15
 
 
 class CodecError(ValueError):

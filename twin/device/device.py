@@ -58,7 +58,8 @@ if TYPE_CHECKING:
     from twin.device.sim_twin import SimTwin
     from twin.device.tracker import TipTracker
 
-__all__ = ["MAX_LENGTH_SETPOINT_M", "MODE_NAMES", "Device"]
+__all__ = ["CALIBRATION_GAIN_COUNTS_PER_N", "MAX_LENGTH_SETPOINT_M", "MAX_OFFSET_COUNTS", "MAX_TENSION_LIMIT_N",
+           "MODE_NAMES", "Device"]
 
 # Names of the control modes in this API → the protocol's modes.
 MODE_NAMES = {"lengths": codec.Mode.LENGTHS, "pairs": codec.Mode.PAIRS, "tensions": codec.Mode.TENSION}
@@ -84,12 +85,41 @@ def _vector(name: str, values: Iterable[float], count: int) -> tuple[float, ...]
 # must not unwind the spools.
 MAX_LENGTH_SETPOINT_M = 0.05
 
+# Calibrations the firmware accepts (firmware/PROTOCOL.md, its kMinGainCountsPerN,
+# kMaxGainCountsPerN and kMaxOffsetCounts): counts per N within 25 % of the nominal 45,000 of
+# the HX711 at gain 128 with the 1 kg cells, and an unloaded offset within 2^20 counts, an eighth
+# of the 24-bit range. Outside them a calibration would blind the tension limit.
+CALIBRATION_GAIN_COUNTS_PER_N = (36000.0, 56250.0)
+MAX_OFFSET_COUNTS = float(2**20)
+
+# Largest per-channel tension limit the firmware accepts (N): its kMaxTensionLimitN.
+MAX_TENSION_LIMIT_N = 50.0
+
 
 def _bounded(name: str, values: tuple[float, ...], low: float, high: float, unit: str, why: str) -> tuple[float, ...]:
     for i, value in enumerate(values):
         if not low <= value <= high:
             raise ValueError(f"{name}[{i}] = {value!r}: outside {low:g}..{high:g} {unit} ({why})")
     return values
+
+
+def _tension_limit(name: str, value: float) -> float:
+    if not (isinstance(value, (int, float, np.floating, np.integer)) and 0.0 < value <= MAX_TENSION_LIMIT_N):
+        raise ValueError(f"{name} = {value!r}: must be in (0, {MAX_TENSION_LIMIT_N:g}] N")
+    return float(value)
+
+
+def _calibration(gains: tuple[float, ...], offsets: tuple[float, ...]) -> None:
+    """Refuse, naming the value, a calibration outside the firmware's physical bounds."""
+    low, high = CALIBRATION_GAIN_COUNTS_PER_N
+    for i, gain in enumerate(gains):
+        if not low <= gain <= high:
+            why = "counts must rise with tension" if gain <= 0 else "not a 1 kg cell on an HX711 at gain 128"
+            raise ValueError(f"gain_counts_per_n[{i}] = {gain!r}: outside {low:g}..{high:g} counts/N ({why})")
+    for i, offset in enumerate(offsets):
+        if not -MAX_OFFSET_COUNTS <= offset <= MAX_OFFSET_COUNTS:
+            raise ValueError(f"offset_counts[{i}] = {offset!r}: outside ±{MAX_OFFSET_COUNTS:g} counts "
+                             "(an eighth of the HX711's 24-bit range)")
 
 
 def _mask(name: str, channels: bool | Iterable[int]) -> int:
@@ -123,6 +153,10 @@ class Device:
             s); keep it well under the watchdog timeout (0.25 s by default). None sends no
             keepalives, so the watchdog trips while the host only waits.
         queue_size: samples kept for :meth:`drain`.
+        tension_limit_n: the configured per-channel tension limit (N, in (0, 50]), e.g. the
+            parameter set's ``rig.tension_limit_n`` (:func:`twin.device.open_device` passes it):
+            every :meth:`enable` sends it first, so that the board never drives with another
+            limit than the host's. None keeps the board's default (6 N) until :meth:`set_limits`.
 
     Attributes:
         fixture: the :class:`twin.device.fixture.Fixture` (None if the backend has none).
@@ -139,6 +173,7 @@ class Device:
         command_timeout_s: float = 0.5,
         keepalive_s: float | None = 0.1,
         queue_size: int = 4096,
+        tension_limit_n: float | None = None,
     ):
         if not (math.isfinite(command_timeout_s) and command_timeout_s > 0):
             raise ValueError(f"command_timeout_s = {command_timeout_s!r}: must be finite and > 0")
@@ -154,9 +189,13 @@ class Device:
         self._send_lock = threading.Lock()
         self._seq = 0
         self._info: DeviceInfo | None = None
-        # The tension limit this host last set (N), the board's default until then: the bound
-        # on tension setpoints.
-        self._tension_limit_n = codec.SetLimits().tension_limit_n
+        # The limits this host last set, the configured ones (or the board's defaults) until
+        # then: the bound on tension setpoints, and what every ENABLE is preceded by.
+        defaults = codec.SetLimits()
+        self._tension_limit_n = defaults.tension_limit_n
+        if tension_limit_n is not None:
+            self._tension_limit_n = _tension_limit("tension_limit_n", tension_limit_n)
+        self._watchdog_timeout_ms = defaults.watchdog_timeout_ms
 
     # ------------------------------------------------------------------ identity
     @property
@@ -274,11 +313,29 @@ class Device:
 
     def enable(self) -> None:
         """Enter ENABLED (clearing latched faults); the rig holds its current lengths or
-        tensions until setpoints arrive."""
-        self._command(codec.Enable())
+        tensions until setpoints arrive.
+
+        The limits this host set last (or was configured with) go to the board just before, so
+        that whatever a power cycle or another host did to them, the board drives with these.
+
+        Raises:
+            CommandRejected: the board refused the limits (then it was sent DISABLE) or ENABLE.
+        """
+        self._check_connected()
+        limits = codec.SetLimits(self._tension_limit_n, self._watchdog_timeout_ms)
+        # Not awaited on its own: the board answers in order, so its answer is in when ENABLE's is.
+        seq = self._send(limits, expect_answer=True)
+        try:
+            self._await_answer(codec.Enable())
+        finally:
+            reply = self._inbox.take_answer(seq)
+        if isinstance(reply, codec.Nack):
+            self._await_answer(codec.Disable())
+            raise CommandRejected(self.url, limits, seq, reply.error)
 
     def disable(self) -> None:
-        """Enter DISABLED: all motors coast. Latched fault flags stay readable."""
+        """Enter DISABLED: each motor brakes until its spool stands still, then coasts. Latched
+        fault flags stay readable."""
         self._command(codec.Disable())
 
     def tare(self, *, loadcells: bool | Iterable[int] = True, lengths: bool | Iterable[int] = True) -> None:
@@ -332,7 +389,9 @@ class Device:
         Pass a :class:`twin.calibration.Calibration`, or both arrays. Needed before tension mode.
 
         Raises:
-            ValueError: neither or both forms given, or values not finite / a zero gain.
+            ValueError: neither or both forms given, values not finite, or a gain or offset
+                outside the bounds the firmware accepts (:data:`CALIBRATION_GAIN_COUNTS_PER_N`,
+                :data:`MAX_OFFSET_COUNTS`; the argument, channel and value named).
             CommandRejected: while enabled.
         """
         if calibration is not None:
@@ -345,19 +404,25 @@ class Device:
                 "pass a Calibration, or both arrays"
             )
         gains = _vector("gain_counts_per_n", gain_counts_per_n, codec.CHANNELS)
-        if 0.0 in gains:
-            raise ValueError(f"gain_counts_per_n = {gains!r}: must be non-zero")
-        self._command(
-            codec.SetCalibration(
-                tuple(1.0 / g for g in gains), _vector("offset_counts", offset_counts, codec.CHANNELS)
-            )
-        )
+        offsets = _vector("offset_counts", offset_counts, codec.CHANNELS)
+        _calibration(gains, offsets)
+        self._command(codec.SetCalibration(tuple(1.0 / g for g in gains), offsets))
 
-    def set_limits(self, *, tension_limit_n: float = 6.0, watchdog_timeout_s: float = 0.25) -> None:
-        """Per-channel tension limit (N, in (0, 50]) and watchdog timeout (s, 0.02…10)."""
+    def set_limits(self, *, tension_limit_n: float | None = None, watchdog_timeout_s: float = 0.25) -> None:
+        """Per-channel tension limit and watchdog timeout; every later :meth:`enable` sends them
+        again.
+
+        Args:
+            tension_limit_n: N, in (0, 50]; None keeps the one configured or set last.
+            watchdog_timeout_s: s, 0.02…10.
+
+        Raises:
+            ValueError: a value out of range (named).
+        """
+        limit = self._tension_limit_n if tension_limit_n is None else _tension_limit("tension_limit_n", tension_limit_n)
         if not 0.02 <= watchdog_timeout_s <= 10.0:
             raise ValueError(f"watchdog_timeout_s = {watchdog_timeout_s!r}: must be in 0.02..10")
-        self._command(codec.SetLimits(float(tension_limit_n), round(watchdog_timeout_s * 1e3)))
+        self._command(codec.SetLimits(limit, round(watchdog_timeout_s * 1e3)))
 
     def set_lengths(self, lengths_m: Sequence[float]) -> None:
         """Setpoints of ``"lengths"`` mode: 4 relative tendon lengths (m, positive = paid out,
@@ -536,6 +601,7 @@ class Device:
         self._await_answer(message)
         if isinstance(message, codec.SetLimits):
             self._tension_limit_n = message.tension_limit_n
+            self._watchdog_timeout_ms = message.watchdog_timeout_ms
 
     def _await_answer(self, message: codec.Message) -> None:
         seq = self._send(message, expect_answer=True)

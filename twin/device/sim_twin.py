@@ -59,6 +59,16 @@ class SimTwin:
         """(4,) true tension at the spool end of each tendon (N): what a perfect load cell reads."""
         return self._board.plant.true_tensions_n()
 
+    def peak_tensions_n(self) -> np.ndarray:
+        """(4,) largest true tension of each tendon (N) at any physics step since
+        :meth:`clear_peak_tensions` or :meth:`reset`: what a bound on tension must hold, including
+        what happens between load-cell samples."""
+        return self._board.plant.peak_tensions_n()
+
+    def clear_peak_tensions(self) -> None:
+        """Start :meth:`peak_tensions_n` afresh from the tensions now."""
+        self._board.plant.clear_peak_tensions()
+
     @property
     def tip_mass_kg(self) -> float:
         """The nominal mass hung at the tip (kg)."""

@@ -73,7 +73,9 @@ def open_device(
     options = _query(url, parts.scheme, parts.query)
     params = params if params is not None else load_params()
     settings = FusionSettings.from_params(params)
-    device_args = dict(command_timeout_s=command_timeout_s, keepalive_s=keepalive_s, queue_size=queue_size)
+    # The parameter set's tension limit is what the board drives with: Device.enable sends it.
+    device_args = dict(command_timeout_s=command_timeout_s, keepalive_s=keepalive_s, queue_size=queue_size,
+                       tension_limit_n=params.rig.tension_limit_n)
 
     if parts.scheme == "sim":
         if parts.netloc or parts.path not in ("", "/"):

@@ -1,0 +1,263 @@
+"""Tensions bounded by construction, on the twin with its ground truth.
+
+The firmware does not only trip at the tension limit, it bounds tension (firmware/PROTOCOL.md,
+"Tension bound"): a motor winds in with at most 0.9 of the limit as stall force and no faster
+than a blow of its tendon snapping taut allows, a motor that stops brakes until its spool stands
+still, length targets ramp. So no sequence of commands the board accepts may drive a true tendon
+tension (the twin's, at every physics step, between load-cell samples too) above 1.2× the limit,
+whatever the calibration within the bounds the board accepts.
+
+The property is checked on random sequences: length steps up to the accepted ±50 mm on any
+channels, pair setpoints, tension setpoints up to the limit, mode switches, disable/enable,
+calibrations anywhere in the accepted bounds (their extremes included) and tip masses of 0–20 g,
+at the default 6 N limit and at 2 N. The fixture hangs a tip mass in zero time, a blow no
+command gives and no firmware can soften (the spool's inertia holds the tendon while the mass
+drops); the bound is checked from when the load has settled, and the largest such blow is
+reported apart.
+
+``python tests/test_tension_bound.py 2000`` runs that many sequences and prints the worst peaks.
+"""
+
+from __future__ import annotations
+
+import sys
+
+import numpy as np
+import pytest
+
+from twin.device import CommandRejected, Device, open_device
+from twin.device import codec as c
+from twin.device.device import CALIBRATION_GAIN_COUNTS_PER_N
+from twin.params import load_params
+
+PARAMS = load_params()
+BOUND = 1.2
+LIMITS_N = (6.0, 2.0)
+SEQUENCES_PER_LIMIT = 40
+STEPS_PER_SEQUENCE = 10
+# What a tip mass hung at once is given to come to rest before the bound applies again (s).
+LOAD_SETTLE_S = 0.5
+
+
+def random_calibration(rng: np.random.Generator) -> dict:
+    """A calibration the board accepts: per channel the nominal gain, or either extreme of the
+    accepted range, or anywhere between; offsets a few hundred counts off the twin's."""
+    low, high = CALIBRATION_GAIN_COUNTS_PER_N
+    nominal = PARAMS.sensors.loadcell_gain_counts_per_n
+    if rng.random() < 0.5:
+        gains = rng.choice([low, nominal, high], 4)
+    else:
+        gains = rng.uniform(low, high, 4)
+    offsets = np.asarray(PARAMS.sensors.loadcell_offset_counts) + rng.uniform(-2000.0, 2000.0, 4)
+    return {"gain_counts_per_n": gains.tolist(), "offset_counts": offsets.tolist()}
+
+
+class Sequence:
+    """One random run of accepted commands on a reset twin; peaks in multiples of the limit."""
+
+    def __init__(self, device: Device, rng: np.random.Generator, limit_n: float):
+        self.device, self.rng, self.limit_n = device, rng, limit_n
+        self.twin = device.twin
+        self.history: list[tuple] = []
+        self.load_blow = 0.0
+        self._earlier_peak = 0.0  # the largest peak of the stretches before the last load blow
+
+    def run(self, steps: int = STEPS_PER_SEQUENCE) -> float:
+        from twin.control.pretension import pretension_straight
+
+        device, rng = self.device, self.rng
+        device.twin.reset(int(rng.integers(1 << 30)))
+        device.reconnect()
+        device.fixture.settle_s = 0.3
+        self.mode = str(rng.choice(["lengths", "pairs", "tensions"]))
+        self.zero_m = pretension_straight(device, PARAMS, mode=self.mode, calibration=random_calibration(rng),
+                                          limit_n=self.limit_n)
+        device.fixture.settle_s = 0.0
+        self.twin.clear_peak_tensions()
+        for _ in range(steps):
+            try:
+                self._action(int(rng.integers(8)))
+            except CommandRejected as exc:
+                # Refused: the board faulted meanwhile (or refused a state change). Go on after
+                # an ENABLE most of the time, an accepted command that clears the fault.
+                self.history.append(("refused", exc.error))
+                if device.latest().state is c.State.FAULT and rng.random() < 0.7:
+                    try:
+                        device.enable()
+                    except CommandRejected:
+                        pass
+            device.wait(float(rng.uniform(0.05, 1.0)))
+            self.history[-1] += (round(self.peak(), 3),)
+        return self.peak()
+
+    def peak(self) -> float:
+        """The largest true tension so far (× limit), but for the blows of tip masses hung."""
+        return max(self._earlier_peak, float(self.twin.peak_tensions_n().max()) / self.limit_n)
+
+    def _set_mode(self, mode: str) -> None:
+        if self.mode != mode:
+            self.device.set_mode(mode)
+            self.mode = mode
+
+    def _action(self, action: int) -> None:
+        device, rng = self.device, self.rng
+        if action <= 1:
+            self._set_mode("lengths")
+            step = np.where(rng.random(4) < 0.5, rng.uniform(-0.05, 0.05, 4) * rng.choice([1.0, 0.1]), 0.0)
+            self.history.append(("lengths mm", np.round(step * 1e3, 2).tolist()))
+            device.set_lengths(np.clip(self.zero_m + step, -0.05, 0.05))
+        elif action == 2:
+            self._set_mode("pairs")
+            pairs = rng.uniform(-0.05, 0.05, 2) * rng.choice([1.0, 0.1])
+            self.history.append(("pairs mm", np.round(pairs * 1e3, 2).tolist()))
+            device.set_pairs(pairs)
+        elif action == 3:
+            self._set_mode("tensions")
+            tensions = rng.uniform(0.0, self.limit_n, 4)
+            self.history.append(("tensions N", np.round(tensions, 2).tolist()))
+            device.set_tensions(tensions)
+        elif action == 4:
+            self.mode = str(rng.choice(["lengths", "pairs", "tensions"]))
+            self.history.append(("mode", self.mode))
+            device.set_mode(self.mode)
+        elif action == 5:
+            self.history.append(("disable, enable",))
+            device.disable()
+            device.wait(float(rng.uniform(0.0, 0.3)))
+            device.enable()
+        elif action == 6:
+            mass_kg = float(rng.uniform(0.0, 0.020))
+            self.history.append(("tip g", round(mass_kg * 1e3, 1)))
+            self._earlier_peak = self.peak()
+            self.twin.clear_peak_tensions()
+            device.fixture.hang_tip_mass(mass_kg)
+            device.wait(LOAD_SETTLE_S)
+            self.load_blow = max(self.load_blow, float(self.twin.peak_tensions_n().max()) / self.limit_n)
+            self.twin.clear_peak_tensions()
+        else:
+            calibration = random_calibration(rng)
+            gains = np.asarray(calibration["gain_counts_per_n"]) / PARAMS.sensors.loadcell_gain_counts_per_n
+            self.history.append(("calibration × nominal", np.round(gains, 2).tolist()))
+            device.disable()
+            device.set_calibration(**calibration)
+            device.enable()
+
+
+def run_sequences(count_per_limit: int, *, seed: int) -> dict:
+    """Worst peak (× limit) per limit over ``count_per_limit`` sequences each, with its history."""
+    rng = np.random.default_rng(seed)
+    worst: dict[float, tuple[float, list]] = {limit: (0.0, []) for limit in LIMITS_N}
+    load_blow = 0.0
+    with open_device("sim://?seed=0", params=PARAMS) as device:
+        for k in range(count_per_limit * len(LIMITS_N)):
+            limit = LIMITS_N[k % len(LIMITS_N)]
+            sequence = Sequence(device, rng, limit)
+            peak = sequence.run()
+            load_blow = max(load_blow, sequence.load_blow)
+            if peak > worst[limit][0]:
+                worst[limit] = (peak, sequence.history)
+    return {"worst": worst, "load_blow": load_blow}
+
+
+def test_no_accepted_command_sequence_drives_a_tendon_over_1_2_times_the_limit(record_property):
+    result = run_sequences(SEQUENCES_PER_LIMIT, seed=20261201)
+    for limit, (peak, history) in result["worst"].items():
+        record_property(f"worst_peak_over_limit_{limit:g}_n", peak)
+        print(f"limit {limit:g} N: worst true peak {peak:.3f} × limit")
+        assert peak <= BOUND, f"limit {limit} N: true peak {peak:.3f} × limit after {history}"
+    # Every sequence did drive the tendons: the property is not met by a board that never moved.
+    assert min(peak for peak, _ in result["worst"].values()) > 0.5
+
+
+@pytest.mark.parametrize("step_mm", [2, 5, 10, 25, 50])
+def test_a_length_step_the_board_accepts_stays_within_the_bound(step_mm):
+    # Before the bound, these steps gave true peaks of 7.8 to 58 N against the 6 N limit: the
+    # spool ran at up to full speed into the tendon and coasted on after the trip.
+    from twin.control.pretension import pretension_straight
+
+    with open_device("sim://?seed=0", params=PARAMS) as device:
+        zero = pretension_straight(device, PARAMS, mode="lengths")
+        device.twin.clear_peak_tensions()
+        target = zero.copy()
+        target[0] -= step_mm * 1e-3
+        device.set_lengths(target)
+        device.wait(3.0)
+        peak_n = device.twin.peak_tensions_n().max()
+        sample = device.latest()
+    assert peak_n <= BOUND * PARAMS.rig.tension_limit_n
+    # The tendon did pull: up to what a stalled motor may (0.9 of the limit) for the large steps.
+    assert peak_n > 2.0
+    if step_mm >= 10:
+        # Out of reach within the limit: the motor pulled at its cap against a still spool, and
+        # the board said so instead of holding the tendon there.
+        assert sample.state is c.State.FAULT and sample.fault_flags & c.Fault.TENSION_LIMIT
+
+
+@pytest.mark.parametrize("mode", ["lengths", "tensions"])
+def test_a_load_cell_reading_ten_times_low_cannot_blind_the_limit(mode):
+    # The calibration is the nominal one and accepted; the cell itself reads a tenth (a wrong
+    # cell, or a tendon off its pulley). Before, such a reading held 14 N on the tendon in
+    # tension mode with no fault. Now the stalled motor's pull gives it away: the board faults,
+    # in tension mode as soon as it is enabled and pulls, in length mode when the pull comes.
+    from twin.control.pretension import pretension_straight
+
+    params = PARAMS.replace({"effects.tension_gain_error": [-0.9, 0.0, 0.0, 0.0]})
+    with open_device("sim://?seed=0", params=params) as device:
+        zero = pretension_straight(device, params, mode=mode, tension_n=1.0)
+        device.twin.clear_peak_tensions()
+        if device.latest().enabled:
+            if mode == "tensions":
+                device.set_tensions([3.0, 1.0, 1.0, 1.0])
+            else:
+                device.set_lengths(zero - np.array([0.01, 0.0, 0.0, 0.0]))
+            device.wait(2.0)
+        sample = device.latest()
+        peak_n = device.twin.peak_tensions_n()[0]
+    assert sample.state is c.State.FAULT
+    assert sample.fault_flags & c.Fault.LOADCELL_IMPLAUSIBLE and sample.fault_flags & c.Fault.IMPLAUSIBLE_CHANNEL_1
+    assert peak_n <= BOUND * PARAMS.rig.tension_limit_n
+
+
+def test_twin_validate_drives_the_board_with_the_configured_limit(tmp_path, capsys):
+    # Before, --set rig.tension_limit_n was never sent: the board kept its 6 N and the sweep ran.
+    # Every ENABLE now goes with the configured limit, which the 1.35 N pretension exceeds.
+    from twin.cli import main as twin
+
+    code = twin(["validate", "--quick", "--set", "rig.tension_limit_n=0.5", "--out", str(tmp_path)])
+    err = capsys.readouterr().err
+    assert code != 0 and "TENSION_LIMIT" in err, err[-2000:]
+
+
+def test_a_board_that_restarted_drives_with_the_configured_limit_again():
+    # A power-cycled board is back at its 6 N default; the host's next ENABLE sends the
+    # parameter set's 3 N. The ground truth shows which one the board bounds tension with.
+    params = PARAMS.replace({"rig.tension_limit_n": 3.0})
+    with open_device("sim://?seed=0", params=params) as device:
+        device.twin.reset()
+        device.reconnect()
+        device.tare()
+        device.enable()
+        device.twin.clear_peak_tensions()
+        device.set_lengths([-0.01, 0.0, 0.01, 0.0])
+        device.wait(3.0)
+        peak_n = device.twin.peak_tensions_n()[0]
+        sample = device.latest()
+    # Pulled with all a motor may under a 3 N limit (0.9 of it), not under 6 N.
+    assert 2.0 < peak_n <= BOUND * 3.0
+    assert sample.state is c.State.FAULT and sample.fault_flags & c.Fault.TENSION_LIMIT
+
+
+def main(argv: list[str]) -> int:
+    count = int(argv[0]) if argv else 1000
+    seed = int(argv[1]) if len(argv) > 1 else 0
+    result = run_sequences(count, seed=seed)
+    for limit, (peak, history) in result["worst"].items():
+        print(f"limit {limit:g} N: worst true peak {peak:.3f} × limit over {count} sequences")
+        for entry in history:
+            print("   ", entry)
+    print(f"largest blow of a tip mass hung at once: {result['load_blow']:.2f} × limit")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv[1:]))
