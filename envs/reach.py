@@ -16,7 +16,6 @@ from twin.device import CommandRejected, open_device
 from twin.device.codec import Fault
 from twin.params import Params, load_params
 from twin.pcc import arc_tip_position_m
-from twin.pose import HORIZONTAL
 
 __all__ = ["ACTION_MODES", "EndoscopeReachEnv"]
 
@@ -264,7 +263,7 @@ class EndoscopeReachEnv(gym.Env):
     def _sample_target(self, rng) -> np.ndarray:
         kappa = rng.uniform(*self.target_curvature_per_m)
         phi = rng.uniform(0.0, 360.0)
-        return HORIZONTAL @ arc_tip_position_m(kappa, phi, self.params.backbone.length_m)
+        return self.device.base_rotation @ arc_tip_position_m(kappa, phi, self.params.backbone.length_m)
 
     def _read_tracker(self) -> None:
         fused = self.device.tracker.read()

@@ -7,9 +7,9 @@ import argparse
 import numpy as np
 
 from twin.params import ParameterError, Params, load_params
-from twin.pose import base_rotation_from
+from twin.pose import base_rotation_from, matrix_to_quat
 
-__all__ = ["add_param_args", "add_pose_args", "params_from_args", "rotation_from_args", "vector"]
+__all__ = ["add_param_args", "add_pose_args", "params_from_args", "pose_overrides", "vector"]
 
 
 def vector(n: int):
@@ -36,27 +36,34 @@ def add_param_args(parser: argparse.ArgumentParser) -> None:
     )
 
 
-def add_pose_args(parser: argparse.ArgumentParser, default: str = "horizontal") -> None:
+def add_pose_args(parser: argparse.ArgumentParser) -> None:
+    """``--pose`` / ``--base-quat``: the clamp orientation, stored as the parameter set's
+    ``rig.base_quat`` by :func:`params_from_args` (default the parameter file's)."""
     group = parser.add_mutually_exclusive_group()
-    group.add_argument("--base-quat", type=vector(4), metavar="W,X,Y,Z", help="base orientation quaternion")
+    group.add_argument("--base-quat", type=vector(4), metavar="W,X,Y,Z",
+                       help="base orientation quaternion (default the parameter set's rig.base_quat)")
     group.add_argument("--pose", choices=["up", "horizontal"], default=None,
-                       help=f"named base orientation (default {default})")
-    parser.set_defaults(default_pose=default)
+                       help="named base orientation (default the parameter set's rig.base_quat: horizontal)")
+
+
+def pose_overrides(args: argparse.Namespace) -> dict:
+    """``{"rig.base_quat": [w, x, y, z]}`` for a ``--pose`` or ``--base-quat`` given, else ``{}``."""
+    quat = getattr(args, "base_quat", None)
+    if quat is None and getattr(args, "pose", None) is not None:
+        quat = matrix_to_quat(base_rotation_from(pose=args.pose))
+    return {} if quat is None else {"rig.base_quat": [float(q) for q in quat]}
 
 
 def params_from_args(args: argparse.Namespace) -> Params:
-    """The parameter set of ``--params`` and ``--set``.
+    """The parameter set of ``--params`` and ``--set``, with ``--pose``/``--base-quat`` where the
+    command takes them.
 
     Raises:
         ParameterError: a bad file or value; also a ``--params`` file that cannot be read.
     """
     try:
-        return load_params(args.params, overrides=args.overrides)
+        params = load_params(args.params, overrides=args.overrides)
     except OSError as exc:
         raise ParameterError(f"--params {args.params}: cannot read it ({exc.strerror or exc})") from None
-
-
-def rotation_from_args(args: argparse.Namespace) -> np.ndarray:
-    if args.base_quat is not None:
-        return base_rotation_from(quat=args.base_quat)
-    return base_rotation_from(pose=args.pose or args.default_pose)
+    pose = pose_overrides(args)
+    return params.replace(pose, source="command line") if pose else params

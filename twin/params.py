@@ -20,7 +20,11 @@ import typing
 from pathlib import Path
 from typing import Any, Iterable, Mapping
 
+import numpy as np
+
 from twin.effects import PER_TENDON, Key, parameter_keys
+from twin.pose import HORIZONTAL_QUAT, rotation_of_quat
+from twin.resources import resource_path
 
 __all__ = [
     "DEFAULT_PARAMS_PATH",
@@ -39,7 +43,7 @@ __all__ = [
     "parse_override",
 ]
 
-DEFAULT_PARAMS_PATH = Path(__file__).resolve().parent.parent / "models" / "endoscope.toml"
+DEFAULT_PARAMS_PATH = resource_path("models") / "endoscope.toml"
 
 
 class ParameterError(ValueError):
@@ -78,8 +82,13 @@ def _at_least_one(x):
     return None if len(x) >= 1 else "must have at least one entry"
 
 
-def _f(*checks, **kw):
-    return dataclasses.field(metadata={"checks": checks}, **kw)
+def _nonzero_norm(x):
+    return None if math.isfinite(math.hypot(*x)) and math.hypot(*x) > 1e-9 else "must not be all zero"
+
+
+def _f(*checks, source: str | None = None, **kw):
+    """A field with its checks; ``source`` is where the default comes from for a file without it."""
+    return dataclasses.field(metadata={"checks": checks, "default_source": source}, **kw)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -172,6 +181,15 @@ class Rig:
     loadcell_rate_hz: float = _f(_positive)
     tracker_rate_hz: float = _f(_positive)
     tension_limit_n: float = _f(_positive)
+    # The clamp's orientation (body → world) as a quaternion (w, x, y, z). Files written before
+    # it existed get the thesis's horizontal clamp (thesis §8.3).
+    base_quat: tuple[float, ...] = _f(_length(4), _nonzero_norm, default=HORIZONTAL_QUAT,
+                                      source="default: the thesis's horizontal clamp (thesis §8.3)")
+
+    @property
+    def base_rotation(self) -> np.ndarray:
+        """The clamp's orientation, 3×3 (body → world), from :attr:`base_quat`."""
+        return rotation_of_quat(self.base_quat)
 
     @property
     def tendon_m_per_count(self) -> float:
@@ -390,7 +408,10 @@ def _from_dict(raw: Mapping[str, Any], origin: str) -> Params:
         for f in dataclasses.fields(cls):
             key = f"{section}.{f.name}"
             if f.name not in table:
-                raise ParameterError(f"{origin}: missing key {key}")
+                if f.default is dataclasses.MISSING:
+                    raise ParameterError(f"{origin}: missing key {key}")
+                kwargs[f.name], sources[key] = f.default, f.metadata["default_source"]
+                continue
             entry = table[f.name]
             if isinstance(entry, Mapping):
                 if "value" not in entry:

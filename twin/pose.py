@@ -11,7 +11,7 @@ import math
 
 import numpy as np
 
-__all__ = ["HORIZONTAL", "UP", "base_rotation_from", "quat_to_matrix", "matrix_to_quat", "rot_x", "rot_y", "rot_z"]
+__all__ = ["HORIZONTAL", "HORIZONTAL_QUAT", "UP", "rotation_of_quat", "base_rotation_from", "quat_to_matrix", "matrix_to_quat", "rot_x", "rot_y", "rot_z"]
 
 
 def rot_x(angle_rad: float) -> np.ndarray:
@@ -67,12 +67,28 @@ def matrix_to_quat(rot) -> np.ndarray:
     return q if q[0] >= 0 else -q
 
 
+# The thesis's horizontal clamp as a quaternion (w, x, y, z): (cos 45°, 0, sin 45°, 0).
+HORIZONTAL_QUAT = tuple(float(v) for v in matrix_to_quat(HORIZONTAL))
+_NAMED = {"up": UP, "horizontal": HORIZONTAL}
+
+
+def rotation_of_quat(quat) -> np.ndarray:
+    """:func:`quat_to_matrix`, except that the quaternion of a named pose gives that pose's own
+    matrix, so that a twin built from a parameter file's quaternion and one built from the name
+    are the same model, bit for bit."""
+    q = np.asarray(quat, dtype=float)
+    norm = np.linalg.norm(q)
+    if q.shape == (4,) and np.isfinite(norm) and norm > 1e-12:
+        for rotation in _NAMED.values():
+            if np.allclose(q / norm, matrix_to_quat(rotation), rtol=0.0, atol=1e-12):
+                return rotation.copy()
+    return quat_to_matrix(q)
+
+
 def base_rotation_from(*, pose: str | None = None, quat=None) -> np.ndarray:
     """Base rotation (3×3, body → world) from a named pose or a quaternion ``(w, x, y, z)``."""
     if quat is not None:
-        return quat_to_matrix(quat)
-    if pose == "up":
-        return UP.copy()
-    if pose == "horizontal":
-        return HORIZONTAL.copy()
+        return rotation_of_quat(quat)
+    if pose in _NAMED:
+        return _NAMED[pose].copy()
     raise ValueError(f"pose {pose!r}: expected 'up' or 'horizontal'")

@@ -40,7 +40,6 @@ from twin.cliargs import add_param_args, params_from_args
 from twin.control.compensation import compensate_tensions
 from twin.control.gains import DEFAULT_TENSION_GAINS, TUNED_TENSION_GAINS
 from twin.params import Params, load_params
-from twin.pose import HORIZONTAL
 from twin.rod import Predictor, RodModel, tip_jacobian
 from twin.rod.grid import GRAVITY_TIP_FORCE_N
 
@@ -137,14 +136,18 @@ class TipTrackingController:
         period_s: time between two :meth:`update` calls (s): the env's 40 Hz step.
         damping: Tikhonov damping of the pseudo-inverse (m/N).
         floor_n, limit_n: tension bounds (N).
+        base_rotation: the clamp orientation (3×3) of the robot it controls; default the
+            parameter set's ``rig.base_quat`` (give the device's :attr:`~twin.device.Device.base_rotation`).
     """
 
     def __init__(self, params: Params, *, gain: float = 0.05, velocity_gain_s: float = 0.0,
-                 period_s: float = 0.025, damping: float = 2e-3, floor_n: float = 1.0, limit_n: float = 5.0):
+                 period_s: float = 0.025, damping: float = 2e-3, floor_n: float = 1.0, limit_n: float = 5.0,
+                 base_rotation=None):
         if not (gain >= 0 and velocity_gain_s >= 0 and period_s > 0):
             raise ValueError(f"gain = {gain!r}, velocity_gain_s = {velocity_gain_s!r}, period_s = {period_s!r}: "
                              "gains must be >= 0 and the period > 0")
         self.model = RodModel.from_params(params)
+        self.base_rotation = params.rig.base_rotation if base_rotation is None else np.asarray(base_rotation, float)
         self.gravity_m_s2 = params.environment.gravity_m_s2
         self.gain, self.velocity_gain_s, self.period_s = gain, velocity_gain_s, period_s
         self.damping, self.floor_n, self.limit_n = damping, floor_n, limit_n
@@ -156,7 +159,7 @@ class TipTrackingController:
     def reset(self, target_m, tip_mass_kg: float) -> np.ndarray:
         """Feedforward tensions (N) for ``target_m`` under ``tip_mass_kg``."""
         force = GRAVITY_TIP_FORCE_N(tip_mass_kg, self.gravity_m_s2)
-        plan = compensate_tensions(self.model, target_m, tip_force_n=force, base_rotation=HORIZONTAL,
+        plan = compensate_tensions(self.model, target_m, tip_force_n=force, base_rotation=self.base_rotation,
                                    floor_n=self.floor_n, limit_n=self.limit_n)
         self.target_m, self.force_n = np.asarray(target_m, dtype=float), force
         self.tensions_n = plan.tensions_n
@@ -170,7 +173,7 @@ class TipTrackingController:
         if self.gain > 0 or (self.velocity_gain_s > 0 and self._pinv is None):
             # The integral needs J where the tensions are now; the damping alone makes do with J
             # at the feedforward.
-            sol = self._predictor.solve(self.tensions_n, tip_force_n=self.force_n, base_rotation=HORIZONTAL)
+            sol = self._predictor.solve(self.tensions_n, tip_force_n=self.force_n, base_rotation=self.base_rotation)
             j = tip_jacobian(self.model, sol).position_wrt_tension
             self._pinv = j.T @ np.linalg.inv(j @ j.T + self.damping ** 2 * np.eye(3))
         if self.gain > 0:
@@ -194,9 +197,10 @@ def _tracking_episode(args) -> float:
     gains, params, seed, steps, tension_gains = args
     env = EndoscopeReachEnv(params=params, gains={"tensions": tension_gains},
                             tip_loads=TipLoads(change_probability=0.0), randomization=Randomization.typical())
-    controller = TipTrackingController(params if params is not None else load_params(), **gains)
     try:
         observation, info = env.reset(seed=seed)
+        controller = TipTrackingController(params if params is not None else load_params(), **gains,
+                                           base_rotation=env.device.base_rotation)
         action = env.action_for(controller.reset(env.target_m, info["tip_mass_kg"]))
         errors = []
         for _ in range(steps):

@@ -30,7 +30,6 @@ from twin.experiments.protocols import measure, wait_for_rest
 from twin.experiments.report import markdown_table
 from twin.params import Params
 from twin.pcc import tendon_length_changes_m
-from twin.pose import HORIZONTAL
 from twin.rod import RodModel
 
 __all__ = ["CocontractionStudy", "run_cocontraction_study"]
@@ -142,7 +141,7 @@ def run_cocontraction_study(device, params: Params, *, kappas_per_m=(4.5, 8.7, 1
         unloaded[kappa] = measure(device).tensions_n
 
     pretension_straight(device, params, mode="tensions")
-    bounds = dict(base_rotation=HORIZONTAL, floor_n=floor_n, limit_n=params.rig.tension_limit_n - 1.0)
+    bounds = dict(base_rotation=device.base_rotation, floor_n=floor_n, limit_n=params.rig.tension_limit_n - 1.0)
     for kappa in kappas_per_m:
         device.set_tensions(hold_tensions(model, unloaded[kappa], np.zeros(3), **bounds).tensions_n)
         for mass in (0.0, 0.010):

@@ -47,7 +47,6 @@ from twin.experiments.protocols import ProtocolError, measure, wait_for_rest
 from twin.experiments.report import markdown_table
 from twin.params import Params
 from twin.pcc import GRID_KAPPA_PER_M, GRID_PHI_DEG, tendon_length_changes_m
-from twin.pose import HORIZONTAL
 from twin.rod import RodModel
 from twin.rod.grid import GRAVITY_TIP_FORCE_N
 
@@ -248,7 +247,7 @@ def run_compensation_trial(device, params: Params, *, configs: Sequence[tuple[fl
     limit_n = tension_ceiling_n(params, tension_gains) if limit_n is None else float(limit_n)
     configs = list(configs or [(k, p) for k in GRID_KAPPA_PER_M if k > 0 for p in GRID_PHI_DEG])
     g = params.environment.gravity_m_s2
-    bounds = dict(base_rotation=HORIZONTAL, floor_n=floor_n, limit_n=limit_n)
+    bounds = dict(base_rotation=device.base_rotation, floor_n=floor_n, limit_n=limit_n)
     steps = max(1, round(ramp_s * params.rig.telemetry_rate_hz))
     rows = []
     for kappa, phi in configs:

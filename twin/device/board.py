@@ -19,7 +19,6 @@ import numpy as np
 from twin.device import codec
 from twin.device.firmware_lib import FirmwareLib, tick_entry_points
 from twin.params import Params
-from twin.pose import HORIZONTAL
 from twin.sim.native_loop import Reason
 from twin.sim.plant import Plant
 
@@ -35,14 +34,14 @@ class EmulatedBoard:
     Args:
         params: parameter set of the plant (default ``models/endoscope.toml``).
         seed: seed of the plant's sensor noise.
-        base_rotation: clamp orientation, 3×3 (default horizontal, the thesis set-up).
+        base_rotation: clamp orientation, 3×3 (default the parameter set's ``rig.base_quat``).
 
     Attributes:
         plant: the :class:`twin.sim.plant.Plant`; fixtures act on it directly.
         firmware: the :class:`FirmwareLib` of the current power-up.
     """
 
-    def __init__(self, params: Params | None = None, *, seed: int = 0, base_rotation=HORIZONTAL):
+    def __init__(self, params: Params | None = None, *, seed: int = 0, base_rotation=None):
         self.plant = Plant(params, base_rotation=base_rotation, seed=seed)
         if self.plant.tendon_count != codec.CHANNELS:
             raise ValueError(f"tendons = {self.plant.tendon_count}: the firmware drives {codec.CHANNELS} motors")

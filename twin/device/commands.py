@@ -8,7 +8,7 @@ import signal
 import sys
 import threading
 
-from twin.cliargs import add_param_args, add_pose_args, params_from_args, rotation_from_args
+from twin.cliargs import add_param_args, add_pose_args, params_from_args
 
 __all__ = ["register"]
 
@@ -43,8 +43,7 @@ def run_emulate(args: argparse.Namespace) -> int:
     stop = threading.Event()
     previous = signal.signal(signal.SIGTERM, lambda signum, frame: stop.set())
     try:
-        board = PtyBoard(params_from_args(args), seed=args.seed, base_rotation=rotation_from_args(args),
-                         link_path=args.link)
+        board = PtyBoard(params_from_args(args), seed=args.seed, link_path=args.link)
         with board:
             print(f"port: {board.port}", flush=True)
             print(f"url:  {board.url}", flush=True)

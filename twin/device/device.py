@@ -51,6 +51,7 @@ from twin.device.errors import CommandRejected, DeviceDisconnected, DeviceError,
 from twin.device.inbox import Inbox, LinkStats
 from twin.device.telemetry import DeviceInfo, Telemetry
 from twin.device.transport import Transport
+from twin.pose import HORIZONTAL
 
 if TYPE_CHECKING:
     from twin.calibration import Calibration
@@ -157,6 +158,8 @@ class Device:
             parameter set's ``rig.tension_limit_n`` (:func:`twin.device.open_device` passes it):
             every :meth:`enable` sends it first, so that the board never drives with another
             limit than the host's. None keeps the board's default (6 N) until :meth:`set_limits`.
+        base_rotation: the clamp's orientation (3×3, body → world) the board's robot is mounted
+            in (the twin is built in it): :attr:`base_rotation`. Default the thesis's horizontal clamp.
 
     Attributes:
         fixture: the :class:`twin.device.fixture.Fixture` (None if the backend has none).
@@ -174,6 +177,7 @@ class Device:
         keepalive_s: float | None = 0.1,
         queue_size: int = 4096,
         tension_limit_n: float | None = None,
+        base_rotation=HORIZONTAL,
     ):
         if not (math.isfinite(command_timeout_s) and command_timeout_s > 0):
             raise ValueError(f"command_timeout_s = {command_timeout_s!r}: must be finite and > 0")
@@ -196,11 +200,20 @@ class Device:
         if tension_limit_n is not None:
             self._tension_limit_n = _tension_limit("tension_limit_n", tension_limit_n)
         self._watchdog_timeout_ms = defaults.watchdog_timeout_ms
+        self._base_rotation = np.array(base_rotation, dtype=float)
+        if self._base_rotation.shape != (3, 3):
+            raise ValueError(f"base_rotation = {base_rotation!r}: must be a 3x3 rotation")
 
     # ------------------------------------------------------------------ identity
     @property
     def url(self) -> str:
         return self._transport.url
+
+    @property
+    def base_rotation(self) -> np.ndarray:
+        """The clamp's orientation (3×3, body → world): the pose datasets taken on this device
+        record and predictions of its measurements use."""
+        return self._base_rotation.copy()
 
     @property
     def transport(self) -> Transport:

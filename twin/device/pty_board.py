@@ -28,7 +28,6 @@ from pathlib import Path
 
 from twin.device.board import TICK_S, EmulatedBoard
 from twin.params import Params
-from twin.pose import HORIZONTAL
 
 __all__ = ["PtyBoard"]
 
@@ -43,7 +42,7 @@ class PtyBoard:
     Args:
         params: parameter set of the plant (default ``models/endoscope.toml``).
         seed: seed of the plant's sensor noise.
-        base_rotation: clamp orientation (default horizontal).
+        base_rotation: clamp orientation (default the parameter set's ``rig.base_quat``).
         link_path: optional path of a symbolic link to the current port.
 
     Attributes:
@@ -58,7 +57,7 @@ class PtyBoard:
         params: Params | None = None,
         *,
         seed: int = 0,
-        base_rotation=HORIZONTAL,
+        base_rotation=None,
         link_path: str | os.PathLike | None = None,
     ):
         self.board = EmulatedBoard(params, seed=seed, base_rotation=base_rotation)

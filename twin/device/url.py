@@ -1,12 +1,16 @@
 """Device URLs → devices: ``sim://`` (the twin) and ``serial://`` (the rig, or an emulated board
 on a pseudo-terminal).
 
-``sim://[?seed=N][&pose=horizontal|up]``
+``sim://[?seed=N][&pose=horizontal|up | &base_quat=W,X,Y,Z]``
     The emulated board (:class:`twin.device.board.EmulatedBoard`) in simulated time.
-``serial://<path>[?igtl=host:port]``
+``serial://<path>[?igtl=host:port][&pose=… | &base_quat=…]``
     A board on a serial port: ``serial:///dev/ttyACM0``, or the pseudo-terminal printed by
     ``twin emulate``. ``igtl`` names the OpenIGTLink server of the EM tracker (PLUS); without
     it ``device.tracker`` is None.
+
+``pose`` / ``base_quat`` give the clamp's orientation (body → world; the twin is built in it, the
+rig is mounted so); default the parameter set's ``rig.base_quat``. It is
+:attr:`Device.base_rotation`: what datasets record and predictions use.
 """
 
 from __future__ import annotations
@@ -26,7 +30,7 @@ from twin.tracking import FusionSettings, OpenIGTLinkSource
 __all__ = ["SCHEMES", "open_device"]
 
 SCHEMES = ("sim", "serial")
-_QUERY_KEYS = {"sim": ("seed", "pose"), "serial": ("igtl",)}
+_QUERY_KEYS = {"sim": ("seed", "pose", "base_quat"), "serial": ("igtl", "pose", "base_quat")}
 
 
 def _query(url: str, scheme: str, query: str) -> dict[str, str]:
@@ -75,7 +79,7 @@ def open_device(
     settings = FusionSettings.from_params(params)
     # The parameter set's tension limit is what the board drives with: Device.enable sends it.
     device_args = dict(command_timeout_s=command_timeout_s, keepalive_s=keepalive_s, queue_size=queue_size,
-                       tension_limit_n=params.rig.tension_limit_n)
+                       tension_limit_n=params.rig.tension_limit_n, base_rotation=_pose(url, options, params))
 
     if parts.scheme == "sim":
         if parts.netloc or parts.path not in ("", "/"):
@@ -84,8 +88,7 @@ def open_device(
         from twin.device.board import EmulatedBoard
         from twin.device.sim_transport import SimTransport
 
-        board = EmulatedBoard(params, seed=_seed(url, options, seed),
-                              base_rotation=_pose(url, options.get("pose", "horizontal")))
+        board = EmulatedBoard(params, seed=_seed(url, options, seed), base_rotation=device_args["base_rotation"])
         # The fixture settles through the device so the firmware keeps ticking meanwhile.
         fixture = SimFixture(board, settle=lambda duration_s: device.wait(duration_s))
         device = Device(
@@ -128,11 +131,19 @@ def _seed(url: str, options: dict[str, str], seed: int | None) -> int:
     return from_url
 
 
-def _pose(url: str, pose: str):
+def _pose(url: str, options: dict[str, str], params: Params):
+    """The clamp orientation (3×3) of the URL's ``pose`` or ``base_quat``, else the parameter set's."""
+    if "pose" in options and "base_quat" in options:
+        raise ValueError(f"device URL {url!r}: give pose or base_quat, not both")
     try:
-        return base_rotation_from(pose=pose)
+        if "pose" in options:
+            return base_rotation_from(pose=options["pose"])
+        if "base_quat" in options:
+            return base_rotation_from(quat=[float(v) for v in options["base_quat"].split(",")])
     except ValueError as exc:
-        raise ValueError(f"device URL {url!r}: pose = {pose!r}: {exc}") from None
+        key = "pose" if "pose" in options else "base_quat"
+        raise ValueError(f"device URL {url!r}: {key} = {options[key]!r}: {exc}") from None
+    return params.rig.base_rotation
 
 
 def _host_port(url: str, value: str) -> tuple[str, int]:

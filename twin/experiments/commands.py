@@ -13,7 +13,6 @@ from pathlib import Path
 from twin.cliargs import add_param_args, params_from_args
 from twin.params import parse_override
 from twin.pcc import validation_grid
-from twin.pose import HORIZONTAL
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -345,12 +344,13 @@ def _validate(args, folder: Path, params) -> int:
     try:
         calibration = _calibration(args, params, device)
         run_validation(device, folder / RUN_DATASET, params, grid=grid, calibration=calibration)
+        pose = device.base_rotation
     finally:
         device.close()
     sweep_s = time.perf_counter() - start
     dataset = read_dataset(folder / RUN_DATASET)
     result = analyse_validation(dataset, params, progress=True)
-    picture = _picture(args, params, folder)
+    picture = _picture(args, params, folder, pose)
     path = write_validation_report(result, folder, picture=picture, warnings=_twin_warnings(args, params),
                                    facts={"sweep_wall_time_s": sweep_s, "device": args.device})
     s = result.summary()
@@ -361,8 +361,9 @@ def _validate(args, folder: Path, params) -> int:
     return 0
 
 
-def _picture(args, params, folder: Path) -> Path | None:
-    """A rendered picture of the bent twin for the report (sim only; None with a note when no GL)."""
+def _picture(args, params, folder: Path, base_rotation) -> Path | None:
+    """A rendered picture of the bent twin, in the device's pose, for the report (sim only; None
+    with a note when no GL)."""
     if not args.device.startswith("sim://"):
         return None
     try:
@@ -370,7 +371,7 @@ def _picture(args, params, folder: Path) -> Path | None:
         from twin.sim import Plant
         from twin.sim.render import render_png
 
-        plant = Plant(params, base_rotation=HORIZONTAL)
+        plant = Plant(params, base_rotation=base_rotation)
         plant.set_tensions(pcc_tensions_n(17.5, 30.0, params))
         plant.settle()
         path = folder / "figures" / "endoscope.png"

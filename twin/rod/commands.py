@@ -8,7 +8,7 @@ import sys
 
 import numpy as np
 
-from twin.cliargs import add_param_args, add_pose_args, params_from_args, rotation_from_args, vector
+from twin.cliargs import add_param_args, add_pose_args, params_from_args, vector
 from twin.rod.model import RodModel
 from twin.rod.solver import ConvergenceError, solve
 
@@ -25,7 +25,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--tip-force", type=vector(3), default=None, metavar="FX,FY,FZ", help="tip force (N), world frame")
     p.add_argument("--tip-moment", type=vector(3), default=None, metavar="MX,MY,MZ",
                    help="tip moment (N m), world frame")
-    add_pose_args(p, default="horizontal")
+    add_pose_args(p)
     add_param_args(p)
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.set_defaults(func=run_predict)
@@ -50,7 +50,7 @@ def run_predict(args: argparse.Namespace) -> int:
         return 2
     try:
         sol = solve(model, args.tensions, tip_force_n=args.tip_force, tip_moment_nm=args.tip_moment,
-                    base_rotation=rotation_from_args(args))
+                    base_rotation=params.rig.base_rotation)
     except ConvergenceError as exc:
         if args.json:
             print(json.dumps({"converged": False, "status": exc.status.label, "residual": exc.residual_nm,

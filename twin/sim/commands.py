@@ -8,7 +8,7 @@ import sys
 
 import numpy as np
 
-from twin.cliargs import add_param_args, add_pose_args, params_from_args, rotation_from_args, vector
+from twin.cliargs import add_param_args, add_pose_args, params_from_args, pose_overrides, vector
 
 __all__ = ["register"]
 
@@ -38,6 +38,7 @@ def register(subparsers) -> None:
                             "them with a table in zoo.md")
     check.add_argument("--quick", action="store_true", help="the reduced grid (QUICK_GRID), no cause studies")
     check.add_argument("--no-causes", action="store_true", help="skip the cause studies")
+    add_pose_args(check)
     add_param_args(check)
     check.set_defaults(func=run_crosscheck_command)
 
@@ -46,7 +47,7 @@ def run_sim(args: argparse.Namespace) -> int:
     from twin.sim.plant import Plant
 
     params = params_from_args(args)
-    plant = Plant(params, base_rotation=rotation_from_args(args), seed=args.seed)
+    plant = Plant(params, base_rotation=params.rig.base_rotation, seed=args.seed)
     if args.tensions is not None:
         plant.set_tensions(args.tensions)
     else:
@@ -87,7 +88,7 @@ def run_crosscheck_command(args: argparse.Namespace) -> int:
     configs = QUICK_GRID if args.quick else None
     out = args.out or "reports/crosscheck"
     if args.robot == "all":
-        overrides = dict(parse_override(o) for o in args.overrides)
+        overrides = {**dict(parse_override(o) for o in args.overrides), **pose_overrides(args)}
         table, summaries = run_zoo(out, configs=configs, overrides=overrides, path=args.params)
         print(f"report: {table}")
         for name, summary in summaries.items():
@@ -100,7 +101,8 @@ def run_crosscheck_command(args: argparse.Namespace) -> int:
         if args.robot not in ROBOTS:
             print(f"twin crosscheck: --robot {args.robot}: expected all or one of {', '.join(ROBOTS)}", file=sys.stderr)
             return 2
-        params = robot_params(args.robot, dict(parse_override(o) for o in args.overrides), args.params)
+        params = robot_params(args.robot, {**dict(parse_override(o) for o in args.overrides), **pose_overrides(args)},
+                              args.params)
         default = args.robot == next(iter(ROBOTS))
         out = args.out or ("reports/crosscheck" if default else f"reports/crosscheck/{args.robot}")
     else:

@@ -32,7 +32,6 @@ import numpy as np
 
 from twin.params import Params, load_params
 from twin.pcc import GRID_KAPPA_PER_M, GRID_TIP_MASS_KG, validation_grid
-from twin.pose import HORIZONTAL
 from twin.rod.grid import pcc_tensions_n
 from twin.sim.plant import Plant
 
@@ -203,7 +202,8 @@ class CrosscheckResult:
 
 def crosscheck(params: Params | None = None, *, configs=None, elements: int | None = None,
                tendon_sites: str | None = None, settle_tol_m: float = 1e-6) -> CrosscheckResult:
-    """Settle twin and predictor over ``configs`` (default the 216 of the validation grid).
+    """Settle twin and predictor over ``configs`` (default the 216 of the validation grid), both
+    with the clamp in the parameter set's ``rig.base_quat``.
 
     Args:
         params: parameter set (default ``models/endoscope.toml``).
@@ -215,7 +215,7 @@ def crosscheck(params: Params | None = None, *, configs=None, elements: int | No
 
     params = params if params is not None else load_params()
     rows = list(validation_grid() if configs is None else configs)
-    plant = Plant(params, base_rotation=HORIZONTAL, elements=elements, tendon_sites=tendon_sites)
+    plant = Plant(params, elements=elements, tendon_sites=tendon_sites)
     rod = RodModel.from_params(params)
     g = params.environment.gravity_m_s2
     twin_tip = np.full((len(rows), 3), np.nan)
@@ -231,7 +231,7 @@ def crosscheck(params: Params | None = None, *, configs=None, elements: int | No
         settled[k] = result.settled
         twin_tip[k] = plant.tip_pose()[0]
         try:
-            sol = solve(rod, tensions, tip_force_n=(0.0, 0.0, -mass * g), base_rotation=HORIZONTAL)
+            sol = solve(rod, tensions, tip_force_n=(0.0, 0.0, -mass * g), base_rotation=plant.base_rotation)
         except ConvergenceError:
             continue
         converged[k] = bool(sol.converged)

@@ -29,7 +29,6 @@ import numpy as np
 
 from twin import effects
 from twin.params import Params, load_params
-from twin.pose import HORIZONTAL
 from twin.sim.model import (ACTUATOR_GROUPS, SPOOL_TRAVEL_M, Layout, TendonLength, build_model,
                              tendon_stiffness_n_per_m)
 from twin.sim.motor import MotorConstants
@@ -82,7 +81,8 @@ class Plant:
 
     Args:
         params: parameter set (default ``models/endoscope.toml``).
-        base_rotation: nominal clamp orientation (3×3, body → world); horizontal by default.
+        base_rotation: nominal clamp orientation (3×3, body → world); default the parameter
+            set's ``rig.base_quat``.
         seed: seed of the sensor-noise generator.
         elements: override of ``sim.elements``.
         tendon_sites: override of ``sim.tendon_routing``; see :class:`twin.sim.model.Layout`.
@@ -95,10 +95,11 @@ class Plant:
         twin.sim.native_loop.NativeLoopError: the plant loop cannot be built (no g++).
     """
 
-    def __init__(self, params: Params | None = None, *, base_rotation=HORIZONTAL, seed: int = 0,
+    def __init__(self, params: Params | None = None, *, base_rotation=None, seed: int = 0,
                  elements: int | None = None, tendon_sites: str | None = None):
         self.params = params if params is not None else load_params()
-        self.base_rotation = np.asarray(base_rotation, dtype=float)
+        self.base_rotation = np.asarray(self.params.rig.base_rotation if base_rotation is None else base_rotation,
+                                        dtype=float)
         self.model = build_model(self.params, base_rotation=self.base_rotation, elements=elements,
                                  tendon_sites=tendon_sites)
         self.data = mujoco.MjData(self.model)
