@@ -204,3 +204,42 @@ def test_twin_sim_reports_a_state_that_did_not_settle(capsys):
     code = main(["sim", "--lengths=-0.003,0,0.003,0", "--timeout-s", "0.02", "--set", "sim.elements=10"])
     assert code == 1
     assert "did not settle" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("force_n, moment_nm", [((0.0, 0.05, 0.0), (0.0, 0.0, 0.0)),
+                                                ((0.0, 0.0, 0.0), (0.0, 0.0, 0.002)),  # bends; about world x it twists
+                                                ((0.03, 0.03, -0.02), (0.0, 0.001, 0.001))])
+def test_a_sideways_tip_force_and_moment_bend_the_twin_as_the_predictor(force_n, moment_nm):
+    from twin.rod import RodModel, solve
+
+    params = load_params()
+    plant, tensions = Plant(params), np.full(4, 1.2)
+    plant.set_tensions(tensions)
+    plant.settle()
+    unloaded = plant.tip_pose()[0]
+    plant.set_tip_load(force_n, moment_nm)
+    assert plant.settle().settled
+    tip = plant.tip_pose()[0]
+    rod = solve(RodModel.from_params(params), tensions, tip_force_n=force_n, tip_moment_nm=moment_nm,
+                base_rotation=plant.base_rotation).tip_position_m
+    assert np.linalg.norm(tip - unloaded) > 3e-3          # the load moves the tip by millimetres
+    assert np.linalg.norm(tip - rod) < 0.01 * params.backbone.length_m
+    plant.set_tip_load()
+    plant.settle()
+    assert np.allclose(plant.tip_pose()[0], unloaded, atol=1e-5)
+
+
+def test_a_tip_load_adds_to_the_friction_forces_and_sim_applies_it(capsys):
+    # The friction hook writes the forces of the bodies the tendons pass, not the tip load's.
+    plant = _plant("effects.tendon_friction_coeff=0.1")
+    plant.set_tensions([1.2] * 4)
+    plant.settle()
+    before = plant.tip_pose()[0]
+    plant.set_tip_load((0.0, 0.05, 0.0))
+    plant.settle()
+    assert plant.tip_pose()[0][1] - before[1] > 3e-3
+    assert main(["sim", "--tensions", "1.2,1.2,1.2,1.2", "--tip-force", "0,0.05,0", "--json"] + sum(
+        (["--set", o] for o in FAST), [])) == 0
+    assert json.loads(capsys.readouterr().out)["tip_position_m"][1] > 3e-3
+    with pytest.raises(ValueError, match="expected 3 finite numbers"):
+        plant.set_tip_load((0.0, float("nan"), 0.0))

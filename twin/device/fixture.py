@@ -56,6 +56,11 @@ class Fixture(abc.ABC):
         """Hang ``mass_kg`` (kg) at the tip; 0 removes it."""
 
     @abc.abstractmethod
+    def apply_tip_load(self, force_n=(0.0, 0.0, 0.0), moment_nm=(0.0, 0.0, 0.0)) -> None:
+        """Push the tip with ``force_n`` (N) and twist it with ``moment_nm`` (N·m), both world
+        frame (e.g. a pulley and weight for a sideways force); zeros remove it."""
+
+    @abc.abstractmethod
     def engage_holder(self) -> None:
         """Clamp the reference holder: the discs are held straight (for pretensioning and tares)."""
 
@@ -99,6 +104,10 @@ class SimFixture(Fixture):
         self._board.plant.set_tip_mass_kg(_check_mass("mass_kg", mass_kg))
         self._settle(self.settle_s)
 
+    def apply_tip_load(self, force_n=(0.0, 0.0, 0.0), moment_nm=(0.0, 0.0, 0.0)) -> None:
+        self._board.plant.set_tip_load(force_n, moment_nm)
+        self._settle(self.settle_s)
+
     def engage_holder(self) -> None:
         self._board.plant.engage_holder()
         self._settle(self.settle_s)
@@ -139,6 +148,16 @@ class OperatorFixture(Fixture):
             self._ask(f"Hang {mass_kg * 1e3:g} g at the tip, let it hang still")
         else:
             self._ask("Remove any mass from the tip")
+
+    def apply_tip_load(self, force_n=(0.0, 0.0, 0.0), moment_nm=(0.0, 0.0, 0.0)) -> None:
+        force, moment = np.asarray(force_n, dtype=float), np.asarray(moment_nm, dtype=float)
+        if force.shape != (3,) or moment.shape != (3,) or not (np.isfinite(force).all() and np.isfinite(moment).all()):
+            raise ValueError(f"force_n = {force_n!r}, moment_nm = {moment_nm!r}: expected 3 finite numbers each")
+        if not (force.any() or moment.any()):
+            self._ask("Remove any force and moment from the tip")
+            return
+        self._ask(f"Apply {np.round(force, 4).tolist()} N and {np.round(moment, 5).tolist()} N·m (world frame) "
+                  "at the tip, let it come to rest")
 
     def engage_holder(self) -> None:
         self._ask("Clamp the reference holder around the discs")

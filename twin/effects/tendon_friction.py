@@ -69,6 +69,7 @@ class TendonFriction:
         self.coeff = float(coeff)
         self._sites = np.asarray(sites)
         self._bodies = model.site_bodyid[self._sites]
+        self._own_bodies = np.unique(self._bodies)
         self._spool_dofs = np.asarray(spool_dofs)
         self.state = np.zeros(len(self._sites))
 
@@ -105,7 +106,8 @@ class TendonFriction:
         force = np.zeros_like(p)
         force[:, 1:] -= pulls                                     # towards the previous site
         force[:, :-1] += pulls                                    # towards the next site
-        data.xfrc_applied[:] = 0.0
+        # Only the rows of the bodies the tendons pass: others carry other loads (the tip load's).
+        data.xfrc_applied[self._own_bodies] = 0.0
         bodies = self._bodies.ravel()
         f = force.reshape(-1, 3)
         torque = np.cross(p.reshape(-1, 3) - data.xipos[bodies], f)

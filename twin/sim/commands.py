@@ -20,6 +20,10 @@ def register(subparsers) -> None:
     drive.add_argument("--lengths", type=vector(4), metavar="D1,D2,D3,D4",
                        help="relative tendon lengths (m, positive = paid out)")
     sim.add_argument("--tip-mass-kg", type=float, default=0.0, metavar="M", help="mass hung at the tip (kg)")
+    sim.add_argument("--tip-force", type=vector(3), default=np.zeros(3), metavar="FX,FY,FZ",
+                     help="force on the tip, world frame (N), beside a hung mass")
+    sim.add_argument("--tip-moment", type=vector(3), default=np.zeros(3), metavar="MX,MY,MZ",
+                     help="moment on the tip, world frame (N·m)")
     sim.add_argument("--timeout-s", type=float, default=3.0, help="simulated time allowed to settle (s)")
     sim.add_argument("--seed", type=int, default=0, help="sensor-noise seed")
     sim.add_argument("--json", action="store_true", help="print one JSON object")
@@ -53,6 +57,7 @@ def run_sim(args: argparse.Namespace) -> int:
     else:
         plant.set_tendon_lengths(args.lengths)
     plant.set_tip_mass_kg(args.tip_mass_kg)
+    plant.set_tip_load(args.tip_force, args.tip_moment)
     result = plant.settle(timeout_s=args.timeout_s)
     position, rotation = plant.tip_pose()
     # What the load cells report, through the nominal calibration (gain and offset).
