@@ -2,6 +2,12 @@
 
 import os
 
+from twin import resources
+
+# Compiled kernels go to the per-user cache, not beside the (maybe installed) sources; numba
+# reads this when first imported, which the imports below do.
+resources.use_user_cache_for_numba()
+
 if not os.environ.get("DISPLAY"):
     # Without a display GLFW cannot render; MuJoCo picks its GL backend when it is first
     # imported (twin.sim, and twin.tracking's eigensolver), so choose headless EGL before any

@@ -3,7 +3,8 @@
 This is the board's logic without the board: the same C++ (``firmware/core``) that runs on the
 Teensy, stepped with explicit time, so the emulated board and the tests exercise the real PID,
 safety state machine and codec. The library is built on first use with ``make -C firmware
-lib`` (host g++), and rebuilt when a firmware source is newer than it.
+lib`` (host g++) into the per-user cache (:mod:`twin.resources`), and anew when a firmware
+source or the compiler changes.
 
 Example:
     >>> fw = FirmwareLib()
@@ -16,8 +17,8 @@ Example:
 from __future__ import annotations
 
 import ctypes
-import fcntl
 import functools
+import shutil
 import subprocess
 from pathlib import Path
 from typing import Sequence
@@ -25,10 +26,11 @@ from typing import Sequence
 import numpy as np
 
 from twin.device import codec
+from twin.resources import NativeBuildError, build_cached, resource_path
 
 __all__ = [
     "FIRMWARE_DIR",
-    "LIB_PATH",
+    "LIB_NAME",
     "ABI_VERSION",
     "FirmwareBuildError",
     "build_library",
@@ -38,13 +40,13 @@ __all__ = [
     "FirmwareFrameDecoder",
 ]
 
-FIRMWARE_DIR = Path(__file__).resolve().parents[2] / "firmware"
-LIB_PATH = FIRMWARE_DIR / "build" / "libtwinfw.so"
+FIRMWARE_DIR = resource_path("firmware")
+LIB_NAME = "libtwinfw.so"
 ABI_VERSION = 1
 _CHANNELS = codec.CHANNELS
 
 
-class FirmwareBuildError(RuntimeError):
+class FirmwareBuildError(NativeBuildError):
     """``make -C firmware lib`` failed or the built library does not match this binding."""
 
 
@@ -56,35 +58,28 @@ def _sources() -> list[Path]:
     ]
 
 
-def _stale() -> bool:
-    if not LIB_PATH.exists():
-        return True
-    built = LIB_PATH.stat().st_mtime
-    return any(p.stat().st_mtime > built for p in _sources())
-
-
 def build_library(*, force: bool = False) -> Path:
-    """Build ``firmware/build/libtwinfw.so`` if it is missing or older than its sources.
-
-    Concurrent callers (parallel test processes) serialise on a lock file.
+    """The host library, built with ``make -C firmware lib`` into the per-user cache
+    (:func:`twin.resources.build_cached`) unless it holds one for these sources and compiler;
+    the firmware folder itself is only read.
 
     Raises:
-        FirmwareBuildError: make is missing or the build failed (the message holds its output).
+        FirmwareBuildError: no make or C++ compiler, or the build failed (the message holds its output).
     """
-    LIB_PATH.parent.mkdir(parents=True, exist_ok=True)
-    with open(LIB_PATH.parent / ".libtwinfw.lock", "w") as lock:
-        fcntl.flock(lock, fcntl.LOCK_EX)
-        if force or _stale():
-            command = ["make", "-C", str(FIRMWARE_DIR), "lib"]
-            try:
-                result = subprocess.run(command, capture_output=True, text=True, check=False)
-            except FileNotFoundError as exc:
-                raise FirmwareBuildError(f"{' '.join(command)}: {exc}") from None
-            if result.returncode != 0:
-                raise FirmwareBuildError(
-                    f"{' '.join(command)} exited {result.returncode}:\n{result.stdout[-2000:]}{result.stderr[-4000:]}"
-                )
-    return LIB_PATH
+    what = "the emulated board's firmware"
+
+    def build(folder: Path, compiler: str) -> None:
+        if shutil.which("make") is None:
+            raise FirmwareBuildError(f"{what} is compiled on first use with make, which is not on PATH: "
+                                     "install make (e.g. apt install make)")
+        command = ["make", "-C", str(FIRMWARE_DIR), f"BUILD={folder}", f"CXX={compiler}", "lib"]
+        result = subprocess.run(command, capture_output=True, text=True, check=False)
+        if result.returncode != 0:
+            raise FirmwareBuildError(
+                f"{' '.join(command)} exited {result.returncode}:\n{result.stdout[-2000:]}{result.stderr[-4000:]}"
+            )
+
+    return build_cached(LIB_NAME, _sources(), [], build, what=what, error=FirmwareBuildError, force=force)
 
 
 @functools.lru_cache(maxsize=1)
@@ -94,7 +89,8 @@ def load_library() -> ctypes.CDLL:
     Raises:
         FirmwareBuildError: the build failed, or the library's ABI version is not ABI_VERSION.
     """
-    lib = ctypes.CDLL(str(build_library()))
+    path = build_library()
+    lib = ctypes.CDLL(str(path))
     p, u8p, i32p, f32p = ctypes.c_void_p, ctypes.POINTER(ctypes.c_uint8), ctypes.POINTER(ctypes.c_int32), ctypes.POINTER(ctypes.c_float)
     signatures = {
         "twinfw_abi_version": ([], ctypes.c_uint32),
@@ -116,11 +112,11 @@ def load_library() -> ctypes.CDLL:
         fn.argtypes, fn.restype = argtypes, restype
     abi = lib.twinfw_abi_version()
     if abi != ABI_VERSION:
-        raise FirmwareBuildError(f"{LIB_PATH} has ABI version {abi}, this binding needs {ABI_VERSION}")
+        raise FirmwareBuildError(f"{path} has ABI version {abi}, this binding needs {ABI_VERSION}")
     protocol = lib.twinfw_protocol_version()
     if protocol != codec.PROTOCOL_VERSION:
         raise FirmwareBuildError(
-            f"{LIB_PATH} speaks protocol version {protocol}, twin.device.codec speaks {codec.PROTOCOL_VERSION}"
+            f"{path} speaks protocol version {protocol}, twin.device.codec speaks {codec.PROTOCOL_VERSION}"
         )
     return lib
 

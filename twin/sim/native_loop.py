@@ -7,33 +7,34 @@ C++ — and wraps each entry point; it handles the one thing the loop hands back
 binding's business, refilling the sensors' noise buffer, and returns every other
 :class:`Reason` to its caller (:class:`twin.sim.plant.Plant`, :class:`twin.device.board.EmulatedBoard`).
 
-It needs g++ and MuJoCo's headers, which the wheel ships; the library is built on first use.
+It needs a C++ compiler (``$CXX`` or g++) and MuJoCo's headers, which the mujoco wheel ships; the
+library is built on first use into the per-user cache (:mod:`twin.resources`).
 """
 
 from __future__ import annotations
 
 import ctypes
 import enum
-import fcntl
 import functools
+import importlib.metadata
 import importlib.util
 import subprocess
 from pathlib import Path
 
-
+from twin.resources import NativeBuildError, build_cached, resource_path
 from twin.sim.sensors import NoiseStream
 
 __all__ = ["LoopState", "Mode", "NativeLoopError", "PlantLoop", "Reason", "build_library", "load"]
 
-SOURCE = Path(__file__).parent / "native" / "loop.cpp"
-LIB_PATH = Path(__file__).parent / "native" / "build" / "libtwinloop.so"
+SOURCE = resource_path("native") / "loop.cpp"
+LIB_NAME = "libtwinloop.so"
 ABI_VERSION = 7
 # Where the mujoco wheel lives (headers, libmujoco), found without importing it: MuJoCo picks its
 # GL backend on first import, which the twin package arranges for (headless EGL).
 _MUJOCO_DIR = Path(importlib.util.find_spec("mujoco").submodule_search_locations[0])
 
 
-class NativeLoopError(RuntimeError):
+class NativeLoopError(NativeBuildError):
     """The plant loop could not be built or loaded (no g++, no MuJoCo headers, a bad build)."""
 
 
@@ -72,27 +73,33 @@ class LoopState(ctypes.Structure):
 
 
 def build_library(*, force: bool = False) -> Path:
-    """Compile ``native/loop.cpp`` if the library is missing or older than it.
+    """The plant loop's library, compiled from ``native/loop.cpp`` into the per-user cache
+    (:func:`twin.resources.build_cached`) unless it holds one for this source, compiler and
+    MuJoCo.
 
     Raises:
-        NativeLoopError: g++ is missing or the build failed (the message holds its output).
+        NativeLoopError: no C++ compiler, or the build failed (the message holds its output).
     """
-    LIB_PATH.parent.mkdir(parents=True, exist_ok=True)
-    with open(LIB_PATH.parent / ".lock", "w") as lock:
-        fcntl.flock(lock, fcntl.LOCK_EX)
-        if force or not LIB_PATH.exists() or LIB_PATH.stat().st_mtime < SOURCE.stat().st_mtime:
-            include = _MUJOCO_DIR / "include"
-            tmp = LIB_PATH.with_suffix(".tmp")
-            command = ["g++", "-std=c++17", "-O2", "-ffp-contract=off", "-Wall", "-Wextra", "-Werror",
-                       "-shared", "-fPIC", f"-I{include}", str(SOURCE), "-o", str(tmp)]
-            try:
-                result = subprocess.run(command, capture_output=True, text=True, check=False)
-            except FileNotFoundError as exc:
-                raise NativeLoopError(f"the twin's plant loop needs a C++ compiler: {command[0]}: {exc}") from None
-            if result.returncode != 0:
-                raise NativeLoopError(f"{' '.join(command)} exited {result.returncode}:\n{result.stderr[-4000:]}")
-            tmp.replace(LIB_PATH)
-    return LIB_PATH
+    include = _MUJOCO_DIR / "include"
+    flags = ["-std=c++17", "-O2", "-ffp-contract=off", "-Wall", "-Wextra", "-Werror", "-shared", "-fPIC",
+             f"-I{include}"]
+
+    def build(folder: Path, compiler: str) -> None:
+        command = [compiler, *flags, str(SOURCE), "-o", str(folder / LIB_NAME)]
+        result = subprocess.run(command, capture_output=True, text=True, check=False)
+        if result.returncode != 0:
+            raise NativeLoopError(f"{' '.join(command)} exited {result.returncode}:\n{result.stderr[-4000:]}")
+
+    return build_cached(LIB_NAME, [SOURCE], [*flags, _mujoco_version()], build,
+                        what="the twin's plant loop", error=NativeLoopError, force=force)
+
+
+def _mujoco_version() -> str:
+    """The mujoco wheel's version: its headers lay out the structures the loop reads."""
+    try:
+        return importlib.metadata.version("mujoco")
+    except importlib.metadata.PackageNotFoundError:
+        return str(_MUJOCO_DIR)
 
 
 @functools.lru_cache(maxsize=1)
@@ -102,8 +109,9 @@ def load() -> "_Library":
     Raises:
         NativeLoopError: it cannot be built or loaded, or it does not match this binding.
     """
+    path = build_library()
     try:
-        lib = ctypes.CDLL(str(build_library()))
+        lib = ctypes.CDLL(str(path))
         mujoco_lib = ctypes.CDLL(str(next(_MUJOCO_DIR.glob("libmujoco.so*"))))
     except (OSError, StopIteration) as exc:
         raise NativeLoopError(f"the twin's plant loop cannot be loaded: {exc}") from None
@@ -113,7 +121,7 @@ def load() -> "_Library":
     lib.bl_state_fields.restype = ctypes.POINTER(_Field)
     lib.bl_state_fields.argtypes = [ctypes.POINTER(ctypes.c_uint32)]
     if lib.bl_abi_version() != ABI_VERSION:
-        raise NativeLoopError(f"{LIB_PATH}: ABI {lib.bl_abi_version()}, this binding needs {ABI_VERSION}")
+        raise NativeLoopError(f"{path}: ABI {lib.bl_abi_version()}, this binding needs {ABI_VERSION}")
     count = ctypes.c_uint32()
     table = lib.bl_state_fields(ctypes.byref(count))
     fields = [table[i] for i in range(count.value)]
@@ -122,7 +130,7 @@ def load() -> "_Library":
     offsets = {f.name.decode(): f.offset for f in fields}
     misplaced = [name for name, _ in LoopState._fields_ if getattr(LoopState, name).offset != offsets[name]]
     if misplaced or ctypes.sizeof(LoopState) != lib.bl_state_size():
-        raise NativeLoopError(f"{LIB_PATH}: ctypes lays out bl_state differently from g++ ({misplaced})")
+        raise NativeLoopError(f"{path}: ctypes lays out bl_state differently from g++ ({misplaced})")
     state = ctypes.POINTER(LoopState)
     p = ctypes.c_void_p
     for name, argtypes in {"bl_plant_run": [p, p, state, ctypes.c_int32], "bl_plant_reset": [p, p, state],
