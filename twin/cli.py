@@ -13,6 +13,7 @@ import warnings
 
 from twin.data.dataset import DatasetError, DatasetWarning
 from twin.params import ParameterError
+from twin.resources import NativeBuildError
 
 COMMAND_MODULES = [
     "twin.rod.commands",
@@ -24,6 +25,7 @@ COMMAND_MODULES = [
     "twin.tuning",
     "twin.bench",
     "twin.demo",
+    "twin.data.rosbag",
 ]
 
 
@@ -53,7 +55,7 @@ def main(argv: list[str] | None = None) -> int:
 
     Returns:
         The command's exit code; 2 for a bad parameter or dataset, 1 for a file that cannot
-        be read or written, 130 on Ctrl-C.
+        be read or written or a native part that cannot be built, 130 on Ctrl-C.
     """
     parser = build_parser()
     args = parser.parse_args(argv)
@@ -67,6 +69,10 @@ def main(argv: list[str] | None = None) -> int:
         print(f"twin: dataset error: {exc}", file=sys.stderr)
         return 2
     except OSError as exc:
+        print(f"twin: {exc}", file=sys.stderr)
+        return 1
+    except NativeBuildError as exc:
+        # No compiler, or a build that failed: what to install, or the compiler's own output.
         print(f"twin: {exc}", file=sys.stderr)
         return 1
     except KeyboardInterrupt:

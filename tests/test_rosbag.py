@@ -1,0 +1,136 @@
+"""twin export-bag: a dataset as a rosbag2 MCAP file, read back with the MCAP library."""
+
+import calendar
+import datetime
+
+import numpy as np
+import pytest
+from mcap.reader import make_reader
+from mcap_ros2.decoder import DecoderFactory
+
+from twin.cli import main
+from twin.data.dataset import DatasetError, DatasetWriter, read_dataset
+from twin.data.rosbag import JOINT_STATE, POSE_STAMPED, TENDONS_TOPIC, TIP_TOPIC, export_bag
+from twin.params import load_params
+from twin.pose import HORIZONTAL
+
+
+def _row(config, rng, *, time_s, quat=True):
+    row = {"config": config, "kappa_cmd_per_m": 13.0, "phi_cmd_deg": 90.0 * config, "tip_mass_kg": 0.01,
+           "tip_x_m": rng.uniform(0.04, 0.06), "tip_y_m": rng.uniform(-0.01, 0.01), "tip_z_m": rng.uniform(-0.02, 0),
+           "time_s": time_s}
+    for i in range(1, 5):
+        row[f"tension_{i}_n"] = rng.uniform(0.5, 3.0)
+        row[f"length_{i}_m"] = rng.uniform(-1e-3, 1e-3)
+    if quat:
+        q = rng.normal(size=4)
+        q /= np.linalg.norm(q)
+        row.update(tip_qw=q[0], tip_qx=q[1], tip_qy=q[2], tip_qz=q[3])
+    return row
+
+
+@pytest.fixture
+def dataset(tmp_path):
+    rng = np.random.default_rng(7)
+    rows = [_row(0, rng, time_s=1.25), _row(1, rng, time_s=2.5, quat=False), _row(2, rng, time_s=float("nan"))]
+    folder = tmp_path / "run" / "dataset"
+    with DatasetWriter(folder, experiment="validation", device="sim://", params=load_params(),
+                       base_rotation=HORIZONTAL, sync=False) as writer:
+        for row in rows:
+            writer.write(row)
+    return read_dataset(folder)
+
+
+def _decoded(path):
+    """(channel, message, decoded ROS 2 message) of every message in the file, in log order."""
+    with open(path, "rb") as stream:
+        reader = make_reader(stream, decoder_factories=[DecoderFactory()])
+        return [(channel, message, decoded) for _, channel, message, decoded in reader.iter_decoded_messages()]
+
+
+def _messages(path):
+    by_topic = {}
+    for channel, message, decoded in _decoded(path):
+        by_topic.setdefault(channel.topic, []).append((message, decoded))
+    return by_topic
+
+
+def test_bag_holds_every_row_with_its_values_and_stamps(dataset, tmp_path):
+    out = tmp_path / "out.mcap"
+    summary = export_bag(dataset.path, out)
+    assert summary.rows == len(dataset) == 3
+    messages = _messages(out)
+    assert set(messages) == {TENDONS_TOPIC, TIP_TOPIC}
+    created = datetime.datetime.fromisoformat(dataset.metadata["created"])
+    origin_ns = calendar.timegm(created.utctimetuple()) * 10**9 + created.microsecond * 1000
+    # The row without a time follows the last stamped one by 1 s.
+    expected_ns = [origin_ns + 1_250_000_000, origin_ns + 2_500_000_000, origin_ns + 3_500_000_000]
+
+    joints = messages[TENDONS_TOPIC]
+    assert [type(msg).__name__ for _, msg in joints] == [JOINT_STATE.rsplit("/")[-1]] * 3
+    assert [m.log_time for m, _ in joints] == expected_ns
+    for row, (_, msg) in enumerate(joints):
+        assert list(msg.name) == ["tendon_1", "tendon_2", "tendon_3", "tendon_4"]
+        np.testing.assert_array_equal(msg.position, dataset.lengths_m[row])
+        np.testing.assert_array_equal(msg.effort, dataset.tensions_n[row])
+        assert list(msg.velocity) == []
+        assert msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec == expected_ns[row]
+
+    poses = messages[TIP_TOPIC]
+    assert [type(msg).__name__ for _, msg in poses] == [POSE_STAMPED.rsplit("/")[-1]] * 3
+    assert [m.log_time for m, _ in poses] == expected_ns
+    for row, (_, msg) in enumerate(poses):
+        pose = msg.pose
+        assert msg.header.frame_id == "base"
+        np.testing.assert_array_equal([pose.position.x, pose.position.y, pose.position.z], dataset.tip_positions_m[row])
+        q = [pose.orientation.w, pose.orientation.x, pose.orientation.y, pose.orientation.z]
+        measured = dataset.tip_quaternions[row]
+        if np.all(np.isfinite(measured)):
+            np.testing.assert_array_equal(q, measured)
+        else:
+            assert q == [1.0, 0.0, 0.0, 0.0]
+
+
+def test_bag_is_a_ros2_profile_file_with_its_metadata(dataset, tmp_path):
+    out = tmp_path / "out.mcap"
+    export_bag(dataset.path.parent, out)  # the run folder, as twin validate leaves it
+    with open(out, "rb") as stream:
+        reader = make_reader(stream)
+        header = reader.get_header()
+        summary = reader.get_summary()
+        metadata = {m.name: m.metadata for m in reader.iter_metadata()}
+    assert header.profile == "ros2"
+    assert {c.message_encoding for c in summary.channels.values()} == {"cdr"}
+    assert {summary.schemas[c.schema_id].name for c in summary.channels.values()} == {JOINT_STATE, POSE_STAMPED}
+    assert {summary.schemas[c.schema_id].encoding for c in summary.channels.values()} == {"ros2msg"}
+    assert summary.statistics.message_count == 6
+    assert metadata["twin_dataset"]["rows"] == "3"
+    assert metadata["twin_dataset"]["orientation_unmeasured_rows"] == "1"
+    assert metadata["twin_dataset"]["experiment"] == "validation"
+
+
+def test_cli_exports_and_refuses_what_is_not_a_dataset(dataset, tmp_path, capsys):
+    out = tmp_path / "cli.mcap"
+    assert main(["export-bag", str(dataset.path), str(out)]) == 0
+    assert "3 rows" in capsys.readouterr().out
+    assert len(_decoded(out)) == 6
+    (tmp_path / "empty").mkdir()
+    assert main(["export-bag", str(tmp_path / "empty"), str(tmp_path / "no.mcap")]) == 2
+    assert "dataset error" in capsys.readouterr().err
+    assert not (tmp_path / "no.mcap").exists()
+    with pytest.raises(DatasetError):
+        export_bag(tmp_path / "empty", tmp_path / "no.mcap")
+
+
+def test_a_failed_write_leaves_no_file(dataset, tmp_path, monkeypatch):
+    import mcap_ros2.writer
+
+    def fail(self, *args, **kwargs):
+        raise RuntimeError("disk full")
+
+    monkeypatch.setattr(mcap_ros2.writer.Writer, "finish", fail)
+    out = tmp_path / "torn.mcap"
+    with pytest.raises(RuntimeError, match="disk full"):
+        export_bag(dataset.path, out)
+    assert not out.exists()
+    assert [p.name for p in tmp_path.iterdir() if "torn" in p.name] == []

@@ -1,0 +1,173 @@
+"""A dataset as a rosbag2 MCAP file, for Foxglove or rviz, without ROS installed.
+
+The twin keeps no telemetry recording of its own: a dataset's rows are the time series (one
+static measurement each, at its ``time_s``). Each row becomes one message on each topic:
+
+``/twin/tendons`` (``sensor_msgs/msg/JointState``)
+    ``name`` ``tendon_1`` … ``tendon_4``; ``position`` the relative tendon lengths (m, + = paid
+    out), ``effort`` the calibrated tensions (N), ``velocity`` empty.
+``/twin/tip_pose`` (``geometry_msgs/msg/PoseStamped``)
+    the measured tip in frame ``base`` (origin at the base centre, world axes), position in m;
+    orientation the measured quaternion, the identity where the row has none (the MCAP
+    metadata record ``twin_dataset`` counts those rows).
+
+Stamps are the dataset's ``created`` time plus the row's ``time_s`` (rows without one follow
+the last stamped row at 1 s intervals). The file is written by ``mcap-ros2-support`` with the
+``ros2`` profile and CDR-encoded messages, which is what ``ros2 bag record`` writes with its
+MCAP storage; ``ros2 bag play OUT.mcap`` and Foxglove open it as it is.
+
+Example:
+    >>> export_bag("runs/validate-20261201-120000", "sweep.mcap")
+    ExportSummary(path=PosixPath('sweep.mcap'), rows=24, topics=('/twin/tendons', '/twin/tip_pose'))
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import datetime
+import math
+from pathlib import Path
+
+import numpy as np
+
+from twin.data.dataset import TENDONS, read_dataset
+
+__all__ = ["JOINT_STATE", "POSE_STAMPED", "TENDONS_TOPIC", "TIP_TOPIC", "ExportSummary", "export_bag", "register"]
+
+TENDONS_TOPIC = "/twin/tendons"
+TIP_TOPIC = "/twin/tip_pose"
+TIP_FRAME = "base"
+JOINT_STATE = "sensor_msgs/msg/JointState"
+POSE_STAMPED = "geometry_msgs/msg/PoseStamped"
+
+# Message definitions as rosbag2 stores them: the type's own fields, then each type it uses.
+_SEPARATOR = "=" * 80 + "\n"
+_HEADER = "MSG: std_msgs/Header\nbuiltin_interfaces/Time stamp\nstring frame_id\n"
+_TIME = "MSG: builtin_interfaces/Time\nint32 sec\nuint32 nanosec\n"
+_JOINT_STATE_DEF = ("std_msgs/Header header\nstring[] name\nfloat64[] position\nfloat64[] velocity\n"
+                    "float64[] effort\n" + _SEPARATOR + _HEADER + _SEPARATOR + _TIME)
+_POSE_STAMPED_DEF = ("std_msgs/Header header\ngeometry_msgs/Pose pose\n" + _SEPARATOR + _HEADER + _SEPARATOR + _TIME
+                     + _SEPARATOR + "MSG: geometry_msgs/Pose\nPoint position\nQuaternion orientation\n"
+                     + _SEPARATOR + "MSG: geometry_msgs/Point\nfloat64 x\nfloat64 y\nfloat64 z\n"
+                     + _SEPARATOR + "MSG: geometry_msgs/Quaternion\nfloat64 x 0\nfloat64 y 0\nfloat64 z 0\n"
+                     "float64 w 1\n")
+
+
+@dataclasses.dataclass(frozen=True)
+class ExportSummary:
+    """What :func:`export_bag` wrote.
+
+    Attributes:
+        path: the MCAP file.
+        rows: dataset rows exported (one message per topic each).
+        topics: the topics written.
+    """
+
+    path: Path
+    rows: int
+    topics: tuple[str, ...]
+
+
+def _stamps_ns(created: str | None, times_s: np.ndarray) -> list[int]:
+    """UNIX nanoseconds of each row: ``created`` (ISO 8601; the epoch if absent) + ``time_s``.
+
+    Integer arithmetic: a float of UNIX nanoseconds is off by a few hundred ns.
+    """
+    origin_ns = 0
+    if created:
+        try:
+            moment = datetime.datetime.fromisoformat(created)
+        except ValueError:
+            moment = None
+        if moment is not None:
+            if moment.tzinfo is None:
+                moment = moment.replace(tzinfo=datetime.timezone.utc)
+            epoch = datetime.datetime(1970, 1, 1, tzinfo=datetime.timezone.utc)
+            origin_ns = (moment - epoch) // datetime.timedelta(microseconds=1) * 1000
+    stamps, last_ns = [], None
+    for t in times_s:
+        t = float(t)
+        offset_ns = round(t * 1e9) if math.isfinite(t) else (0 if last_ns is None else last_ns + 1_000_000_000)
+        last_ns = offset_ns
+        stamps.append(origin_ns + offset_ns)
+    return stamps
+
+
+def _header(stamp_ns: int, frame_id: str) -> dict:
+    return {"stamp": {"sec": stamp_ns // 1_000_000_000, "nanosec": stamp_ns % 1_000_000_000}, "frame_id": frame_id}
+
+
+def export_bag(source: str | Path, out: str | Path) -> ExportSummary:
+    """Write the dataset at ``source`` (a dataset folder, its ``measurements.csv`` or a
+    ``twin validate`` run folder) to the rosbag2 MCAP file ``out``.
+
+    The file is written beside ``out`` and renamed onto it when complete, so a failed export
+    leaves no half-written bag.
+
+    Raises:
+        DatasetError: ``source`` is not a readable dataset.
+        OSError: ``out`` cannot be written.
+    """
+    from mcap_ros2.writer import Writer
+
+    dataset = read_dataset(source)
+    out = Path(out)
+    times_s = dataset.columns.get("time_s", np.full(len(dataset), np.nan))
+    stamps = _stamps_ns(dataset.metadata.get("created"), times_s)
+    lengths, tensions = dataset.lengths_m, dataset.tensions_n
+    tips, quats = dataset.tip_positions_m, dataset.tip_quaternions
+    names = [f"tendon_{i}" for i in range(1, TENDONS + 1)]
+    unmeasured = 0
+    tmp = out.with_name(f".{out.name}.tmp")
+    try:
+        with open(tmp, "wb") as stream:
+            writer = Writer(stream)
+            joint_schema = writer.register_msgdef(JOINT_STATE, _JOINT_STATE_DEF)
+            pose_schema = writer.register_msgdef(POSE_STAMPED, _POSE_STAMPED_DEF)
+            for row, stamp in enumerate(stamps):
+                writer.write_message(TENDONS_TOPIC, joint_schema, {
+                    "header": _header(stamp, ""), "name": names, "position": lengths[row].tolist(),
+                    "velocity": [], "effort": tensions[row].tolist(),
+                }, log_time=stamp, publish_time=stamp, sequence=row)
+                w, x, y, z = quats[row].tolist()
+                if not all(math.isfinite(v) for v in (w, x, y, z)):
+                    w, x, y, z = 1.0, 0.0, 0.0, 0.0
+                    unmeasured += 1
+                px, py, pz = tips[row].tolist()
+                writer.write_message(TIP_TOPIC, pose_schema, {
+                    "header": _header(stamp, TIP_FRAME),
+                    "pose": {"position": {"x": px, "y": py, "z": pz},
+                             "orientation": {"x": x, "y": y, "z": z, "w": w}},
+                }, log_time=stamp, publish_time=stamp, sequence=row)
+            meta = dataset.metadata
+            writer.add_metadata("twin_dataset", {
+                "source": str(dataset.path or source), "experiment": str(meta.get("experiment", "")),
+                "device": str(meta.get("device", "")), "created": str(meta.get("created", "")),
+                "rows": str(len(dataset)), "orientation_unmeasured_rows": str(unmeasured),
+                "tip_frame": f"{TIP_FRAME}: origin at the base centre, world axes",
+            })
+            writer.finish()
+        tmp.replace(out)
+    finally:
+        tmp.unlink(missing_ok=True)
+    return ExportSummary(out, len(dataset), (TENDONS_TOPIC, TIP_TOPIC))
+
+
+def register(subparsers) -> None:
+    p = subparsers.add_parser(
+        "export-bag",
+        help="write a dataset (or a run folder's) as a rosbag2 MCAP file for Foxglove or rviz",
+        description="Exports each dataset row as sensor_msgs/msg/JointState on /twin/tendons (lengths in m, "
+        "tensions in N) and geometry_msgs/msg/PoseStamped on /twin/tip_pose (frame base, m).",
+    )
+    p.add_argument("source", metavar="DATASET_OR_RUN", help="a dataset folder or a twin validate run folder")
+    p.add_argument("out", metavar="OUT.mcap", help="the MCAP file to write (replaced if it exists)")
+    p.set_defaults(func=run_export_bag)
+
+
+def run_export_bag(args: argparse.Namespace) -> int:
+    """``twin export-bag``: export, then say what was written."""
+    summary = export_bag(args.source, args.out)
+    print(f"{summary.path}: {summary.rows} rows on {', '.join(summary.topics)}")
+    return 0
