@@ -19,6 +19,7 @@ from pathlib import Path
 import pytest
 
 from twin import load_params
+from twin import cliargs
 from twin.cli import build_parser, main
 from twin.data import dataset as dataset_module
 from twin.data.dataset import DatasetError, DatasetWarning, DatasetWriter, read_dataset
@@ -350,7 +351,7 @@ def test_runs_started_in_the_same_second_get_their_own_folders(tmp_path, monkeyp
         def now(cls, tz=None):
             return datetime.datetime(2024, 5, 1, 12, 0, 0)
 
-    monkeypatch.setattr(commands.datetime, "datetime", Frozen)
+    monkeypatch.setattr(cliargs.datetime, "datetime", Frozen)
     args = build_parser().parse_args(["validate", "--quick", "--out", str(tmp_path)])
     folders, errors = [], []
 

@@ -8,9 +8,11 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import os
 import sys
 import warnings
 
+from twin.cliargs import UsageError, values_as_arguments
 from twin.data.dataset import DatasetError, DatasetWarning
 from twin.params import ParameterError
 from twin.resources import NativeBuildError
@@ -29,8 +31,15 @@ COMMAND_MODULES = [
 ]
 
 
+class _Parser(argparse.ArgumentParser):
+    """Usage mistakes in one line, naming the argument and value, and where the usage is."""
+
+    def error(self, message: str):
+        self.exit(2, f"{self.prog}: {message} (see {self.prog} --help)\n")
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = _Parser(
         prog="twin",
         description="Digital twin of a tendon-driven flexible endoscope and its rig.",
     )
@@ -54,19 +63,29 @@ def main(argv: list[str] | None = None) -> int:
     """Run one command; bad input and failing files end in one line on stderr, not a traceback.
 
     Returns:
-        The command's exit code; 2 for a bad parameter or dataset, 1 for a file that cannot
+        The command's exit code; 2 for a bad parameter, argument or dataset, 1 for a file that cannot
         be read or written or a native part that cannot be built, 130 on Ctrl-C.
     """
     parser = build_parser()
-    args = parser.parse_args(argv)
+    args = parser.parse_args(values_as_arguments(sys.argv[1:] if argv is None else list(argv)))
     warnings.formatwarning = _format
     try:
         return int(args.func(args) or 0)
     except ParameterError as exc:
         print(f"twin: parameter error: {exc}", file=sys.stderr)
         return 2
+    except UsageError as exc:
+        print(f"twin {args.command}: {exc}", file=sys.stderr)
+        return 2
     except DatasetError as exc:
         print(f"twin: dataset error: {exc}", file=sys.stderr)
+        return 2
+    except ValueError as exc:
+        # The library's ValueErrors name the argument and the value it refuses; TWIN_DEBUG=1
+        # shows the traceback of one that is a bug instead.
+        if os.environ.get("TWIN_DEBUG"):
+            raise
+        print(f"twin {args.command}: {exc}", file=sys.stderr)
         return 2
     except OSError as exc:
         print(f"twin: {exc}", file=sys.stderr)

@@ -1,15 +1,92 @@
-"""Argument helpers shared by the subcommands (parameters, poses, vectors)."""
+"""Argument helpers shared by the subcommands (parameters, poses, vectors, run folders, user errors)."""
 
 from __future__ import annotations
 
 import argparse
+import datetime
+import re
+from pathlib import Path
 
 import numpy as np
 
 from twin.params import ParameterError, Params, load_params
 from twin.pose import base_rotation_from, matrix_to_quat
 
-__all__ = ["add_param_args", "add_pose_args", "params_from_args", "pose_overrides", "vector"]
+__all__ = ["UsageError", "add_param_args", "add_pose_args", "new_run_folder", "params_from_args", "pose_overrides",
+           "nonnegative", "open_device_arg", "positive", "values_as_arguments", "vector"]
+
+
+class UsageError(Exception):
+    """A user's mistake the command names in one line (argument and value); exit code 2."""
+
+
+# A value that starts with a minus sign: -1, -0.5, -.5, -1e-3, -1,0,0.
+_NEGATIVE_VALUE = re.compile(r"^-(\d|\.\d)")
+
+
+def values_as_arguments(argv: list[str]) -> list[str]:
+    """``--flag -1,0`` → ``--flag=-1,0``: argparse takes a word starting with ``-`` for an option,
+    so negative numbers after an option would otherwise need the ``=`` form."""
+    out: list[str] = []
+    for word in argv:
+        if out and _NEGATIVE_VALUE.match(word) and out[-1].startswith("--") and "=" not in out[-1]:
+            out[-1] = f"{out[-1]}={word}"
+        else:
+            out.append(word)
+    return out
+
+
+def positive(text: str) -> float:
+    """An argparse type: a finite number > 0."""
+    value = _number(text)
+    if not value > 0:
+        raise argparse.ArgumentTypeError(f"{text!r}: must be > 0")
+    return value
+
+
+def nonnegative(text: str) -> float:
+    """An argparse type: a finite number >= 0."""
+    value = _number(text)
+    if not value >= 0:
+        raise argparse.ArgumentTypeError(f"{text!r}: must be >= 0")
+    return value
+
+
+def _number(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r}: expected a number") from None
+    if not np.isfinite(value):
+        raise argparse.ArgumentTypeError(f"{text!r}: must be finite")
+    return value
+
+
+def open_device_arg(url: str, **kwargs):
+    """:func:`twin.device.open_device` for a ``--device`` argument; a bad URL is a :class:`UsageError`."""
+    from twin.device import open_device
+
+    try:
+        return open_device(url, **kwargs)
+    except ValueError as exc:
+        raise UsageError(f"--device {url}: {exc}") from None
+
+
+def new_run_folder(parent: str | Path, name: str) -> Path:
+    """A fresh ``name-YYYYmmdd-HHMMSS`` folder under ``parent`` (``runs/`` by convention: commands
+    never write into tracked folders by default); runs started in the same second get ``-2``,
+    ``-3``, ... (``mkdir`` either creates a folder or fails, so two never share one)."""
+    parent = Path(parent)
+    parent.mkdir(parents=True, exist_ok=True)
+    stamp = f"{name}-{datetime.datetime.now().strftime('%Y%m%d-%H%M%S')}"
+    for n in range(1, 1000):
+        folder = parent / (stamp if n == 1 else f"{stamp}-{n}")
+        try:
+            folder.mkdir()
+            return folder
+        except FileExistsError:
+            continue
+    raise FileExistsError(f"{parent}: a thousand {stamp} run folders already exist")
 
 
 def vector(n: int):

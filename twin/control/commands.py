@@ -8,7 +8,7 @@ import json
 import time
 from pathlib import Path
 
-from twin.cliargs import add_param_args, params_from_args
+from twin.cliargs import add_param_args, new_run_folder, open_device_arg, params_from_args
 
 __all__ = ["register"]
 
@@ -19,7 +19,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                                           "under 5 g and 10 g (Markdown report)")
     p.add_argument("--device", default="sim://?seed=0", help="device URL (default the twin)")
     p.add_argument("--quick", action="store_true", help="6 configurations instead of the 60 bends of the grid")
-    p.add_argument("--out", default="reports/compensation", help="report folder")
+    p.add_argument("--out", default=None, metavar="DIR",
+                   help="report folder (default a new runs/compensate-YYYYmmdd-HHMMSS)")
     p.add_argument("--floor", type=float, default=0.3, help="lowest tendon tension of the compensation (N)")
     p.add_argument("--ceiling", type=float, default=None,
                    help="highest tendon tension of the compensation (N); default what the tension loop can hold "
@@ -32,22 +33,23 @@ def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("cocontraction", help="length vs tension control on an antagonistic pair: "
                                              "pair tensions while bending, under load and with a length mismatch")
     p.add_argument("--device", default="sim://?seed=0", help="device URL (default the twin)")
-    p.add_argument("--out", default="reports/compensation", help="report folder")
+    p.add_argument("--out", default=None, metavar="DIR",
+                   help="report folder (default a new runs/cocontraction-YYYYmmdd-HHMMSS)")
     add_param_args(p)
     p.set_defaults(func=run_cocontraction)
 
 
 def run_compensate(args: argparse.Namespace) -> int:
     from twin.control.compensation_trial import QUICK_CONFIGS, run_compensation_trial
-    from twin.device import open_device
 
     params = params_from_args(args)
     start = time.perf_counter()
-    with open_device(args.device, params=params) as device:
+    with open_device_arg(args.device, params=params) as device:
         trial = run_compensation_trial(device, params, configs=QUICK_CONFIGS if args.quick else None,
                                        floor_n=args.floor, limit_n=args.ceiling, corrections=args.corrections,
                                        progress=print)
-    path = trial.write_report(Path(args.out), runtime_s=time.perf_counter() - start)
+    path = trial.write_report(Path(args.out or new_run_folder("runs", "compensate")),
+                              runtime_s=time.perf_counter() - start)
     print(json.dumps(trial.summary(), indent=1))
     print(f"report: {path}")
     return 0
@@ -55,12 +57,11 @@ def run_compensate(args: argparse.Namespace) -> int:
 
 def run_cocontraction(args: argparse.Namespace) -> int:
     from twin.control.cocontraction import run_cocontraction_study
-    from twin.device import open_device
 
     params = params_from_args(args)
-    with open_device(args.device, params=params) as device:
+    with open_device_arg(args.device, params=params) as device:
         study = run_cocontraction_study(device, params)
-    path = study.write_report(Path(args.out))
+    path = study.write_report(Path(args.out or new_run_folder("runs", "cocontraction")))
     print(json.dumps(study.summary(), indent=1))
     print(f"report: {path}")
     return 0

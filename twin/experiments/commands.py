@@ -3,14 +3,13 @@
 from __future__ import annotations
 
 import argparse
-import datetime
 import json
 import shlex
 import sys
 import time
 from pathlib import Path
 
-from twin.cliargs import add_param_args, params_from_args
+from twin.cliargs import UsageError, add_param_args, new_run_folder, open_device_arg, params_from_args
 from twin.params import parse_override
 from twin.pcc import validation_grid
 
@@ -93,13 +92,11 @@ def _twin_warnings(args, params) -> list[str]:
 
 
 def _open(args, params):
-    from twin.device import open_device
-
     twin_params = _twin_params(args, params)
     try:
-        device = open_device(args.device, params=twin_params, seed=args.seed)
-    except ValueError as exc:  # a bad URL or option: nothing was opened
-        raise RunRefused(f"--device {args.device}: {exc}") from None
+        device = open_device_arg(args.device, params=twin_params, seed=args.seed)
+    except UsageError as exc:  # a bad URL or option: nothing was opened
+        raise RunRefused(str(exc)) from None
     device.connect()
     return device
 
@@ -141,26 +138,11 @@ def _resume_command(args, command: str, folder: Path) -> str:
     return shlex.join(words)
 
 
-def _new_run_folder(parent: Path, name: str) -> Path:
-    """A fresh ``name-YYYYmmdd-HHMMSS`` folder under ``parent``; runs started in the same second
-    get ``-2``, ``-3``, ... (``mkdir`` either creates a folder or fails, so two never share one)."""
-    parent.mkdir(parents=True, exist_ok=True)
-    stamp = f"{name}-{datetime.datetime.now().strftime('%Y%m%d-%H%M%S')}"
-    for n in range(1, 1000):
-        folder = parent / (stamp if n == 1 else f"{stamp}-{n}")
-        try:
-            folder.mkdir()
-            return folder
-        except FileExistsError:
-            continue
-    raise RunRefused(f"{parent}: a thousand {stamp} run folders already exist")
-
-
 def _start_run(args, command: str) -> Path:
     """Create the run folder of a new run and record its invocation in it."""
     from twin.data.dataset import write_atomic
 
-    folder = _new_run_folder(Path(args.out), command)
+    folder = new_run_folder(args.out, command)
     try:
         write_atomic(folder / RUN_RECORD, json.dumps(_invocation(args, command), indent=1))
         if args.twin_overrides:
@@ -278,12 +260,37 @@ def _shown(value) -> str:
     return str(value)
 
 
+def _measured_rows(folder: Path) -> int:
+    """Rows of measurements in a run folder's dataset (0 when it has none or no dataset)."""
+    from twin.data.dataset import MEASUREMENTS, RUN_DATASET
+
+    try:
+        with open(folder / RUN_DATASET / MEASUREMENTS, "rb") as f:
+            return max(0, sum(1 for line in f if line.strip()) - 1)
+    except OSError:
+        return 0
+
+
+def _discard_if_empty(args, folder: Path) -> bool:
+    """Remove the folder of a new run that measured nothing; True if it was removed."""
+    import shutil
+
+    if getattr(args, "resume", None) or _measured_rows(folder):
+        return False
+    shutil.rmtree(folder, ignore_errors=True)
+    return True
+
+
 def _stopped(command: str, folder: Path, args, exc: BaseException) -> None:
-    """Why a run stopped, where its measurements are, and the command line that continues it."""
+    """Why a run stopped, where its measurements are, and the command line that continues it; a
+    new run that measured nothing leaves no folder behind."""
     from twin.data.dataset import RUN_DATASET
 
     why = f"{type(exc).__name__}: {exc}" if not isinstance(exc, KeyboardInterrupt) else "interrupted"
     print(f"twin {command}: stopped: {why}", file=sys.stderr)
+    if _discard_if_empty(args, folder):
+        print(f"twin {command}: nothing was measured; run folder {folder} removed", file=sys.stderr)
+        return
     print(f"twin {command}: every complete measurement so far is in {folder / RUN_DATASET}; continue with:\n"
           f"  {_resume_command(args, command, folder)}", file=sys.stderr)
 
@@ -292,6 +299,16 @@ def _run_folder(args, command: str, experiment: str, params) -> Path:
     """The run folder: ``--resume``'s once checked, else a new one."""
     if args.twin_overrides and not args.device.startswith("sim://"):
         raise RunRefused("--twin-set applies to sim:// only")
+    if args.calibration:
+        # Checked before a run folder exists: a typo should not cost a folder or a pretension.
+        from twin.calibration import CalibrationFileError, load_calibration
+
+        try:
+            load_calibration(args.calibration)
+        except OSError as exc:
+            raise RunRefused(f"--calibration {args.calibration}: cannot read it ({exc.strerror or exc})") from None
+        except CalibrationFileError as exc:
+            raise RunRefused(f"--calibration {args.calibration}: {exc}") from None
     if getattr(args, "resume", None):
         return _check_resume(args, command, experiment, params)
     return _start_run(args, command)
@@ -313,6 +330,9 @@ def _run(args, command: str, experiment: str, body) -> int:
         folder = _run_folder(args, command, experiment, params)
         try:
             return body(folder, params)
+        except RunRefused:
+            _discard_if_empty(args, folder)
+            raise
         except (ProtocolError, DeviceError, SimulationError, DatasetError, OSError) as exc:
             # OSError: a full disk or another I/O error; the dataset writer left every complete row readable.
             _stopped(command, folder, args, exc)

@@ -8,7 +8,8 @@ import sys
 
 import numpy as np
 
-from twin.cliargs import add_param_args, add_pose_args, params_from_args, pose_overrides, vector
+from twin.cliargs import (add_param_args, add_pose_args, new_run_folder, nonnegative, params_from_args, pose_overrides,
+                          positive, vector)
 
 __all__ = ["register"]
 
@@ -19,12 +20,12 @@ def register(subparsers) -> None:
     drive.add_argument("--tensions", type=vector(4), metavar="T1,T2,T3,T4", help="tendon tensions (N)")
     drive.add_argument("--lengths", type=vector(4), metavar="D1,D2,D3,D4",
                        help="relative tendon lengths (m, positive = paid out)")
-    sim.add_argument("--tip-mass-kg", type=float, default=0.0, metavar="M", help="mass hung at the tip (kg)")
+    sim.add_argument("--tip-mass-kg", type=nonnegative, default=0.0, metavar="M", help="mass hung at the tip (kg)")
     sim.add_argument("--tip-force", type=vector(3), default=np.zeros(3), metavar="FX,FY,FZ",
                      help="force on the tip, world frame (N), beside a hung mass")
     sim.add_argument("--tip-moment", type=vector(3), default=np.zeros(3), metavar="MX,MY,MZ",
                      help="moment on the tip, world frame (N·m)")
-    sim.add_argument("--timeout-s", type=float, default=3.0, help="simulated time allowed to settle (s)")
+    sim.add_argument("--timeout-s", type=positive, default=3.0, help="simulated time allowed to settle (s)")
     sim.add_argument("--seed", type=int, default=0, help="sensor-noise seed")
     sim.add_argument("--json", action="store_true", help="print one JSON object")
     add_pose_args(sim)
@@ -35,7 +36,8 @@ def register(subparsers) -> None:
                                   description="Exits 1 when the goal (median <= 1%%, worst <= 3%% of L, every "
                                               "configuration compared) is missed.")
     check.add_argument("--out", default=None, metavar="DIR",
-                       help="report directory (default reports/crosscheck, reports/crosscheck/ROBOT for a robot)")
+                       help="report directory (default a new runs/crosscheck-YYYYmmdd-HHMMSS; the checked-in "
+                            "reports are regenerated with --out reports/crosscheck)")
     check.add_argument("--elements", type=int, default=None, help="twin elements (default sim.elements)")
     check.add_argument("--robot", default=None, metavar="NAME",
                        help="a robot of twin.sim.crosscheck.ROBOTS (its overrides under --set), or 'all' of "
@@ -91,9 +93,18 @@ def run_crosscheck_command(args: argparse.Namespace) -> int:
     from twin.sim.crosscheck import QUICK_GRID, ROBOTS, robot_params, run_crosscheck, run_zoo
 
     configs = QUICK_GRID if args.quick else None
-    out = args.out or "reports/crosscheck"
+    overrides = {**dict(parse_override(o) for o in args.overrides), **pose_overrides(args)}
+    if args.elements is not None:
+        overrides["sim.elements"] = args.elements
+    if args.robot not in (None, "all") and args.robot not in ROBOTS:
+        print(f"twin crosscheck: --robot {args.robot}: expected all or one of {', '.join(ROBOTS)}", file=sys.stderr)
+        return 2
+    # Every robot's parameter set is checked before a report folder is made.
+    for name in (ROBOTS if args.robot == "all" else [args.robot] if args.robot else []):
+        robot_params(name, overrides, args.params)
+    params = params_from_args(args).replace(overrides) if args.robot is None else None
+    out = args.out or new_run_folder("runs", "crosscheck")
     if args.robot == "all":
-        overrides = {**dict(parse_override(o) for o in args.overrides), **pose_overrides(args)}
         table, summaries = run_zoo(out, configs=configs, overrides=overrides, path=args.params)
         print(f"report: {table}")
         for name, summary in summaries.items():
@@ -103,16 +114,8 @@ def run_crosscheck_command(args: argparse.Namespace) -> int:
             print(f"twin crosscheck: goal missed for {', '.join(missed)}", file=sys.stderr)
         return 1 if missed else 0
     if args.robot is not None:
-        if args.robot not in ROBOTS:
-            print(f"twin crosscheck: --robot {args.robot}: expected all or one of {', '.join(ROBOTS)}", file=sys.stderr)
-            return 2
-        params = robot_params(args.robot, {**dict(parse_override(o) for o in args.overrides), **pose_overrides(args)},
-                              args.params)
-        default = args.robot == next(iter(ROBOTS))
-        out = args.out or ("reports/crosscheck" if default else f"reports/crosscheck/{args.robot}")
-    else:
-        params = params_from_args(args)
-    path, summary = run_crosscheck(params, out, elements=args.elements, configs=configs, robot=args.robot,
+        params = robot_params(args.robot, overrides, args.params)
+    path, summary = run_crosscheck(params, out, configs=configs, robot=args.robot,
                                    with_causes=not (args.no_causes or args.quick or args.robot not in (None, "endoscope")))
     print(f"report: {path}")
     _print_summary(args.robot or "twin", summary)
