@@ -11,8 +11,9 @@ distorts the field), so :func:`fuse` never raises for them: it returns a
 :class:`FusionResult` whose ``status`` says why the frame was rejected and whose ``pose`` is
 ``None`` then. Malformed arguments (wrong shapes) raise ``ValueError``.
 
-Sources hand out :class:`ProbeFrame` objects: :class:`OpenIGTLinkSource` reads the rig's
-OpenIGTLink (PLUS) server, :class:`CallableSource` adapts the simulated twin.
+Sources hand out :class:`ProbeFrame` objects: :class:`OpenIGTLinkSource`
+(:mod:`twin.device.igtl_source`) reads the rig's OpenIGTLink (PLUS) server, :class:`CallableSource`
+adapts the simulated twin.
 """
 
 from __future__ import annotations
@@ -21,7 +22,6 @@ import dataclasses
 import functools
 import enum
 import math
-import time
 from typing import Callable
 
 import numba
@@ -477,85 +477,11 @@ class CallableSource:
         return ProbeFrame(readings[0], readings[1], float(time_s))
 
 
-class OpenIGTLinkSource:
-    """Probe frames from the rig's OpenIGTLink server (PLUS bridging the NDI tracker).
+def __getattr__(name: str):
+    # The OpenIGTLink client lives with the device layer (it owns a socket and a thread); it is
+    # looked up lazily because it builds on this module's types.
+    if name == "OpenIGTLinkSource":
+        from twin.device.igtl_source import OpenIGTLinkSource
 
-    Each probe arrives as a TRANSFORM message named after the tool (PLUS names transforms
-    ``<Tool>To<Reference>``). A 5-DOF sensor has no roll, so only one column of its rotation
-    is meaningful: NDI reports the sensor axis as the z axis of the tool frame, hence
-    ``axis_column = 2`` by default; the other two columns are arbitrary. PLUS sends
-    positions in millimetres, hence ``position_scale_m = 1e-3``.
-
-    PLUS sends only valid transforms, so a probe that leaves the field goes silent: the last
-    message stays and its timestamp ages. :meth:`read` therefore returns the newest reading of
-    each probe with the message's timestamp and ``now_s`` from ``clock``; :func:`fuse_frame`
-    rejects it as stale once it is older than ``max_age_s``. OpenIGTLink timestamps are Unix
-    seconds of the server's clock, so ``clock`` defaults to :func:`time.time`; if the PLUS host
-    is not time-synchronised with this one, pass a clock with the offset added.
-
-    Args:
-        host, port: the OpenIGTLink server (PLUS default port 18944).
-        device_a, device_b: TRANSFORM device names of probe A and probe B.
-        axis_column: column (0, 1 or 2) of the rotation that is the probe axis.
-        position_scale_m: metres per unit of the transform's translation.
-        clock: current time in the server's time base (s).
-
-    Use as a context manager, or call :meth:`close`, to stop the client thread.
-    """
-
-    def __init__(
-        self,
-        host: str = "127.0.0.1",
-        port: int = 18944,
-        *,
-        device_a: str = "ProbeAToTracker",
-        device_b: str = "ProbeBToTracker",
-        axis_column: int = 2,
-        position_scale_m: float = 1e-3,
-        clock: Callable[[], float] = time.time,
-    ):
-        import pyigtl  # imported here so the rest of twin works without the tracker dependency
-
-        if axis_column not in (0, 1, 2):
-            raise ValueError(f"axis_column = {axis_column!r}: must be 0, 1 or 2")
-        if not (math.isfinite(position_scale_m) and position_scale_m > 0):
-            raise ValueError(f"position_scale_m = {position_scale_m!r}: must be finite and > 0")
-        if device_a == device_b:
-            raise ValueError(f"device_a = device_b = {device_a!r}: the probes need distinct names")
-        self.devices = (device_a, device_b)
-        self.axis_column = axis_column
-        self.position_scale_m = position_scale_m
-        self._clock = clock
-        self._latest = {name: ProbeReading.missing() for name in self.devices}
-        self._client = pyigtl.OpenIGTLinkClient(host=host, port=port)
-
-    def _to_reading(self, message) -> ProbeReading:
-        matrix = np.asarray(message.matrix, dtype=float)
-        return ProbeReading(
-            matrix[:3, 3] * self.position_scale_m, matrix[:3, self.axis_column], message.timestamp
-        )
-
-    def read(self) -> ProbeFrame:
-        """The newest reading of each probe (invalid until its first message) and ``now_s``."""
-        # The source owns its client, so draining every buffered message is safe; only the
-        # newest per device is kept by pyigtl anyway.
-        for message in self._client.get_latest_messages():
-            if message.message_type == "TRANSFORM" and message.device_name in self._latest:
-                self._latest[message.device_name] = self._to_reading(message)
-        probe_a, probe_b = (self._latest[name] for name in self.devices)
-        return ProbeFrame(probe_a, probe_b, self._clock())
-
-    @property
-    def connected(self) -> bool:
-        """True while the client has a socket connection to the server."""
-        return self._client.is_connected()
-
-    def close(self) -> None:
-        """Stop the client thread and close its socket."""
-        self._client.stop()
-
-    def __enter__(self) -> "OpenIGTLinkSource":
-        return self
-
-    def __exit__(self, *exc) -> None:
-        self.close()
+        return OpenIGTLinkSource
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
