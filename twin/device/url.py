@@ -3,10 +3,15 @@ on a pseudo-terminal).
 
 ``sim://[?seed=N][&pose=horizontal|up | &base_quat=W,X,Y,Z]``
     The emulated board (:class:`twin.device.board.EmulatedBoard`) in simulated time.
-``serial://<path>[?igtl=host:port][&pose=… | &base_quat=…]``
+``serial://<path>[?igtl=host:port[&igtl_…][&cap_…]][&pose=… | &base_quat=…]``
     A board on a serial port: ``serial:///dev/ttyACM0``, or the pseudo-terminal printed by
     ``twin emulate``. ``igtl`` names the OpenIGTLink server of the EM tracker (PLUS); without
-    it ``device.tracker`` is None.
+    it ``device.tracker`` is None. With it: ``igtl_probes=Probe1ToTracker,Probe2ToTracker``
+    (device names of probes A and B), ``igtl_axis=z`` (tool axis along the probe, e.g. ``-z``),
+    ``igtl_scale=mm`` (length unit), ``igtl_clock=auto`` (or the server clock minus ours, s),
+    ``igtl_timeout_s=2`` (see :func:`twin.device.igtl_source.settings_from_options`), and the cap
+    calibration (:class:`twin.tracking.CapCalibration`): ``cap_a_mm=x,y,z`` and
+    ``cap_a_axis=x,y,z`` for probe A in the tip frame, ``cap_b_mm``, ``cap_b_axis`` for B.
 
 ``pose`` / ``base_quat`` give the clamp's orientation (body → world; the twin is built in it, the
 rig is mounted so); default the parameter set's ``rig.base_quat``. It is
@@ -15,22 +20,27 @@ rig is mounted so); default the parameter set's ``rig.base_quat``. It is
 
 from __future__ import annotations
 
+import math
 import urllib.parse
 from typing import Callable
 
 from twin.device.device import Device
 from twin.device.fixture import OperatorFixture, SimFixture
+from twin.device.igtl_source import URL_KEYS as IGTL_KEYS
+from twin.device.igtl_source import settings_from_options
 from twin.device.serial_transport import SerialTransport
 from twin.device.sim_twin import SimTwin
 from twin.device.tracker import TipTracker, sim_probe_source
 from twin.params import Params, load_params
 from twin.pose import base_rotation_from
-from twin.tracking import FusionSettings, OpenIGTLinkSource
+from twin.tracking import CapCalibration, FusionSettings, OpenIGTLinkSource
 
 __all__ = ["SCHEMES", "open_device"]
 
 SCHEMES = ("sim", "serial")
-_QUERY_KEYS = {"sim": ("seed", "pose", "base_quat"), "serial": ("igtl", "pose", "base_quat")}
+_CAP_KEYS = {"cap_a_mm": "position_a_m", "cap_a_axis": "axis_a", "cap_b_mm": "position_b_m", "cap_b_axis": "axis_b"}
+_QUERY_KEYS = {"sim": ("seed", "pose", "base_quat"),
+               "serial": ("igtl", *IGTL_KEYS, *_CAP_KEYS, "pose", "base_quat")}
 
 
 def _query(url: str, scheme: str, query: str) -> dict[str, str]:
@@ -105,10 +115,7 @@ def open_device(
         raise ValueError(f"device URL {url!r}: no port; e.g. serial:///dev/ttyACM0")
     if seed is not None:
         raise ValueError(f"seed = {seed!r}: only sim:// devices take a seed, not {url!r}")
-    tracker = None
-    if "igtl" in options:
-        host, port = _host_port(url, options["igtl"])
-        tracker = TipTracker(lambda: OpenIGTLinkSource(host, port), settings=settings)
+    tracker = _igtl_tracker(url, options, settings)
 
     def ask(request: str) -> object:
         # The operator may take longer than the watchdog timeout; the host is alive meanwhile.
@@ -151,3 +158,39 @@ def _host_port(url: str, value: str) -> tuple[str, int]:
     if not host or not port.isdigit() or not 0 < int(port) < 65536:
         raise ValueError(f"device URL {url!r}: igtl = {value!r}: expected host:port, e.g. 127.0.0.1:18944")
     return host, int(port)
+
+
+def _igtl_tracker(url: str, options: dict[str, str], settings: FusionSettings) -> TipTracker | None:
+    """The URL's OpenIGTLink tracker, or None without ``igtl``; every value checked here, before
+    anything connects."""
+    extra = [key for key in (*IGTL_KEYS, *_CAP_KEYS) if key in options]
+    if "igtl" not in options:
+        if extra:
+            raise ValueError(f"device URL {url!r}: {', '.join(extra)} configure the tracker; give igtl=host:port too")
+        return None
+    host, port = _host_port(url, options["igtl"])
+    try:
+        igtl_settings = settings_from_options(options)
+    except ValueError as exc:
+        raise ValueError(f"device URL {url!r}: {exc}") from None
+    cap = {}
+    for key, field in _CAP_KEYS.items():
+        if key in options:
+            try:
+                values = [float(v) for v in options[key].split(",")]
+            except ValueError:
+                values = []
+            if len(values) != 3:
+                raise ValueError(f"device URL {url!r}: {key} = {options[key]!r}: expected 3 numbers, e.g. 0,-3,2")
+            if key.endswith("_mm"):
+                cap[field] = tuple(v * 1e-3 for v in values)
+            else:  # a typed direction need not be unit length to the 6 digits the calibration checks
+                norm = math.sqrt(sum(v * v for v in values))
+                cap[field] = tuple(v / norm for v in values) if norm > 0 else tuple(values)
+    try:
+        calibration = CapCalibration(**cap)
+    except ValueError as exc:
+        keys = ", ".join(f"{k} = {options[k]!r}" for k in _CAP_KEYS if k in options)
+        raise ValueError(f"device URL {url!r}: {keys}: {exc}") from None
+    return TipTracker(lambda: OpenIGTLinkSource(host, port, settings=igtl_settings),
+                      calibration=calibration, settings=settings)
