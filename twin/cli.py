@@ -21,6 +21,7 @@ COMMAND_MODULES = [
     "twin.rod.commands",
     "twin.sim.commands",
     "twin.device.commands",
+    "twin.device.igtl_server",
     "twin.experiments.commands",
     "twin.discrepancy.commands",
     "twin.control.commands",
