@@ -89,7 +89,7 @@ class EndoscopeReachEnv(gym.Env):
     Args:
         device_url: ``sim://[?pose=…]`` (no seed: the env seeds it) or ``serial://…?igtl=…``.
         action_mode: ``"tensions"``, ``"lengths"`` or ``"pairs"``.
-        params: parameter set (default ``models/endoscope.toml``).
+        params: parameter set (default ``models/endoscope/endoscope.toml``).
         randomization: per-episode parameter, effect and latency spreads (default none).
         tip_loads: tip masses per episode (default 0/5/10 g, half the episodes change once).
         gains: ``{mode: {"kp": …, "ki": …, "kd": …, "output_limit": …}}`` set on the board at

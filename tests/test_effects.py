@@ -132,9 +132,9 @@ class CapLength(Effect):
 
 def test_a_new_effect_reaches_parameters_twin_prediction_and_candidates_from_its_unit(monkeypatch, tmp_path):
     monkeypatch.setitem(EFFECTS, "cap_length", CapLength())
-    # The parameter set needs the key in its file, and checks it as declared.
-    with pytest.raises(ParameterError, match=r"missing key effects\.cap_length_m"):
-        load_params()
+    # A parameter file without the key has the effect off; a value is checked as declared.
+    assert load_params().effects.cap_length_m == 0.0
+    assert load_params().source("effects.cap_length_m") == "default: off"
     with pytest.raises(ParameterError, match=r"effects\.cap_length_m = -0\.001: must be >= 0"):
         NOMINAL.replace({"effects.cap_length_m": -0.001})
     off = load_params(NOMINAL.replace({"effects.cap_length_m": 0.0}).save(tmp_path / "p.toml"))

@@ -7,17 +7,26 @@ from twin.params import load_params
 from twin.pose import HORIZONTAL, UP, rot_x
 from twin.sim import Plant, model_xml
 from twin.sim.model import Layout
-from twin.sim.modelfiles import MODELS_DIR, readme_text
+from twin.robots import MODELS_DIR, load_robot, robot_names
+from twin.sim.modelfiles import index_text, readme_text
 
 FAST = ["sim.elements=10"]
 
 
-def test_checked_in_model_files_match_the_generator():
-    params = load_params()
-    assert (MODELS_DIR / "endoscope.xml").read_text() == model_xml(params), \
-        "models/endoscope.xml is stale: run .venv/bin/python -m twin.sim.modelfiles"
-    assert (MODELS_DIR / "README.md").read_text() == readme_text(params), \
+@pytest.mark.parametrize("name", robot_names())
+def test_checked_in_model_files_match_the_generator(name):
+    params = load_robot(name)
+    stale = f"models/{name}/ is stale: run .venv/bin/python -m twin.sim.modelfiles"
+    assert (MODELS_DIR / name / f"{name}.xml").read_text() == model_xml(params, base_rotation=params.rig.base_rotation), stale
+    assert (MODELS_DIR / name / "README.md").read_text() == readme_text(params, name), stale
+    assert (MODELS_DIR / name / "CHANGELOG.md").is_file(), f"models/{name}/CHANGELOG.md is missing"
+
+
+def test_the_zoo_index_lists_every_robot():
+    assert (MODELS_DIR / "README.md").read_text() == index_text(), \
         "models/README.md is stale: run .venv/bin/python -m twin.sim.modelfiles"
+    assert {"endoscope", "three-tendon", "helical", "long", "endoscope-soft-g"} <= set(robot_names())
+    assert robot_names()[0] == "endoscope"
 
 
 def test_layout_puts_discs_and_mass_where_the_parameters_say():

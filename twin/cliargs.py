@@ -10,10 +10,11 @@ from pathlib import Path
 import numpy as np
 
 from twin.params import ParameterError, Params, load_params
+from twin.robots import robot_path
 from twin.pose import base_rotation_from, matrix_to_quat
 
 __all__ = ["UsageError", "add_param_args", "add_pose_args", "new_run_folder", "params_from_args", "pose_overrides",
-           "nonnegative", "open_device_arg", "positive", "values_as_arguments", "vector"]
+           "nonnegative", "positive", "values_as_arguments", "vector"]
 
 
 class UsageError(Exception):
@@ -62,16 +63,6 @@ def _number(text: str) -> float:
     return value
 
 
-def open_device_arg(url: str, **kwargs):
-    """:func:`twin.device.open_device` for a ``--device`` argument; a bad URL is a :class:`UsageError`."""
-    from twin.device import open_device
-
-    try:
-        return open_device(url, **kwargs)
-    except ValueError as exc:
-        raise UsageError(f"--device {url}: {exc}") from None
-
-
 def new_run_folder(parent: str | Path, name: str) -> Path:
     """A fresh ``name-YYYYmmdd-HHMMSS`` folder under ``parent`` (``runs/`` by convention: commands
     never write into tracked folders by default); runs started in the same second get ``-2``,
@@ -105,8 +96,16 @@ def vector(n: int):
     return parse
 
 
-def add_param_args(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--params", metavar="FILE", help="parameter file (default models/endoscope.toml)")
+def add_param_args(parser: argparse.ArgumentParser, *, robot: bool = True) -> None:
+    """``--robot NAME`` or ``--params FILE``, and ``--set KEY=VALUE`` on top. ``robot=False`` for a
+    command that declares its own ``--robot``."""
+    if robot:
+        group = parser.add_mutually_exclusive_group()
+        group.add_argument("--robot", metavar="NAME", default=None,
+                           help="a robot of the zoo, models/NAME/ (default endoscope; see models/README.md)")
+        group.add_argument("--params", metavar="FILE", help="parameter file (instead of --robot)")
+    else:
+        parser.add_argument("--params", metavar="FILE", help="parameter file (instead of --robot)")
     parser.add_argument(
         "--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
         help="override a parameter, e.g. --set backbone.shear_modulus_pa=3e6 (repeatable)",
@@ -132,14 +131,22 @@ def pose_overrides(args: argparse.Namespace) -> dict:
 
 
 def params_from_args(args: argparse.Namespace) -> Params:
-    """The parameter set of ``--params`` and ``--set``, with ``--pose``/``--base-quat`` where the
-    command takes them.
+    """The parameter set of ``--robot`` or ``--params``, and ``--set``, with ``--pose``/``--base-quat``
+    where the command takes them.
 
     Raises:
         ParameterError: a bad file or value; also a ``--params`` file that cannot be read.
+        UsageError: no such ``--robot``.
     """
+    robot = getattr(args, "robot", None)
+    path = args.params
+    if robot is not None:
+        try:
+            path = robot_path(robot)
+        except ValueError as exc:
+            raise UsageError(f"--robot {robot}: {exc}") from None
     try:
-        params = load_params(args.params, overrides=args.overrides)
+        params = load_params(path, overrides=args.overrides)
     except OSError as exc:
         raise ParameterError(f"--params {args.params}: cannot read it ({exc.strerror or exc})") from None
     pose = pose_overrides(args)

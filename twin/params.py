@@ -1,6 +1,6 @@
 """The one parameter set of the endoscope and rig.
 
-Loaded from ``models/endoscope.toml`` where every value is ``{ value = ..., source = "..." }``;
+Loaded from ``models/endoscope/endoscope.toml`` where every value is ``{ value = ..., source = "..." }``;
 the predictor (:mod:`twin.rod`) and the twin (:mod:`twin.sim`) both read it, so a change of
 parameters changes both models. Units are in the field names.
 
@@ -43,7 +43,7 @@ __all__ = [
     "parse_override",
 ]
 
-DEFAULT_PARAMS_PATH = resource_path("models") / "endoscope.toml"
+DEFAULT_PARAMS_PATH = resource_path("models") / "endoscope" / "endoscope.toml"
 
 
 class ParameterError(ValueError):
@@ -307,7 +307,7 @@ class Params:
         return out
 
     def to_toml(self) -> str:
-        """The parameter set as TOML, in the format of ``models/endoscope.toml``."""
+        """The parameter set as TOML, in the format of ``models/endoscope/endoscope.toml``."""
         lines = ["# twin parameter set, written by twin.params.Params.to_toml"]
         for section, entries in self.to_dict().items():
             lines.append(f"\n[{section}]")
@@ -386,6 +386,14 @@ def _coerce(key: str, value: Any, annotation: Any) -> Any:
     raise TypeError(annotation)
 
 
+def _effect_off(name: str, tendons: Tendons):
+    """The value of ``effects.<name>`` that leaves its effect off, sized for ``tendons``."""
+    key = next(k for k in parameter_keys() if k.name == name)
+    if key.size is None:
+        return key.off
+    return (key.off,) * (tendons.count if key.size == PER_TENDON else key.size)
+
+
 def _from_dict(raw: Mapping[str, Any], origin: str) -> Params:
     sections: dict[str, Any] = {}
     sources: dict[str, str] = {}
@@ -394,7 +402,7 @@ def _from_dict(raw: Mapping[str, Any], origin: str) -> Params:
     if unknown:
         raise ParameterError(f"{origin}: unknown section(s) {sorted(unknown)}")
     for section, cls in section_types.items():
-        table = raw.get(section)
+        table = raw.get(section, {} if section == "effects" else None)
         if table is None:
             raise ParameterError(f"{origin}: missing section [{section}]")
         if not isinstance(table, Mapping):
@@ -408,6 +416,10 @@ def _from_dict(raw: Mapping[str, Any], origin: str) -> Params:
         for f in dataclasses.fields(cls):
             key = f"{section}.{f.name}"
             if f.name not in table:
+                if section == "effects":
+                    # An effect a parameter file does not mention is off on that robot.
+                    kwargs[f.name], sources[key] = _effect_off(f.name, sections["tendons"]), "default: off"
+                    continue
                 if f.default is dataclasses.MISSING:
                     raise ParameterError(f"{origin}: missing key {key}")
                 kwargs[f.name], sources[key] = f.default, f.metadata["default_source"]
@@ -485,7 +497,7 @@ def load_params(
     """Load and validate a parameter file, then apply overrides.
 
     Args:
-        path: a TOML file in the format of ``models/endoscope.toml``; default that file.
+        path: a TOML file in the format of ``models/endoscope/endoscope.toml``; default that file.
         overrides: ``["section.key=value", ...]`` strings (as from ``--set``) or a mapping.
 
     Raises:

@@ -145,7 +145,7 @@ class CapCalibration:
 class FusionSettings:
     """Noise levels (they set the SVD weights) and rejection thresholds.
 
-    Defaults: noise of the NDI Aurora 5-DOF probe as in ``models/endoscope.toml``
+    Defaults: noise of the NDI Aurora 5-DOF probe as in ``models/endoscope/endoscope.toml``
     (``sensors.tracker_noise_m``, ``sensors.tracker_noise_rad``); thresholds several noise
     levels wide so a good frame is not rejected, yet tight enough to catch a slipped probe or
     field distortion of a millimetre or a few degrees; ages for the 40 Hz tracker.

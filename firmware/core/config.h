@@ -1,5 +1,5 @@
 // Rig constants, timing and defaults of the firmware core (thesis §4). The ones the parameter set
-// also holds are checked against models/endoscope.toml by tests/test_firmware_config.py.
+// also holds are checked against models/endoscope/endoscope.toml by tests/test_firmware_config.py.
 #pragma once
 
 #include <cstddef>
@@ -127,7 +127,7 @@ constexpr float kMaxTensionKi = 1.0e2f;
 constexpr float kMaxTensionKd = 1.0e-1f;
 
 // Nominal load-cell calibration until the host sends its regression (45,000 counts/N:
-// HX711 at gain 128 with a 1 kg cell, models/endoscope.toml [sensors]).
+// HX711 at gain 128 with a 1 kg cell, models/endoscope/endoscope.toml [sensors]).
 constexpr float kDefaultGainNPerCount = 1.0f / 45000.0f;
 
 }  // namespace twinfw

@@ -8,7 +8,8 @@ import json
 import time
 from pathlib import Path
 
-from twin.cliargs import add_param_args, new_run_folder, open_device_arg, params_from_args
+from twin.cliargs import add_param_args, new_run_folder, params_from_args
+from twin.device.commands import open_device_arg
 
 __all__ = ["register"]
 

@@ -26,7 +26,7 @@ def bench_device(params: Params | None = None, *, rate_window_s: float = 2.0, co
     """Measure the link through :class:`PtyBoard` and ``serial://``.
 
     Args:
-        params: parameter set of the twin (default ``models/endoscope.toml``).
+        params: parameter set of the twin (default ``models/endoscope/endoscope.toml``).
         rate_window_s: wall time over which telemetry is counted (s).
         commands: length setpoints sent to time the latency.
         seed: twin noise seed; also seeds the random delays between commands.

@@ -32,7 +32,7 @@ class EmulatedBoard:
     """Firmware core + plant, ticked by the caller.
 
     Args:
-        params: parameter set of the plant (default ``models/endoscope.toml``).
+        params: parameter set of the plant (default ``models/endoscope/endoscope.toml``).
         seed: seed of the plant's sensor noise.
         base_rotation: clamp orientation, 3×3 (default the parameter set's ``rig.base_quat``).
 

@@ -8,9 +8,20 @@ import signal
 import sys
 import threading
 
-from twin.cliargs import add_param_args, add_pose_args, params_from_args
+from twin.cliargs import UsageError, add_param_args, add_pose_args, params_from_args
 
-__all__ = ["register"]
+__all__ = ["open_device_arg", "register"]
+
+
+def open_device_arg(url: str, **kwargs):
+    """:func:`twin.device.open_device` for a ``--device`` argument; a bad URL is a
+    :class:`twin.cliargs.UsageError` naming it."""
+    from twin.device import open_device
+
+    try:
+        return open_device(url, **kwargs)
+    except ValueError as exc:
+        raise UsageError(f"--device {url}: {exc}") from None
 
 
 def register(subparsers) -> None:

@@ -40,7 +40,7 @@ class PtyBoard:
     """An emulated board on a pseudo-terminal.
 
     Args:
-        params: parameter set of the plant (default ``models/endoscope.toml``).
+        params: parameter set of the plant (default ``models/endoscope/endoscope.toml``).
         seed: seed of the plant's sensor noise.
         base_rotation: clamp orientation (default the parameter set's ``rig.base_quat``).
         link_path: optional path of a symbolic link to the current port.

@@ -70,7 +70,7 @@ def open_device(
     Args:
         url: ``sim://…`` or ``serial://…`` (see the module docstring).
         params: parameter set of the twin (``sim://``) and of the tracker fusion noise
-            (default ``models/endoscope.toml``).
+            (default ``models/endoscope/endoscope.toml``).
         seed: sensor-noise seed of the twin; the URL's ``seed`` is used if this is None, and
             0 if neither is given.
         prompt: how the operator is asked for fixture actions on ``serial://``.

@@ -5,10 +5,11 @@ to find them, :mod:`twin.discrepancy`).
 
 Each module of this package but :mod:`twin.effects.base` holds one effect (``EFFECT``, a
 :class:`Effect`): the ``[effects]`` keys that carry it with their schema (all off in
-``models/endoscope.toml``), how the twin makes it happen, how it enters a prediction and what
+``models/endoscope/endoscope.toml``), how the twin makes it happen, how it enters a prediction and what
 the discrepancy workflow fits to find it. :data:`EFFECTS` registers every such module, in the
 order of the module names, and :mod:`twin.params` builds its ``[effects]`` section from their
-keys; so a new effect is a new module here and its keys in the parameter file, nothing else.
+keys; a parameter file that does not mention a key has its effect off. So a new effect is a
+new module here, nothing else.
 
 The functions below compose the effects' hooks (:mod:`twin.effects.base`): the rest of the code
 calls these, never an effect's keys.
@@ -17,8 +18,9 @@ Adding an effect that acts through the existing hooks touches:
 
 * ``twin/effects/<name>.py``: an :class:`Effect` subclass and its ``EFFECT`` (keys with their
   schema, description, hooks, candidate; the docstring says what is fitted and why);
-* ``models/endoscope.toml``: its keys under ``[effects]``, off, with their source;
-* ``models/README.md``: regenerated (``python -m twin.sim.modelfiles``).
+* ``models/endoscope/endoscope.toml``, where every key is documented: its keys under
+  ``[effects]``, off, with their source (the other robots' files leave them out: off);
+* ``models/endoscope/README.md``: regenerated (``python -m twin.sim.modelfiles``).
 """
 
 from __future__ import annotations

@@ -47,7 +47,7 @@ class Key:
 
     Attributes:
         name: the key within ``[effects]``, its unit in the name.
-        off: the value that leaves the effect off, the default in ``models/endoscope.toml``
+        off: the value that leaves the effect off, the default in ``models/endoscope/endoscope.toml``
             (for a list: every entry).
         size: None for a number; an int for a list of that many numbers; :data:`PER_TENDON`
             for a list with one number per tendon.

@@ -9,7 +9,8 @@ import sys
 import time
 from pathlib import Path
 
-from twin.cliargs import UsageError, add_param_args, new_run_folder, open_device_arg, params_from_args
+from twin.cliargs import UsageError, add_param_args, new_run_folder, params_from_args
+from twin.device.commands import open_device_arg
 from twin.params import parse_override
 from twin.pcc import validation_grid
 

@@ -32,7 +32,7 @@ def bench_sim(params: Params | None = None, *, duration_s: float = 2.0, elements
     """Time the default twin.
 
     Args:
-        params: parameter set (default ``models/endoscope.toml``).
+        params: parameter set (default ``models/endoscope/endoscope.toml``).
         duration_s: simulated time per timed run (s); the best of five runs is kept (shared
             machines vary by ±30% from one second to the next).
         elements: override of ``sim.elements``.

@@ -40,12 +40,12 @@ def register(subparsers) -> None:
                             "reports are regenerated with --out reports/crosscheck)")
     check.add_argument("--elements", type=int, default=None, help="twin elements (default sim.elements)")
     check.add_argument("--robot", default=None, metavar="NAME",
-                       help="a robot of twin.sim.crosscheck.ROBOTS (its overrides under --set), or 'all' of "
-                            "them with a table in zoo.md")
+                       help="a robot of the zoo (models/NAME/; --set applies on top), or 'all' of them with a "
+                            "table in zoo.md")
     check.add_argument("--quick", action="store_true", help="the reduced grid (QUICK_GRID), no cause studies")
     check.add_argument("--no-causes", action="store_true", help="skip the cause studies")
     add_pose_args(check)
-    add_param_args(check)
+    add_param_args(check, robot=False)
     check.set_defaults(func=run_crosscheck_command)
 
 
@@ -99,13 +99,16 @@ def run_crosscheck_command(args: argparse.Namespace) -> int:
     if args.robot not in (None, "all") and args.robot not in ROBOTS:
         print(f"twin crosscheck: --robot {args.robot}: expected all or one of {', '.join(ROBOTS)}", file=sys.stderr)
         return 2
+    if args.robot is not None and args.params is not None:
+        print("twin crosscheck: --robot and --params: give one (a robot is its parameter file)", file=sys.stderr)
+        return 2
     # Every robot's parameter set is checked before a report folder is made.
     for name in (ROBOTS if args.robot == "all" else [args.robot] if args.robot else []):
-        robot_params(name, overrides, args.params)
+        robot_params(name, overrides)
     params = params_from_args(args).replace(overrides) if args.robot is None else None
     out = args.out or new_run_folder("runs", "crosscheck")
     if args.robot == "all":
-        table, summaries = run_zoo(out, configs=configs, overrides=overrides, path=args.params)
+        table, summaries = run_zoo(out, configs=configs, overrides=overrides)
         print(f"report: {table}")
         for name, summary in summaries.items():
             _print_summary(name, summary)
@@ -114,7 +117,7 @@ def run_crosscheck_command(args: argparse.Namespace) -> int:
             print(f"twin crosscheck: goal missed for {', '.join(missed)}", file=sys.stderr)
         return 1 if missed else 0
     if args.robot is not None:
-        params = robot_params(args.robot, overrides, args.params)
+        params = robot_params(args.robot, overrides)
     path, summary = run_crosscheck(params, out, configs=configs, robot=args.robot,
                                    with_causes=not (args.no_causes or args.quick or args.robot not in (None, "endoscope")))
     print(f"report: {path}")

@@ -15,7 +15,7 @@ where they sit, where the twist hinges sit, the torsion, the thesis's shear modu
 step and the settling tolerance.
 
 The twin has to stay faithful across robots, not only the endoscope: :data:`ROBOTS` names the
-parameter sets it is held to (``twin crosscheck --robot NAME``), and
+zoo's robots it is held to (``twin crosscheck --robot NAME``), and
 :func:`crosscheck_status` gives any parameter set's verdict on :data:`QUICK_GRID`, for the reports
 built on a twin to carry.
 """
@@ -31,6 +31,7 @@ from pathlib import Path
 import numpy as np
 
 from twin.params import Params, load_params
+from twin.robots import description, load_robot, robot_names
 from twin.pcc import GRID_KAPPA_PER_M, GRID_TIP_MASS_KG, validation_grid
 from twin.rod.grid import pcc_tensions_n
 from twin.sim.plant import Plant
@@ -45,22 +46,8 @@ THESIS_SHEAR_MODULUS_PA = 4.7586e4
 # worst tip difference over the grid, every configuration settled and solved.
 GOAL_MEDIAN_PCT = 1.0
 GOAL_WORST_PCT = 3.0
-# The robots the twin is held to: overrides of the default parameter file (models/endoscope.toml).
-# This table is the one place that names them; a registry of parameter files can replace it.
-ROBOTS = {
-    # The thesis endoscope: four straight tendons, 60 mm, ten discs.
-    "endoscope": {},
-    # Three tendons at 120°: one tendon or two neighbours carry every bend.
-    "three-tendon": {"tendons.angles_deg": [0.0, 120.0, 240.0], "effects.tension_gain_error": [0.0] * 3,
-                     "effects.tension_offset_error_n": [0.0] * 3,
-                     "sensors.loadcell_offset_counts": [8200.0, -5100.0, 3300.0]},
-    # Half a turn of helix over the length: the pretension alone twists the rod by 17°.
-    "helical": {"tendons.routing": "helical", "tendons.helix_turns": 0.5},
-    # 100 mm with twenty discs and the softer torsion G·J: the tendons stiffen twist by half.
-    "long": {"backbone.length_m": 0.1, "discs.count": 20, "sim.elements": 20, "backbone.torsion": "GJ"},
-    # The thesis's fitted G (GA = 1.35 N): the tendons' 5–9 N carry most of the shear stiffness.
-    "soft-shear": {"backbone.shear_modulus_pa": THESIS_SHEAR_MODULUS_PA, "sim.slide_stride": 1},
-}
+# The robots the twin is held to: the zoo (models/<name>/), the default first.
+ROBOTS = robot_names()
 # A reduced grid for quick verdicts and the tests, in the thesis's order: the straight rod with
 # 0, 5 and 10 g, the curvature raised step by step in the plane φ = 0 with the 10 g, then every
 # plane at the largest curvature with it, where every robot's worst configurations lie. The
@@ -206,7 +193,7 @@ def crosscheck(params: Params | None = None, *, configs=None, elements: int | No
     with the clamp in the parameter set's ``rig.base_quat``.
 
     Args:
-        params: parameter set (default ``models/endoscope.toml``).
+        params: parameter set (default ``models/endoscope/endoscope.toml``).
         configs: iterable of (config, κ, φ, mass) as :func:`twin.pcc.validation_grid` yields.
         elements, tendon_sites: overrides of the twin's discretisation (see :class:`twin.sim.plant.Plant`).
         settle_tol_m: the twin's settling tolerance (:meth:`twin.sim.plant.Plant.settle`).
@@ -241,16 +228,13 @@ def crosscheck(params: Params | None = None, *, configs=None, elements: int | No
                             plant.layout.elements, time.perf_counter() - start)
 
 
-def robot_params(name: str, overrides: dict | None = None, path=None) -> Params:
-    """The parameter set of robot ``name`` (:data:`ROBOTS`): the parameter file ``path`` (default
-    ``models/endoscope.toml``) with the robot's overrides, then ``overrides`` on top.
+def robot_params(name: str, overrides: dict | None = None) -> Params:
+    """Robot ``name``'s parameter set (:func:`twin.robots.load_robot`), ``overrides`` on top.
 
     Raises:
-        ValueError: ``name`` is not in :data:`ROBOTS`.
+        ValueError: ``name`` is not a robot of the zoo.
     """
-    if name not in ROBOTS:
-        raise ValueError(f"robot {name!r}: expected one of {', '.join(ROBOTS)}")
-    return load_params(path, overrides={**ROBOTS[name], **(overrides or {})})
+    return load_robot(name, overrides or {})
 
 
 @dataclasses.dataclass(frozen=True)
@@ -279,7 +263,7 @@ class CrosscheckStatus:
 
 def crosscheck_status(params: Params | None = None) -> CrosscheckStatus:
     """The verdict of a quick cross-check (:data:`QUICK_GRID`, about a second) of ``params``
-    (default ``models/endoscope.toml``), computed once per parameter set and process."""
+    (default ``models/endoscope/endoscope.toml``), computed once per parameter set and process."""
     return _status(params if params is not None else load_params())
 
 
@@ -315,7 +299,7 @@ def write_report(result: CrosscheckResult, studies, out_dir: str | Path, params:
     sim = params.sim
     d_mm = result.difference_m * 1e3
     pct = 100 * result.difference_m / result.length_m
-    named = f" ({robot}: {_overrides(ROBOTS[robot])})" if robot else ""
+    named = f" ({robot}: models/{robot}/)" if robot else ""
     lines = [
         f"# Twin vs predictor over the thesis validation grid{named}",
         "",
@@ -391,10 +375,6 @@ def _stations(joints: str, stride: int) -> str:
     return f"{joints} at every station" if stride == 1 else f"{joints} at the middle of every {stride} stations"
 
 
-def _overrides(values: dict) -> str:
-    return ", ".join(f"`{k}={v}`" for k, v in values.items()) or "the default parameter file"
-
-
 def _config(row) -> str:
     if row is None:
         return "none compared"
@@ -415,25 +395,25 @@ def run_crosscheck(params: Params | None = None, out_dir: str | Path = "reports/
     return write_report(result, studies, out_dir, params, robot=robot), result.summary()
 
 
-def run_zoo(out_dir: str | Path = "reports/crosscheck", *, configs=None, overrides: dict | None = None,
-            path=None) -> tuple[Path, dict[str, dict]]:
+def run_zoo(out_dir: str | Path = "reports/crosscheck", *, configs=None,
+            overrides: dict | None = None) -> tuple[Path, dict[str, dict]]:
     """Every robot of :data:`ROBOTS` over the grid: each one's report in ``out_dir/<robot>/``
     (the default robot's in ``out_dir`` itself, with the cause studies) and a table of all in
     ``out_dir/zoo.md``. Returns (table path, {robot: summary})."""
     out = Path(out_dir)
     summaries = {}
     for name in ROBOTS:
-        params = robot_params(name, overrides, path)
+        params = robot_params(name, overrides)
         default = name == next(iter(ROBOTS))
         _, summaries[name] = run_crosscheck(params, out if default else out / name, with_causes=default,
                                             configs=configs, robot=name)
     lines = ["# Twin vs predictor across the robots", "",
              "Written by `twin crosscheck --robot all`; each robot's report beside it "
              f"(goal: median ≤ {GOAL_MEDIAN_PCT:g}%, worst ≤ {GOAL_WORST_PCT:g}% of L, every configuration compared).",
-             "", "| robot | overrides | median (% L) | worst (% L) | worst (mm) | worst configuration | verdict |",
+             "", "| robot | what it is | median (% L) | worst (% L) | worst (mm) | worst configuration | verdict |",
              "| --- | --- | --- | --- | --- | --- | --- |"]
     for name, s in summaries.items():
-        lines.append(f"| {name} | {_overrides(ROBOTS[name])} | {s['median_pct']:.2f} | {s['worst_pct']:.2f} | "
+        lines.append(f"| {name} | {description(name)} | {s['median_pct']:.2f} | {s['worst_pct']:.2f} | "
                      f"{s['worst_mm']:.3f} | {_config(s['worst_config'])} | "
                      f"{'met' if s['meets_goal'] else 'MISSED'} |")
     table = out / "zoo.md"

@@ -651,7 +651,7 @@ def build_model(params: Params, *, base_rotation=HORIZONTAL, elements: int | Non
 
 
 def model_xml(params: Params, *, base_rotation=HORIZONTAL) -> str:
-    """MJCF text of the model (what ``models/endoscope.xml`` holds for the default parameters)."""
+    """MJCF text of the model (what ``models/endoscope/endoscope.xml`` holds for the default parameters)."""
     spec = build_spec(params, base_rotation=base_rotation)
     spec.compile()
     return spec.to_xml()

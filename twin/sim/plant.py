@@ -80,7 +80,7 @@ class Plant:
     """The simulated rig.
 
     Args:
-        params: parameter set (default ``models/endoscope.toml``).
+        params: parameter set (default ``models/endoscope/endoscope.toml``).
         base_rotation: nominal clamp orientation (3×3, body → world); default the parameter
             set's ``rig.base_quat``.
         seed: seed of the sensor-noise generator.
