@@ -146,3 +146,16 @@ def test_the_cli_reports_a_bad_parameter_file_in_one_line(tmp_path, capsys, cont
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and err.startswith("twin: parameter error: ") and str(path) in err
     assert expected in err
+
+
+def test_a_bad_description_is_refused_with_every_inconsistent_key_named_at_once():
+    with pytest.raises(ParameterError) as info:
+        load_params(overrides={"tendons.angles_deg": [0.0, 120.0, 240.0], "tendons.radius_m": 0.01,
+                               "discs.count": 40})
+    message = str(info.value)
+    for key in ("tendons.radius_m", "discs.thickness_m", "sensors.loadcell_offset_counts",
+                "effects.tension_gain_error", "sim.elements"):
+        assert key in message, message
+    with pytest.raises(ParameterError) as info:
+        load_params(overrides={"backbone.mass_kg": -1.0, "sim.elements": 0, "rig.base_quat": [0, 0, 0, 0]})
+    assert all(key in str(info.value) for key in ("backbone.mass_kg", "sim.elements", "rig.base_quat"))

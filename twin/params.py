@@ -395,80 +395,95 @@ def _effect_off(name: str, tendons: Tendons):
 
 
 def _from_dict(raw: Mapping[str, Any], origin: str) -> Params:
+    """Validate a ``{section: {key: {"value", "source"}}}`` mapping into :class:`Params`.
+
+    Raises:
+        ParameterError: one message naming every key that is wrong, not only the first.
+    """
     sections: dict[str, Any] = {}
     sources: dict[str, str] = {}
+    problems: list[str] = []
     section_types = _sections()
     unknown = set(raw) - set(section_types)
     if unknown:
-        raise ParameterError(f"{origin}: unknown section(s) {sorted(unknown)}")
+        problems.append(f"{origin}: unknown section(s) {sorted(unknown)}")
     for section, cls in section_types.items():
         table = raw.get(section, {} if section == "effects" else None)
         if table is None:
-            raise ParameterError(f"{origin}: missing section [{section}]")
+            problems.append(f"{origin}: missing section [{section}]")
+            continue
         if not isinstance(table, Mapping):
-            raise ParameterError(f"{origin}: [{section}] must be a table of keys, not {table!r}")
+            problems.append(f"{origin}: [{section}] must be a table of keys, not {table!r}")
+            continue
         hints = typing.get_type_hints(cls)
         names = [f.name for f in dataclasses.fields(cls)]
         extra = set(table) - set(names)
         if extra:
-            raise ParameterError(f"{origin}: unknown key(s) {sorted(f'{section}.{k}' for k in extra)}")
+            problems.append(f"{origin}: unknown key(s) {sorted(f'{section}.{k}' for k in extra)}")
         kwargs = {}
         for f in dataclasses.fields(cls):
             key = f"{section}.{f.name}"
-            if f.name not in table:
-                if section == "effects":
-                    # An effect a parameter file does not mention is off on that robot.
-                    kwargs[f.name], sources[key] = _effect_off(f.name, sections["tendons"]), "default: off"
-                    continue
-                if f.default is dataclasses.MISSING:
-                    raise ParameterError(f"{origin}: missing key {key}")
-                kwargs[f.name], sources[key] = f.default, f.metadata["default_source"]
-                continue
-            entry = table[f.name]
-            if isinstance(entry, Mapping):
-                if "value" not in entry:
-                    raise ParameterError(f"{origin}: {key} has no 'value'")
-                value, source = entry["value"], str(entry.get("source", ""))
-            else:
-                value, source = entry, ""
-            value = _coerce(key, value, hints[f.name])
-            for check in f.metadata.get("checks", ()):
-                problem = check(value)
-                if problem:
-                    raise ParameterError(f"{key} = {value!r}: {problem}")
-            kwargs[f.name] = value
-            sources[key] = source
-        sections[section] = cls(**kwargs)
-    params = Params(**sections, sources=sources)
-    _check_consistency(params)
+            try:
+                kwargs[f.name], sources[key] = _entry(origin, key, f, table, hints[f.name], sections)
+            except ParameterError as exc:
+                problems.append(str(exc))
+        if len(kwargs) == len(names):
+            sections[section] = cls(**kwargs)
+    if not problems:
+        params = Params(**sections, sources=sources)
+        problems += _consistency_problems(params)
+    if problems:
+        raise ParameterError("; ".join(problems))
     return params
 
 
-def _check_consistency(p: Params) -> None:
-    """Checks that span keys: geometry must fit together."""
+def _entry(origin: str, key: str, f: dataclasses.Field, table: Mapping, annotation, sections: dict):
+    """(value, source) of one key of ``table``, checked; a key a file leaves out gets its default."""
+    if f.name not in table:
+        if key.startswith("effects."):
+            if "tendons" not in sections:
+                raise ParameterError(f"{key}: cannot size its default without a valid [tendons]")
+            # An effect a parameter file does not mention is off on that robot.
+            return _effect_off(f.name, sections["tendons"]), "default: off"
+        if f.default is dataclasses.MISSING:
+            raise ParameterError(f"{origin}: missing key {key}")
+        return f.default, f.metadata["default_source"]
+    entry = table[f.name]
+    if isinstance(entry, Mapping):
+        if "value" not in entry:
+            raise ParameterError(f"{origin}: {key} has no 'value'")
+        value, source = entry["value"], str(entry.get("source", ""))
+    else:
+        value, source = entry, ""
+    value = _coerce(key, value, annotation)
+    for check in f.metadata.get("checks", ()):
+        problem = check(value)
+        if problem:
+            raise ParameterError(f"{key} = {value!r}: {problem}")
+    return value, source
+
+
+def _consistency_problems(p: Params) -> list[str]:
+    """Checks that span keys: the geometry must fit together, lists must match the tendons."""
+    problems = []
     t, b, d = p.tendons, p.backbone, p.discs
     for key, radius in (("tendons.radius_m", t.radius_m), ("tendons.tip_radius_m", t.tip_radius_m)):
         if radius + t.diameter_m / 2 > d.outer_radius_m:
-            raise ParameterError(
-                f"{key} = {radius!r}: tendon lies outside the discs "
-                f"(discs.outer_radius_m = {d.outer_radius_m!r})"
-            )
+            problems.append(f"{key} = {radius!r}: tendon lies outside the discs "
+                            f"(discs.outer_radius_m = {d.outer_radius_m!r})")
     if d.outer_radius_m <= b.radius_m:
-        raise ParameterError(
-            f"discs.outer_radius_m = {d.outer_radius_m!r}: must exceed backbone.radius_m = {b.radius_m!r}"
-        )
+        problems.append(f"discs.outer_radius_m = {d.outer_radius_m!r}: must exceed backbone.radius_m = {b.radius_m!r}")
     if d.thickness_m * d.count >= b.length_m:
-        raise ParameterError(
-            f"discs.thickness_m = {d.thickness_m!r}: {d.count} discs do not fit in "
-            f"backbone.length_m = {b.length_m!r}"
-        )
+        problems.append(f"discs.thickness_m = {d.thickness_m!r}: {d.count} discs do not fit in "
+                        f"backbone.length_m = {b.length_m!r}")
     n = t.count
     per_tendon = [k.key for k in parameter_keys() if k.size == PER_TENDON]
     for key in per_tendon + ["sensors.loadcell_offset_counts"]:
         if len(p.get(key)) != n:
-            raise ParameterError(f"{key} = {list(p.get(key))!r}: must have one entry per tendon ({n})")
+            problems.append(f"{key} = {list(p.get(key))!r}: must have one entry per tendon ({n})")
     if p.sim.elements < d.count:
-        raise ParameterError(f"sim.elements = {p.sim.elements!r}: must be >= discs.count = {d.count}")
+        problems.append(f"sim.elements = {p.sim.elements!r}: must be >= discs.count = {d.count}")
+    return problems
 
 
 def parse_override(text: str) -> tuple[str, Any]:
