@@ -52,7 +52,8 @@ class IgtlSettings:
         position_scale_m: metres per unit of the translation (1e-3 for PLUS's mm).
         clock_offset_s: server clock minus ours (s); None measures it from the stream.
         idle_timeout_s: a connection that delivers nothing for this long is taken as dead and
-            reopened (s).
+            reopened (s): long enough for PLUS to be quiet while every tool is out of view
+            without the client reconnecting all the time, short enough to notice a hung server.
     """
 
     device_a: str = "ProbeAToTracker"
@@ -61,7 +62,7 @@ class IgtlSettings:
     axis_sign: float = 1.0
     position_scale_m: float = 1e-3
     clock_offset_s: float | None = None
-    idle_timeout_s: float = 2.0
+    idle_timeout_s: float = 5.0
 
     def __post_init__(self):
         if self.axis_column not in (0, 1, 2):
@@ -87,7 +88,7 @@ def settings_from_options(options: dict[str, str]) -> IgtlSettings:
     ``igtl_probes=A,B`` (device names), ``igtl_axis=z`` (``x``, ``y``, ``z``, optionally signed,
     e.g. ``-z``), ``igtl_scale=mm`` (``mm``, ``cm``, ``m`` or metres per unit), ``igtl_clock=auto``
     (``auto`` measures the offset; a number is the server clock minus ours, s),
-    ``igtl_timeout_s=2`` (idle time before reconnecting, s).
+    ``igtl_timeout_s=5`` (idle time before reconnecting, s).
 
     Raises:
         ValueError: one line naming the key and its value.

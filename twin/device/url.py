@@ -9,7 +9,7 @@ on a pseudo-terminal).
     it ``device.tracker`` is None. With it: ``igtl_probes=Probe1ToTracker,Probe2ToTracker``
     (device names of probes A and B), ``igtl_axis=z`` (tool axis along the probe, e.g. ``-z``),
     ``igtl_scale=mm`` (length unit), ``igtl_clock=auto`` (or the server clock minus ours, s),
-    ``igtl_timeout_s=2`` (see :func:`twin.device.igtl_source.settings_from_options`), and the cap
+    ``igtl_timeout_s=5`` (see :func:`twin.device.igtl_source.settings_from_options`), and the cap
     calibration (:class:`twin.tracking.CapCalibration`): ``cap_a_mm=x,y,z`` and
     ``cap_a_axis=x,y,z`` for probe A in the tip frame, ``cap_b_mm``, ``cap_b_axis`` for B.
 
