@@ -15,12 +15,12 @@ from twin.tracking import (
     CapCalibration,
     FrameStatus,
     FusionSettings,
-    OpenIGTLinkSource,
     ProbeReading,
     fuse,
     fuse_frame,
 )
 from twin.tracking import _wahba
+from twin.device.igtl_source import OpenIGTLinkSource
 
 CAL = CapCalibration()
 

@@ -11,9 +11,8 @@ distorts the field), so :func:`fuse` never raises for them: it returns a
 :class:`FusionResult` whose ``status`` says why the frame was rejected and whose ``pose`` is
 ``None`` then. Malformed arguments (wrong shapes) raise ``ValueError``.
 
-Sources hand out :class:`ProbeFrame` objects: :class:`OpenIGTLinkSource`
-(:mod:`twin.device.igtl_source`) reads the rig's OpenIGTLink (PLUS) server, :class:`CallableSource`
-adapts the simulated twin.
+Sources hand out :class:`ProbeFrame` objects: :class:`CallableSource` adapts the simulated twin;
+the rig's OpenIGTLink (PLUS) client is :class:`twin.device.igtl_source.OpenIGTLinkSource`.
 """
 
 from __future__ import annotations
@@ -36,7 +35,6 @@ __all__ = [
     "FrameStatus",
     "FusionResult",
     "FusionSettings",
-    "OpenIGTLinkSource",
     "ProbeFrame",
     "ProbeReading",
     "TipPose",
@@ -475,13 +473,3 @@ class CallableSource:
             else:
                 readings.append(ProbeReading.missing())
         return ProbeFrame(readings[0], readings[1], float(time_s))
-
-
-def __getattr__(name: str):
-    # The OpenIGTLink client lives with the device layer (it owns a socket and a thread); it is
-    # looked up lazily because it builds on this module's types.
-    if name == "OpenIGTLinkSource":
-        from twin.device.igtl_source import OpenIGTLinkSource
-
-        return OpenIGTLinkSource
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -27,13 +27,13 @@ from typing import Callable
 from twin.device.device import Device
 from twin.device.fixture import OperatorFixture, SimFixture
 from twin.device.igtl_source import URL_KEYS as IGTL_KEYS
-from twin.device.igtl_source import settings_from_options
+from twin.device.igtl_source import OpenIGTLinkSource, settings_from_options
 from twin.device.serial_transport import SerialTransport
 from twin.device.sim_twin import SimTwin
 from twin.device.tracker import TipTracker, sim_probe_source
 from twin.params import Params, load_params
 from twin.pose import base_rotation_from
-from twin.tracking import CapCalibration, FusionSettings, OpenIGTLinkSource
+from twin.tracking import CapCalibration, FusionSettings
 
 __all__ = ["SCHEMES", "open_device"]
 
