@@ -500,3 +500,10 @@ def test_bad_url_values_name_key_and_value(query, message):
 def test_tracker_keys_need_igtl():
     with pytest.raises(ValueError, match="igtl_axis configure the tracker; give igtl=host:port"):
         open_device("serial:///dev/ttyACM0?igtl_axis=z")
+
+
+def test_twin_igtl_serve_refuses_bad_probe_names(capsys):
+    from twin.cli import main
+
+    assert main(["igtl-serve", "--probes", "Probe1ToTracker,Probe1ToTracker", "--duration-s", "1"]) == 2
+    assert "--probes: igtl_probes = 'Probe1ToTracker,Probe1ToTracker'" in capsys.readouterr().err

@@ -239,10 +239,14 @@ def run_serve(args: argparse.Namespace) -> int:
     from twin.rod.solver import ConvergenceError, Predictor
     from twin.sim.plant import Plant
 
-    names = tuple(n.strip() for n in args.probes.split(","))
-    if len(names) != 2 or not all(names) or names[0] == names[1]:
-        print(f"twin igtl-serve: --probes {args.probes!r}: expected two distinct device names", file=sys.stderr)
+    from twin.device.igtl_source import settings_from_options
+
+    try:  # the names the tracker client would accept, checked the same way
+        probes = settings_from_options({"igtl_probes": args.probes})
+    except ValueError as exc:
+        print(f"twin igtl-serve: --probes: {exc}", file=sys.stderr)
         return 2
+    names = (probes.device_a, probes.device_b)
     params = params_from_args(args)
     plant = Plant(params, seed=args.seed)
     predictor = Predictor(RodModel.from_params(params))
