@@ -102,14 +102,17 @@ class EndoscopeReachEnv(gym.Env):
         fault_penalty: reward subtracted on the faulting step.
     """
 
-    metadata = {"render_modes": []}
+    metadata = {"render_modes": ["rgb_array", "human"], "render_fps": 40}
 
     def __init__(self, device_url: str = "sim://", *, action_mode: str = "tensions", params: Params | None = None,
                  randomization: Randomization | None = None, tip_loads: TipLoads | None = None,
                  gains: dict | None = None, target_curvature_per_m: tuple[float, float] = (0.0, 20.0),
                  tension_range_n: tuple[float, float] = (0.3, 5.0), max_length_m: float = 0.008,
                  pretension_n: float | None = None, tension_weight: float = 0.1, effort_weight: float = 1.0,
-                 fault_penalty: float = 10.0):
+                 fault_penalty: float = 10.0, render_mode: str | None = None):
+        if render_mode not in (None, *self.metadata["render_modes"]):
+            raise ValueError(f"render_mode = {render_mode!r}: must be None or one of "
+                             f"{', '.join(self.metadata['render_modes'])}")
         if action_mode not in ACTION_MODES:
             raise ValueError(f"action_mode = {action_mode!r}: must be one of {', '.join(ACTION_MODES)}")
         parts = urllib.parse.urlsplit(device_url)
@@ -140,6 +143,8 @@ class EndoscopeReachEnv(gym.Env):
                                    np.ones(n_a)]).astype(np.float32)
         self.observation_space = spaces.Box(-high_obs, high_obs, dtype=np.float32)
 
+        self.render_mode = render_mode
+        self._view = None  # the camera (rgb_array) or viewer (human) on the twin, made on first use
         self.device = None
         self._device_params: Params | None = None
         self._neutral = self._neutral_action()
@@ -206,7 +211,27 @@ class EndoscopeReachEnv(gym.Env):
                   - (self.fault_penalty if fault else 0.0))
         return self._observation(sample), reward, fault, False, self._info(sample, error)
 
+    def render(self):
+        """The twin as it is now: an (H, W, 3) uint8 image (``render_mode="rgb_array"``), or a
+        frame of MuJoCo's viewer (``"human"``, needs a display). Needs a ``sim://`` device."""
+        if self.render_mode is None:
+            return None
+        if self.device is None:
+            raise RuntimeError("render(): call reset() first")
+        if self.device.url.split(":", 1)[0] != "sim":
+            raise ValueError(f"render_mode = {self.render_mode!r}: a picture needs the twin (sim://), not "
+                             f"{self.device.url}")
+        if self._view is None:
+            self._view = self.device.twin.camera() if self.render_mode == "rgb_array" else self.device.twin.viewer()
+        if self.render_mode == "rgb_array":
+            return self._view.render()
+        self._view.sync()
+        return None
+
     def close(self):
+        if self._view is not None:
+            self._view.close()
+            self._view = None
         if self.device is not None:
             self.device.close()
             self.device = None

@@ -115,3 +115,51 @@ def test_bad_arguments_name_the_value():
         EndoscopeReachEnv("sim://?seed=3")
     with pytest.raises(ValueError, match="tension_range_n"):
         EndoscopeReachEnv(tension_range_n=(0.3, 60.0))
+
+
+def _rendering_env():
+    env = EndoscopeReachEnv(render_mode="rgb_array", tip_loads=TipLoads.none())
+    try:
+        env.reset(seed=0)
+        env.render()
+    except Exception as exc:  # noqa: BLE001 - only a missing GL backend is a reason to skip
+        env.close()
+        from twin.sim.render import RenderError
+
+        if isinstance(exc, RenderError):
+            pytest.skip(f"no headless OpenGL here: {exc}")
+        raise
+    return env
+
+
+def test_the_env_renders_the_twin_and_passes_gymnasiums_checker_with_rendering_on():
+    env = _rendering_env()
+    try:
+        check_env(env)
+        env.reset(seed=1, options={"target_m": env.target_m})
+        first = env.render()
+        assert first.shape == (480, 640, 3) and first.dtype == np.uint8
+        for _ in range(20):
+            env.step(np.array([1.0, -1.0, -1.0, -1.0], dtype=np.float32))
+        bent = env.render()
+        # Something is drawn, and pulling tendon 1 moves it in the picture.
+        assert np.ptp(first) > 50 and np.mean(np.abs(bent.astype(int) - first.astype(int))) > 0.5
+    finally:
+        env.close()
+    with pytest.raises(ValueError, match="render_mode = 'movie'"):
+        EndoscopeReachEnv(render_mode="movie")
+
+
+def test_an_episode_is_saved_as_a_video(tmp_path):
+    pytest.importorskip("moviepy", reason="gymnasium's RecordVideo writes with moviepy")
+    from gymnasium.wrappers import RecordVideo
+
+    env = RecordVideo(_rendering_env(), str(tmp_path), episode_trigger=lambda episode: True, disable_logger=True)
+    try:
+        env.reset(seed=0)
+        for _ in range(10):
+            env.step(env.action_space.sample())
+    finally:
+        env.close()
+    (video,) = tmp_path.glob("*.mp4")
+    assert video.stat().st_size > 1000

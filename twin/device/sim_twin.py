@@ -90,3 +90,21 @@ class SimTwin:
         """How the spools are driven, one of :data:`twin.sim.plant.MODES`: ``"pwm"`` (the
         firmware's duty), ``"coast"`` (H-bridges off: disabled or faulted), ..."""
         return self._board.plant.mode
+
+    def camera(self, **options):
+        """An offscreen :class:`twin.sim.render.TwinCamera` on the twin (``options`` its size and
+        view), for pictures and videos of the twin as it runs.
+
+        Raises:
+            twin.sim.render.RenderError: no OpenGL backend.
+        """
+        from twin.sim.render import TwinCamera
+
+        return TwinCamera(self._board.plant, **options)
+
+    def viewer(self):
+        """MuJoCo's interactive viewer on the twin (needs a display), passive: call its ``sync()``
+        after each step; ``close()`` it at the end."""
+        import mujoco.viewer
+
+        return mujoco.viewer.launch_passive(self._board.plant.model, self._board.plant.data)
