@@ -303,6 +303,14 @@ def test_server_clock_half_a_second_off_is_measured(plus):
         other.stop()
 
 
+def test_unstamped_messages_take_their_arrival_time(plus):
+    server, connect, _ = plus
+    source = connect(device_a=PLUS_NAMES[0], device_b=PLUS_NAMES[1])
+    send_probes(server, probe_readings(np.eye(3), np.array([0.0, 0.0, 0.1])), timestamp=0)
+    result = read_fused(source)
+    assert result.pose.timestamp_s == pytest.approx(time.time(), abs=1.0)
+
+
 def test_transform_status_invalid_marks_the_probe(plus):
     server, connect, _ = plus
     source = connect(device_a=PLUS_NAMES[0], device_b=PLUS_NAMES[1])

@@ -39,6 +39,8 @@ import struct
 
 import numpy as np
 
+from twin.pose import quat_to_matrix
+
 __all__ = [
     "HEADER_SIZE",
     "Message",
@@ -277,10 +279,7 @@ def decode_pose(message: Message) -> Pose:
 
 
 def _quat_matrix(w, x, y, z) -> np.ndarray | None:
-    # twin.pose.quat_to_matrix refuses a zero quaternion with ValueError; a sender's zero
-    # quaternion is "no orientation", not an error of ours.
-    from twin.pose import quat_to_matrix
-
+    # quat_to_matrix refuses a zero quaternion; from a sender it means "no orientation".
     q = np.array([w, x, y, z], dtype=float)
     if not np.isfinite(q).all() or np.linalg.norm(q) < 1e-6:
         return None
