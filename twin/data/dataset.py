@@ -29,9 +29,11 @@ Format ``twin-dataset`` version 1 — a folder with
     (3×3, body → world), ``gravity_m_s2``, ``params`` (the full parameter set with sources),
     ``calibration`` (the load-cell calibration applied, or null), ``notes``.
 
-Readers refuse files with missing or malformed columns with a message naming the file,
-the row and the column; the writer refuses values the reader would refuse (NaN or inf in a
-required column), so a file it wrote always reads back.
+Readers refuse files with missing, duplicated or malformed columns with a message naming the
+file, the row and the column — a tension below :data:`TENSION_FLOOR_N` is malformed, a tendon
+only pulls — and a ``metadata.json`` that is not an object of the documented entries; the
+writer refuses values the reader would refuse (NaN or inf in a required column, such a
+tension), so a file it wrote always reads back.
 """
 
 from __future__ import annotations
@@ -53,6 +55,7 @@ from twin.params import Params, _from_dict, load_params
 
 __all__ = [
     "FORMAT",
+    "TENSION_FLOOR_N",
     "VERSION",
     "COLUMNS",
     "REQUIRED_COLUMNS",
@@ -88,10 +91,16 @@ COLUMNS = REQUIRED_COLUMNS[:1] + ("experiment", "repeat") + REQUIRED_COLUMNS[1:]
     "tip_qw", "tip_qx", "tip_qy", "tip_qz", "time_s")
 # Columns that may be empty (not measured).
 _NULLABLE = ("tip_qw", "tip_qx", "tip_qy", "tip_qz", "time_s")
+_TENSION_COLUMNS = tuple(f"tension_{i}_n" for i in range(1, TENDONS + 1))
+# Lowest tension (N) a row may report: a slack tendon reads its load cell's noise around zero
+# (millinewtons); a reading further below is a wiring, sign or calibration fault, which a
+# prediction must not quietly read as a slack tendon.
+TENSION_FLOOR_N = -0.5
 
 
 # What csv.writer ends a row with; a row is complete only when its line end is on disk.
 _LINE_END = "\r\n"
+_NEGATIVE_TENSION = f"is below {TENSION_FLOOR_N} N (a tendon only pulls: a sign, wiring or calibration fault)"
 
 
 class DatasetError(ValueError):
@@ -368,6 +377,8 @@ class DatasetWriter:
             if value != int(value):
                 raise refuse("is not a whole number")
             return str(int(value))
+        if name in _TENSION_COLUMNS and value < TENSION_FLOOR_N:
+            raise refuse(_NEGATIVE_TENSION)
         return repr(float(value))
 
     def close(self) -> None:
@@ -431,6 +442,10 @@ def read_metadata(folder: str | Path) -> dict:
     for key in ("base_rotation", "params"):
         if key not in metadata:
             raise DatasetError(f"{meta_path}: missing {key!r}")
+    params = metadata["params"]
+    if not isinstance(params, dict) or not all(isinstance(v, dict) for v in params.values()):
+        raise DatasetError(f"{meta_path}: params is a JSON {type(params).__name__}, expected an object of "
+                           "sections (as a parameter set's to_dict() writes it)")
     try:
         rot = np.asarray(metadata["base_rotation"], dtype=float)
     except (TypeError, ValueError):
@@ -470,6 +485,11 @@ def _read(folder: str | Path) -> tuple[Dataset, int]:
             raise DatasetError(f"{csv_path}: empty file (no header)")
         lines, torn = [torn], b""
     header = _fields(lines[0], csv_path, 1)
+    seen: dict[str, int] = {}
+    for i, name in enumerate(header, start=1):
+        if name in seen:
+            raise DatasetError(f"{csv_path}: row 1, column {name!r} appears twice (fields {seen[name]} and {i})")
+        seen[name] = i
     missing = [c for c in REQUIRED_COLUMNS if c not in header]
     if missing:
         raise DatasetError(f"{csv_path}: missing column(s) {missing}")
@@ -524,6 +544,8 @@ def _parse(text: str, name: str, path: Path, row: int):
         raise DatasetError(f"{path}: row {row}, column {name!r}: {text!r} is not a number") from None
     if isinstance(value, float) and not math.isfinite(value):
         raise DatasetError(f"{path}: row {row}, column {name!r}: {text!r} is not finite")
+    if name in _TENSION_COLUMNS and value < TENSION_FLOOR_N:
+        raise DatasetError(f"{path}: row {row}, column {name!r}: {text!r} {_NEGATIVE_TENSION}")
     return value
 
 

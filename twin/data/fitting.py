@@ -20,11 +20,15 @@ from twin.data.prediction import predict_rows
 from twin.effects import FitParameter
 from twin.params import Params
 
-__all__ = ["FitParameter", "ParameterFit", "fit_parameters", "apply_values"]
+__all__ = ["FitParameter", "ParameterFit", "fit_parameters", "fit_determined", "apply_values"]
 
 # Penalty (m per axis) for a row whose prediction fails during a fit: large against any
 # plausible error, so the optimiser steers away from parameters the model cannot solve.
 _FAILED_ROW_PENALTY_M = 0.05
+# Distance from a bound (optimiser variable: log, or value / scale) within which a value is on it.
+_BOUND_TOLERANCE = 1e-3
+# Finite-difference step in the optimiser's variable (relative above 1).
+_DIFF_STEP = 1e-4
 
 
 @dataclasses.dataclass(frozen=True)
@@ -60,6 +64,17 @@ class ParameterFit:
         """(p, 2) intervals value ± level_sigma · std_error (default ≈ 95%)."""
         return np.stack([self.values - level_sigma * self.std_errors, self.values + level_sigma * self.std_errors], 1)
 
+    def undetermined(self) -> list[int]:
+        """Indices of the parameters the data leave undetermined: a standard error above half the
+        value (log-fitted) or above the typical size ``scale`` (others), or a value on a physical
+        bound (:attr:`FitParameter.bounds`), where the data pushed it past what is possible."""
+        out = []
+        for i, (p, value, std) in enumerate(zip(self.parameters, self.values, self.std_errors)):
+            limit = 0.5 * abs(value) if p.log else p.scale
+            if not np.isfinite(std) or std > limit or _at_bound(p, value):
+                out.append(i)
+        return out
+
     def table(self) -> list[dict]:
         ci = self.confidence_interval()
         return [{"parameter": p.label, "value": float(v), "std_error": float(s), "ci95_low": float(c[0]),
@@ -67,7 +82,8 @@ class ParameterFit:
 
 
 def apply_values(params: Params, parameters: Sequence[FitParameter], values, source: str) -> Params:
-    """``params`` with each fitted scalar written into its key (list keys at their index)."""
+    """``params`` with each fitted scalar written into its key (list keys at their index), and
+    the keys a parameter carries (:attr:`FitParameter.follows`) moved with it."""
     changes: dict[str, object] = {}
     for p, v in zip(parameters, values):
         if p.index is None:
@@ -76,7 +92,22 @@ def apply_values(params: Params, parameters: Sequence[FitParameter], values, sou
             current = list(changes.get(p.key, params.get(p.key)))
             current[p.index] = float(v)
             changes[p.key] = current
+        for key, slope in p.follows:
+            changes[key] = float(changes.get(key, params.get(key))) + slope * (float(v) - _current(params, p))
     return params.replace(changes, source=source)
+
+
+def _to_z(p: FitParameter, value: float) -> float:
+    """The optimiser's variable for a value: log(value), or value / scale."""
+    if p.log:
+        return math.log(value) if value > 0 else -math.inf
+    return value / p.scale
+
+
+def _at_bound(p: FitParameter, value: float) -> bool:
+    """Whether ``value`` sits on one of ``p``'s bounds (a thousandth of the variable's unit)."""
+    z = _to_z(p, value)
+    return any(math.isfinite(b) and abs(z - _to_z(p, b)) < _BOUND_TOLERANCE for b in p.bounds if not (p.log and b <= 0))
 
 
 def _current(params: Params, p: FitParameter) -> float:
@@ -108,17 +139,27 @@ def _covariance(jac: np.ndarray, sigma2: float) -> np.ndarray:
 
 def fit_parameters(dataset: Dataset, params: Params, parameters: Sequence[FitParameter], *,
                    x0: Sequence[float] | None = None, source: str = "fitted", max_evaluations: int = 200,
-                   rows: np.ndarray | None = None) -> ParameterFit:
+                   rows: np.ndarray | None = None, guesses: list | None = None,
+                   tolerance: float = 1e-10) -> ParameterFit:
     """Fit ``parameters`` so the model's tip predictions best match the measured tips.
+
+    Each parameter stays within its :attr:`FitParameter.bounds`; each row's solve starts from
+    its own last solution (:func:`twin.data.prediction.predict_rows`), so an evaluation near the
+    last one costs a Newton step or two per row.
 
     Args:
         dataset: the measurements (its base rotation and loads are used).
         params: the parameter set to start from (other values stay as they are).
         parameters: what to fit.
-        x0: starting values (default: the current values in ``params``).
+        x0: starting values (default: the current values in ``params``; moved inside the bounds).
         source: provenance written for the fitted keys.
         max_evaluations: cap on model evaluations (each predicts every row).
         rows: boolean mask of the rows to fit on (default all).
+        guesses: per fitted row, a solution to start its first solve from (e.g. of ``params``);
+            not changed.
+        tolerance: the optimiser stops when a step changes the variables (log, or value / scale)
+            or the gradient by less than this, or the cost by less than a hundredth of it
+            (relative).
 
     Raises:
         ValueError: nothing to fit, or the starting point cannot be predicted at all.
@@ -136,11 +177,17 @@ def fit_parameters(dataset: Dataset, params: Params, parameters: Sequence[FitPar
     def to_values(z):
         return np.array([math.exp(zi) if p.log else zi * s for p, zi, s in zip(parameters, z, scales)])
 
-    z0 = np.array([math.log(v) if p.log else v / s for p, v, s in zip(parameters, start, scales)])
+    lower = np.array([_to_z(p, p.bounds[0]) if not (p.log and p.bounds[0] <= 0) else -np.inf for p in parameters])
+    upper = np.array([_to_z(p, p.bounds[1]) for p in parameters])
+    # least_squares starts strictly inside the bounds.
+    margin = 10 * _BOUND_TOLERANCE
+    z0 = np.clip([_to_z(p, v) for p, v in zip(parameters, start)], lower + margin, upper - margin)
     base_rotation = data.base_rotation
     tensions, masses, lengths, measured = data.tensions_n, data["tip_mass_kg"], data.lengths_m, data.tip_positions_m
+    solutions = list(guesses) if guesses is not None else [None] * len(data)
     evaluations = 0
     failed = [0]
+    last: list = [None, None]  # the last variable evaluated and its residuals
 
     def residuals(z):
         nonlocal evaluations
@@ -149,17 +196,34 @@ def fit_parameters(dataset: Dataset, params: Params, parameters: Sequence[FitPar
             trial = apply_values(params, parameters, to_values(z), source)
         except (ValueError, OverflowError):  # out of range, or a log parameter stepped past exp's range
             return np.full(measured.size, _FAILED_ROW_PENALTY_M)
-        tip, ok, _, _ = predict_rows(trial, base_rotation, tensions, masses, lengths)
+        tip, ok, _, _ = predict_rows(trial, base_rotation, tensions, masses, lengths, guesses=solutions)
         err = tip - measured
         err[~ok] = _FAILED_ROW_PENALTY_M
         failed[0] = int(np.count_nonzero(~ok))
-        return err.ravel()
+        last[:] = [np.array(z, dtype=float), err.ravel()]
+        return last[1]
+
+    def jacobian(z):
+        """Forward differences of _DIFF_STEP in the variable (at least that, also where it is 0;
+        backwards where a bound is nearer): the solves are warm-started, so their results agree
+        to the solver's tolerance, not to rounding, and a step must move the tip well beyond it."""
+        r0 = last[1] if last[0] is not None and np.array_equal(last[0], z) else residuals(z)
+        out = np.empty((r0.size, len(z)))
+        for i in range(len(z)):
+            h = _DIFF_STEP * max(1.0, abs(z[i]))
+            if z[i] + h > upper[i]:
+                h = -h
+            step = np.array(z, dtype=float)
+            step[i] += h
+            out[:, i] = (residuals(step) - r0) / h
+        last[:] = [np.array(z, dtype=float), r0]
+        return out
 
     residuals(z0)
     if failed[0] == len(measured):
         raise ValueError("fit_parameters: no row can be predicted at the starting parameters")
-    result = least_squares(residuals, z0, method="trf", x_scale="jac", diff_step=1e-4,
-                           max_nfev=max_evaluations, xtol=1e-10, ftol=1e-12, gtol=1e-10)
+    result = least_squares(residuals, z0, jac=jacobian, method="trf", x_scale="jac", bounds=(lower, upper),
+                           max_nfev=max_evaluations, xtol=tolerance, ftol=tolerance * 1e-2, gtol=tolerance)
     r = residuals(result.x)
     values = to_values(result.x)
     jac = result.jac
@@ -187,3 +251,34 @@ def fit_parameters(dataset: Dataset, params: Params, parameters: Sequence[FitPar
         evaluations=evaluations,
         params=apply_values(params, parameters, values, source),
     )
+
+
+def fit_determined(dataset: Dataset, params: Params, parameters: Sequence[FitParameter], *,
+                   x0: Sequence[float] | None = None,
+                   **options) -> tuple[ParameterFit | None, list[tuple[FitParameter, float, float]]]:
+    """:func:`fit_parameters`, then without what the data leave undetermined, until all is determined.
+
+    A parameter the data do not determine (:meth:`ParameterFit.undetermined`: too uncertain, or
+    on a physical bound) is dropped and the rest refitted, so it keeps its value in ``params``
+    and is never written into a parameter set as if measured.
+
+    Args:
+        dataset, params, parameters, x0: as for :func:`fit_parameters`.
+        **options: the other keywords of :func:`fit_parameters`.
+
+    Returns:
+        (the fit of the determined parameters, or None when none is; the dropped ones as
+        (parameter, value, standard error) when they were dropped).
+    """
+    parameters = list(parameters)
+    start = list(x0) if x0 is not None else [_current(params, p) for p in parameters]
+    dropped: list[tuple[FitParameter, float, float]] = []
+    while parameters:
+        fit = fit_parameters(dataset, params, parameters, x0=start, **options)
+        loose = fit.undetermined()
+        if not loose:
+            return fit, dropped
+        dropped += [(parameters[i], float(fit.values[i]), float(fit.std_errors[i])) for i in loose]
+        parameters = [p for i, p in enumerate(parameters) if i not in loose]
+        start = [float(v) for i, v in enumerate(fit.values) if i not in loose]
+    return None, dropped

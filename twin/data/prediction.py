@@ -16,7 +16,7 @@ from tqdm import tqdm
 from twin import effects
 from twin.data.dataset import Dataset
 from twin.params import Params
-from twin.rod import Predictor, RodModel
+from twin.rod import Predictor, RodModel, solve
 
 __all__ = ["Predictions", "predict_dataset", "predict_rows"]
 
@@ -60,8 +60,15 @@ class Predictions:
 
 
 def predict_rows(params: Params, base_rotation, tensions_n, tip_mass_kg, lengths_m, *, progress: bool = False,
-                 model: RodModel | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+                 model: RodModel | None = None,
+                 guesses: list | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Predict tracker positions (base frame, m) for arrays of measurements.
+
+    Args:
+        guesses: one entry per row, the row's last converged :class:`twin.rod.RodSolution` or
+            None: each row starts from its own entry instead of the previous row's solution, and
+            its entry is replaced by the new one. Repeated predictions of the same rows under
+            nearby parameter sets (a fit's evaluations) then converge in a Newton step or two.
 
     Returns:
         (tip_m (n, 3), converged (n,), residual_nm (n,), solve_time_s (n,)).
@@ -77,18 +84,25 @@ def predict_rows(params: Params, base_rotation, tensions_n, tip_mass_kg, lengths
     times = np.zeros(n)
     rows = tqdm(range(n), desc="predicting", unit="row", disable=not progress, leave=False)
     for i in rows:
-        sol = predictor.solve(
-            tensions[i],
+        load = dict(
             tip_force_n=effects.tip_force_n(params, tip_mass_kg[i]),
             base_rotation=rotation,
             friction_direction=effects.friction_direction(lengths_m[i], params.effects.tendon_friction_direction),
             raise_on_failure=False,
         )
+        if guesses is None:
+            sol = predictor.solve(tensions[i], **load)
+        else:
+            last = guesses[i]
+            sol = solve(model, tensions[i], guess_nm=None if last is None else last.base_moment_nm,
+                        guess_jacobian=None if last is None else last.shooting_jacobian, **load)
         converged[i] = sol.converged
         residual[i] = sol.residual_nm
         times[i] = sol.solve_time_s
         if sol.converged:
             tip[i] = effects.tracked_point_m(params, sol.tip_position_m, sol.tip_rotation)
+            if guesses is not None:
+                guesses[i] = sol
         else:
             predictor.reset()
     return tip, converged, residual, times

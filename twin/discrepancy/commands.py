@@ -6,9 +6,21 @@ import argparse
 import json
 import sys
 
-from twin.params import load_params, parse_override
+from twin.params import ParameterError, load_params, parse_override
 
-__all__ = ["register"]
+__all__ = ["EXIT_CODES", "register"]
+
+# Exit code per verdict: a lab's script can branch on the answer without reading the JSON.
+EXIT_CODES = {"effect": 0, "none": 0, "ambiguous": 3, "unexplained": 3}
+# Exit code for a dataset, parameter file or option the command cannot use.
+EXIT_BAD_INPUT = 2
+
+_EPILOG = """verdicts and exit codes:
+  effect       0  the named effect(s) leave residuals consistent with noise
+  none         0  no structured disagreement beyond noise
+  ambiguous    3  two or more candidates explain the data equally (listed); none is named for it
+  unexplained  3  structure remains that no candidate nor pair removes (where and how much shown)
+  bad input    2  a dataset, parameter file or option that cannot be used (one line on stderr)"""
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -16,15 +28,19 @@ def register(sub: argparse._SubParsersAction) -> None:
         "discrepancy",
         help="name the physical effect missing from the model for a measured dataset",
         description="Predict every row of DATASET, test the residuals for structure beyond noise, fit each "
-        "candidate effect (twin.effects) on a training split, rank them on held-out rows, and name the "
-        "winner (greedy, until nothing beats noise).",
+        "candidate effect (twin.effects) on a training split, jointly with those already named, rank them on "
+        "held-out rows, and name the best if it beats noise (greedy, until nothing does); then check what the "
+        "fitted model leaves and give a verdict.",
+        epilog=_EPILOG,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     p.add_argument("dataset", metavar="DATASET", help="dataset folder, or the run folder of twin validate")
     p.add_argument("--params", metavar="FILE",
                    help="parameter file of the model to test (default: the one recorded with the dataset)")
     p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
                    help="override a parameter of that model (repeatable)")
-    p.add_argument("--json", action="store_true", help="print one JSON object")
+    p.add_argument("--json", action="store_true",
+                   help="print one JSON object (verdict, effects, candidates of a tie, parameters, remaining_rms_m, ...)")
     p.add_argument("--report", metavar="DIR", help="write a Markdown report with figures into DIR")
     p.add_argument("--out-params", metavar="FILE", help="write the parameter set with the fitted effect(s) to FILE")
     p.add_argument("--seed", type=int, default=0, help="seed of the training/held-out split (default 0)")
@@ -39,35 +55,44 @@ def run_discrepancy_command(args: argparse.Namespace) -> int:
     from twin.discrepancy.workflow import run_discrepancy
     from twin.data.dataset import DatasetError, read_dataset
 
+    def refuse(message: str) -> int:
+        print(f"twin discrepancy: {message}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+
     try:
         dataset = read_dataset(args.dataset)
-    except DatasetError as exc:
-        print(f"twin discrepancy: {exc}", file=sys.stderr)
-        return 2
-    if args.params is not None:
-        params = load_params(args.params, overrides=args.overrides)
-    else:
-        params = dataset.params
-        if args.overrides:
-            params = params.replace(dict(parse_override(o) for o in args.overrides))
+        if args.params is not None:
+            params = load_params(args.params, overrides=args.overrides)
+        else:
+            params = dataset.params
+            if args.overrides:
+                params = params.replace(dict(parse_override(o) for o in args.overrides))
+    except (DatasetError, ParameterError) as exc:
+        return refuse(str(exc))
+    except FileNotFoundError:
+        return refuse(f"--params {args.params}: no such file")
+    except OSError as exc:
+        return refuse(f"--params {args.params}: cannot be read ({exc.strerror})")
     try:
         result = run_discrepancy(dataset, params, holdout_fraction=args.holdout, seed=args.seed,
                                  max_effects=args.max_effects, progress=True)
     except ValueError as exc:
-        print(f"twin discrepancy: {exc}", file=sys.stderr)
-        return 2
+        return refuse(str(exc))
     if args.out_params:
         result.params_after.save(args.out_params)
     if args.report:
         write_report(result, args.report)
+    code = EXIT_CODES[result.verdict]
     if args.json:
         print(json.dumps(result.to_dict()))
-        return 0
+        return code
     print(result.residuals.statement)
+    print(f"verdict: {result.statement()}")
     print(f"named: {', '.join(result.named) or 'none'}")
     for label, entry in result.parameters().items():
         print(f"  {label} = {entry['value']:.6g} ± {entry['std_error']:.2g}")
-    print(f"held-out RMS error: {result.rms_before_m * 1e3:.3f} mm before, {result.rms_after_m * 1e3:.3f} mm after")
+    print(f"held-out RMS error: {result.rms_before_m * 1e3:.3f} mm before, {result.rms_after_m * 1e3:.3f} mm after "
+          f"(noise {result.residuals.noise.rms_3d_m * 1e3:.3f} mm)")
     for i, rnd in enumerate(result.rounds):
         ranking = ", ".join(f"{s.effect} {s.score:.1f}" for s in rnd.scores)
         print(f"round {i + 1} scores (lower is better): {ranking}")
@@ -75,4 +100,4 @@ def run_discrepancy_command(args: argparse.Namespace) -> int:
         print(f"parameters written to {args.out_params}")
     if args.report:
         print(f"report written to {args.report}/report.md")
-    return 0
+    return code

@@ -91,12 +91,13 @@ def estimate_noise(dataset: Dataset, params: Params, errors_m: np.ndarray, conve
     if sigma_l > 0 and ok.any():
         data = dataset.subset(ok)
         args = (data["tip_mass_kg"], data.lengths_m)
-        tip0, ok0, _, _ = predict_rows(params, data.base_rotation, data.tensions_n, *args)
+        solutions = [None] * len(data)
+        tip0, ok0, _, _ = predict_rows(params, data.base_rotation, data.tensions_n, *args, guesses=solutions)
         carried = np.zeros((len(data), 3))
         for channel in range(data.tensions_n.shape[1]):
             bumped = data.tensions_n.copy()
             bumped[:, channel] += _TENSION_STEP_N
-            tip1, ok1, _, _ = predict_rows(params, data.base_rotation, bumped, *args)
+            tip1, ok1, _, _ = predict_rows(params, data.base_rotation, bumped, *args, guesses=list(solutions))
             step = np.where((ok0 & ok1)[:, None], tip1 - tip0, 0.0)
             carried += (step * sigma_l / _TENSION_STEP_N) ** 2
         variance = variance + carried.mean(axis=0)

@@ -28,10 +28,13 @@ from twin.data.dataset import Dataset
 from twin.data.prediction import Predictions, predict_dataset
 from twin.params import Params
 
-__all__ = ["STRUCTURE_ALPHA", "StructureTest", "ResidualMap", "find_discrepancy", "structure_test",
+__all__ = ["MIN_ROWS", "STRUCTURE_ALPHA", "StructureTest", "ResidualMap", "find_discrepancy", "structure_test",
            "thesis_signature"]
 
 STRUCTURE_ALPHA = 1e-3
+# Fewest predicted rows the Find step analyses: below it neither the structured fit's leftovers
+# nor a held-out split say anything about noise.
+MIN_ROWS = 10
 AXES = ("x", "y", "z")
 
 
@@ -76,10 +79,17 @@ def _basis(kappa, phi_deg, mass_kg) -> np.ndarray:
 
 
 def structure_test(errors_m: np.ndarray, kappa, phi_deg, mass_kg, noise: NoiseEstimate) -> StructureTest:
-    """Fit the residuals of converged rows with :func:`_basis` per axis and test it (see module doc)."""
+    """Fit the residuals of converged rows with :func:`_basis` per axis and test it (see module doc).
+
+    Raises:
+        ValueError: fewer than :data:`MIN_ROWS` rows, or too few distinct configurations to leave
+            the structured fit any residual to estimate the noise from.
+    """
+    n = errors_m.shape[0]
+    if n < MIN_ROWS:
+        raise ValueError(f"{n} predicted row(s): too few to tell structure from noise (at least {MIN_ROWS})")
     basis = _basis(kappa, phi_deg, mass_kg)
     rank = int(np.linalg.matrix_rank(basis))
-    n = errors_m.shape[0]
     fitted = np.zeros_like(errors_m)
     for axis in range(3):
         coef, *_ = np.linalg.lstsq(basis, errors_m[:, axis], rcond=None)
@@ -87,7 +97,11 @@ def structure_test(errors_m: np.ndarray, kappa, phi_deg, mass_kg, noise: NoiseEs
     rss0 = float(np.sum(errors_m**2))
     rss1 = float(np.sum((errors_m - fitted) ** 2))
     p, dof = 3 * rank, 3 * n - 3 * rank
-    if dof <= 0 or rss1 <= 0:
+    if dof <= 0:
+        raise ValueError(f"{n} rows in {len(np.unique(np.stack([kappa, phi_deg, mass_kg], 1), axis=0))} "
+                         f"configurations: a smooth function of (κ, φ, load) with {rank} terms fits them exactly, "
+                         "nothing is left to estimate the noise from")
+    if rss1 <= 0:
         f_stat, p_value = (float("inf"), 0.0) if rss0 > 0 else (0.0, 1.0)
     else:
         f_stat = ((rss0 - rss1) / p) / (rss1 / dof)
@@ -198,18 +212,28 @@ class ResidualMap:
                 "statement": self.statement, "signature": self.signature()}
 
 
-def find_discrepancy(dataset: Dataset, params: Params | None = None, *, progress: bool = False) -> ResidualMap:
+def find_discrepancy(dataset: Dataset, params: Params | None = None, *, progress: bool = False,
+                     noise: NoiseEstimate | None = None) -> ResidualMap:
     """Predict every row with ``params`` (default the dataset's), estimate the noise and test for structure.
 
+    Args:
+        noise: the noise estimate to test against (default: estimated from these residuals),
+            e.g. the starting model's when checking what a fitted one leaves.
+
     Raises:
-        ValueError: no row can be predicted (nothing to analyse).
+        ValueError: no row can be predicted, or too few to tell structure from noise
+            (:func:`structure_test`).
     """
     params = params or dataset.params
+    if len(dataset) < MIN_ROWS:
+        raise ValueError(f"{dataset.path or 'dataset'}: {len(dataset)} row(s), too few to estimate the noise and "
+                         f"tell structure from it (at least {MIN_ROWS})")
     predictions = predict_dataset(dataset, params, progress=progress)
     ok = predictions.converged
     if not ok.any():
         raise ValueError(f"find_discrepancy: none of the {len(dataset)} rows can be predicted with these parameters")
-    noise = estimate_noise(dataset, params, predictions.errors_m, ok)
+    if noise is None:
+        noise = estimate_noise(dataset, params, predictions.errors_m, ok)
     structure = structure_test(predictions.errors_m[ok], dataset["kappa_cmd_per_m"][ok], dataset["phi_cmd_deg"][ok],
                                dataset["tip_mass_kg"][ok], noise)
     return ResidualMap(dataset, predictions, noise, structure)

@@ -1,27 +1,56 @@
-"""The discrepancy workflow: find → name → add → show, on one dataset.
+"""The discrepancy workflow: find → name → add → show, on one dataset, with an honest verdict.
+
+The steps (the ranking rule is in :mod:`twin.discrepancy.naming`):
+
+* **Find first.** Nothing is named unless the Find step declared structured disagreement beyond
+  noise (:mod:`twin.discrepancy.residuals`), so the two never contradict.
+* **Greedy, jointly.** The round's winner goes into the model, and the remaining candidates are
+  ranked again, each refitted jointly with everything named, until nothing beats noise (or
+  ``max_effects`` are named). When no single candidate beats noise in the first round, the best
+  few are tried in pairs.
+* **Check what remains.** The fitted model goes through the Find step again (with the starting
+  model's noise estimate): a named effect must leave residuals without structure beyond noise.
+
+The verdict (:data:`VERDICTS`):
+
+``none``
+    no structured disagreement beyond noise: nothing to name.
+``effect``
+    the named effects leave residuals consistent with noise.
+``ambiguous``
+    two or more candidates explain the data equally well within their uncertainty (a tie,
+    :data:`twin.discrepancy.naming.TIE_Z`), and the best of them leaves no structure beyond
+    noise; they are listed, none is named for that round, and the search stops there.
+``unexplained``
+    structure beyond noise remains that no candidate (nor a pair) removes: what was named, if
+    anything, explains part of it (tied candidates that each explain part are listed); the
+    verdict shows where the rest is and how large.
 
 Example:
     >>> from twin.data.dataset import read_dataset
     >>> result = run_discrepancy(read_dataset("runs/validate"))
-    >>> print(result.effect, result.parameters(), result.rms_before_m, result.rms_after_m)
+    >>> print(result.verdict, result.named, result.rms_before_m, result.remaining_rms_m)
     >>> result.params_after.save("endoscope-fitted.toml")
 """
 
 from __future__ import annotations
 
 import dataclasses
-from pathlib import Path
 
 import numpy as np
 
 from twin.discrepancy.candidates import UNTESTABLE_EFFECTS, candidate_library
-from twin.discrepancy.naming import Round, row_errors, rank_candidates, split_rows
+from twin.discrepancy.naming import PAIR_POOL, CandidateScore, Round, rank_candidates, rank_pairs, row_errors, split_rows
 from twin.discrepancy.residuals import ResidualMap, find_discrepancy, thesis_signature
 from twin.data.dataset import Dataset
-from twin.data.fitting import ParameterFit, fit_parameters
+from twin.data.fitting import ParameterFit
 from twin.params import Params
 
-__all__ = ["DiscrepancyResult", "run_discrepancy"]
+__all__ = ["VERDICTS", "DiscrepancyResult", "run_discrepancy"]
+
+VERDICTS = ("effect", "none", "ambiguous", "unexplained")
+# Configurations listed where a residual remains.
+_WORST_SHOWN = 5
 
 
 @dataclasses.dataclass(frozen=True)
@@ -35,12 +64,16 @@ class DiscrepancyResult:
         train, test: row masks of the split.
         seed: the split's seed.
         residuals: the Find step on all rows with ``params_before``.
-        rounds: the greedy rounds (the last one named nothing, unless ``max_effects`` stopped it).
+        rounds: the rounds (the last one named nothing, unless ``max_effects`` stopped it or it tied);
+            a round of pairs is last when one was tried.
         named: the effects named, in order.
-        fit: the fit of the named effects' parameters on the training rows, jointly when there are
-            several (None if none named).
+        fit: the joint fit of the named effects' parameters on the training rows (None if none named).
         errors_before_m, errors_after_m: (held-out rows, 3) p̂ − p* before and after (failures charged).
         converged_before, converged_after: (held-out rows,) which held-out predictions exist.
+        verdict: one of :data:`VERDICTS` (module doc).
+        tied: the candidates of a round that tied, best first (the verdict is then ``ambiguous``,
+            or ``unexplained`` when even the best of them leaves structure).
+        remaining: the Find step on all rows with ``params_after`` (the starting noise estimate).
     """
 
     dataset: Dataset
@@ -57,11 +90,16 @@ class DiscrepancyResult:
     errors_after_m: np.ndarray
     converged_before: np.ndarray
     converged_after: np.ndarray
+    verdict: str = "none"
+    tied: tuple[CandidateScore, ...] = ()
+    remaining: ResidualMap | None = None
 
     @property
     def effect(self) -> str:
-        """The first named effect, or ``none``."""
-        return self.named[0] if self.named else "none"
+        """The first named effect; else ``none``, or the verdict when it is not a clean answer."""
+        if self.named:
+            return self.named[0]
+        return "none" if self.verdict in ("none", "effect") else self.verdict
 
     @property
     def rms_before_m(self) -> float:
@@ -72,6 +110,12 @@ class DiscrepancyResult:
     def rms_after_m(self) -> float:
         """Held-out RMS of |p̂ − p*| with the named effects added (m)."""
         return float(np.sqrt(np.mean(np.sum(self.errors_after_m**2, axis=1))))
+
+    @property
+    def remaining_rms_m(self) -> float:
+        """Held-out RMS of |p̂ − p*| the answer leaves (m): :attr:`rms_after_m`, to set against
+        the noise's ``residuals.noise.rms_3d_m``."""
+        return self.rms_after_m
 
     def heldout_table(self) -> list[dict]:
         """Per held-out configuration: its settings and |e| before and after (mm)."""
@@ -95,16 +139,70 @@ class DiscrepancyResult:
         return {row["parameter"]: {"value": row["value"], "std_error": row["std_error"],
                                    "ci95": [row["ci95_low"], row["ci95_high"]]} for row in self.fit.table()}
 
+    def candidates(self) -> list[dict]:
+        """For a tie: each tied candidate's held-out RMS (m), score, how many standard errors
+        its held-out squared error is above the best's, and its fitted values."""
+        return [{"effect": s.effect, "heldout_rms_m": s.heldout_rms_m, "score": s.score, "worse_z": s.worse_z,
+                 "parameters": {row["parameter"]: {"value": row["value"], "std_error": row["std_error"]}
+                                for row in (s.fit.table() if s.fit else [])}} for s in self.tied]
+
+    def where(self) -> dict:
+        """Where the residual of ``params_after`` is (all rows): per axis, bending plane, curvature
+        and tip load, the worst configurations, and the Find step's test of it."""
+        r = self.remaining or self.residuals
+        worst = sorted(r.by_configuration(), key=lambda row: -row["error_mm"])[:_WORST_SHOWN]
+        return {"rms_m": r.rms_m(), "noise_rms_m": r.noise.rms_3d_m, "beyond_noise": r.structure.beyond_noise,
+                "structured_rms_m": r.structure.structured_rms_m, "p_value": r.structure.p_value,
+                "by_axis": r.by_axis(), "by_plane": r.by("phi_cmd_deg"), "by_curvature": r.by("kappa_cmd_per_m"),
+                "by_load": r.by("tip_mass_kg"), "worst": worst}
+
+    def statement(self) -> str:
+        """The verdict in one or two sentences for a person."""
+        noise = self.residuals.noise.rms_3d_m * 1e3
+        left = (f"{self.remaining_rms_m * 1e3:.3g} mm held-out RMS left (from {self.rms_before_m * 1e3:.3g} mm) "
+                f"against {noise:.3g} mm of noise")
+        if self.verdict == "none":
+            return f"none: no structured disagreement beyond noise ({left})."
+        if self.verdict == "effect":
+            return f"effect: {', '.join(self.named)} explain(s) the disagreement; {left}."
+        if self.verdict == "ambiguous":
+            tie = ", ".join(f"{s.effect} {s.heldout_rms_m * 1e3:.3g} mm" for s in self.tied)
+            spread = (max(s.heldout_rms_m for s in self.tied) - min(s.heldout_rms_m for s in self.tied)) * 1e3
+            first = f" after {', '.join(self.named)}" if self.named else ""
+            return (f"ambiguous{first}: {tie} held-out explain the data equally within their uncertainty "
+                    f"(spread {spread:.2g} mm; noise {noise:.3g} mm); none of them is added: {left}.")
+        w = self.where()
+        axis = max(w["by_axis"], key=lambda a: a["rms_mm"])
+        plane = max(w["by_plane"], key=lambda g: g["rms_mm"])
+        kappa = max(w["by_curvature"], key=lambda g: g["rms_mm"])
+        if self.tied:
+            part = f"the best candidates tie ({', '.join(s.effect for s in self.tied)}) and none removes it; "
+        elif self.named:
+            part = f"{', '.join(self.named)} explain(s) part; "
+        else:
+            part = "no candidate nor pair removes it; "
+        return (f"unexplained: {part}{left}, {w['structured_rms_m'] * 1e3:.3g} mm of it structured "
+                f"(p = {w['p_value']:.2g}); largest along {axis['axis']} ({axis['rms_mm']:.3g} mm RMS), in the "
+                f"plane φ = {plane['phi_cmd_deg']:g}° ({plane['rms_mm']:.3g} mm), at κ = {kappa['kappa_cmd_per_m']:g} "
+                f"1/m ({kappa['rms_mm']:.3g} mm); worst configurations "
+                f"{', '.join(str(c['config']) for c in w['worst'])}.")
+
     def to_dict(self) -> dict:
         """The ``twin discrepancy --json`` object."""
         first = self.rounds[0]
         return {
             "dataset": str(self.dataset.path) if self.dataset.path else None,
+            "verdict": self.verdict,
+            "statement": self.statement(),
             "effect": self.effect,
             "effects": list(self.named),
+            "candidates": self.candidates(),
             "parameters": self.parameters(),
             "rms_before_m": self.rms_before_m,
             "rms_after_m": self.rms_after_m,
+            "remaining_rms_m": self.remaining_rms_m,
+            "noise_rms_m": self.residuals.noise.rms_3d_m,
+            "remaining": self.where(),
             "ranking": [{"effect": s.effect, "score": s.score, "heldout_rms_m": s.heldout_rms_m,
                          "parameters": s.parameters, "beats_noise": s.beats_noise} for s in first.scores],
             "rounds": [r.to_dict() for r in self.rounds],
@@ -120,7 +218,7 @@ class DiscrepancyResult:
 def run_discrepancy(dataset: Dataset, params: Params | None = None, *, holdout_fraction: float = 1 / 3,
                     seed: int = 0, max_effects: int = 3, max_evaluations: int = 25,
                     progress: bool = False) -> DiscrepancyResult:
-    """Find, name, add and show the effects missing from ``params`` for ``dataset``.
+    """Find, name, add and show the effects missing from ``params`` for ``dataset``, and judge (module doc).
 
     Args:
         dataset: the measurements (e.g. a validation sweep).
@@ -132,13 +230,14 @@ def run_discrepancy(dataset: Dataset, params: Params | None = None, *, holdout_f
         progress: progress bars on stderr.
 
     Raises:
-        ValueError: ``max_effects`` < 1, no row can be predicted, or the dataset is too small to split.
+        ValueError: ``max_effects`` < 1, no row can be predicted, or the dataset is too small to
+            estimate its noise or to split.
     """
     if max_effects < 1:
         raise ValueError(f"max_effects = {max_effects!r}: must be >= 1")
     params = params or dataset.params
-    residuals = find_discrepancy(dataset, params, progress=progress)
     train, test = split_rows(dataset, holdout_fraction, seed)
+    residuals = find_discrepancy(dataset, params, progress=progress)
     name = dataset.path.name if dataset.path else "dataset"
     source = f"fitted: discrepancy {name} (training split, seed {seed})"
     library = candidate_library(params)
@@ -146,40 +245,47 @@ def run_discrepancy(dataset: Dataset, params: Params | None = None, *, holdout_f
     rounds: list[Round] = []
     named: list[str] = []
     fit: ParameterFit | None = None
+    tied: tuple[CandidateScore, ...] = ()
+    options = dict(source=source, max_evaluations=max_evaluations, progress=progress)
     while len(named) < max_effects:
         remaining = [c for effect, c in library.items() if effect not in named]
         if not remaining:
             break
-        ranked = rank_candidates(dataset, current, remaining, train, test, source=source,
-                                 max_evaluations=max_evaluations, progress=progress,
-                                 label=f"round {len(rounds) + 1}")
-        if not rounds and not residuals.structure.beyond_noise:
+        ranked = rank_candidates(dataset, current, remaining, train, test, named=fit.parameters if fit else (),
+                                 label=f"round {len(rounds) + 1}", **options)
+        if not residuals.structure.beyond_noise:
             # Find and Name must agree: with no structure beyond noise in the residuals there is
             # nothing to name, even if a candidate's own F-test passes on the training rows.
-            ranked = dataclasses.replace(ranked, winner=None)
+            rounds.append(dataclasses.replace(ranked, winner=None, ties=()))
+            break
         rounds.append(ranked)
+        if ranked.winner is None and not named and max_effects >= 2:
+            pool = [library[s.effect] for s in ranked.scores if np.isfinite(s.score)][:PAIR_POOL]
+            if len(pool) >= 2:
+                tries = len(remaining) + len(pool) * (len(pool) - 1) // 2
+                ranked = rank_pairs(dataset, current, pool, train, test, tries=tries, **options)
+                rounds.append(ranked)
+        if ranked.ties:
+            tied = ranked.tied
+            break
         if ranked.winner is None:
             break
-        named.append(ranked.winner.effect)
+        named.extend(ranked.winner.effects)
         fit = ranked.winner.fit
-        if len(named) > 1:
-            # Each greedy value was fitted with the earlier effects held, and an effect named
-            # first has absorbed some of what a later one explains; refit them together before
-            # the next round, or the leftover bias is named as yet another effect.
-            parameters = [p for rnd in rounds if rnd.winner for p in rnd.winner.fit.parameters]
-            # Discrete choices a winner made (friction's sliding direction) stay as chosen.
-            carried = {key: fit.params.get(key) for effect in named for variant in library[effect].variants
-                       for key in variant}
-            start = params.replace(carried, source=source) if carried else params
-            fit = fit_parameters(dataset, start, parameters, x0=[_value(fit.params, p) for p in parameters],
-                                 source=f"{source}: {', '.join(named)}", max_evaluations=max_evaluations, rows=train)
         current = fit.params
     errors_before, ok_before = row_errors(dataset, params, test)
     errors_after, ok_after = row_errors(dataset, current, test)
+    after = find_discrepancy(dataset, current, noise=residuals.noise) if named else residuals
+    if not residuals.structure.beyond_noise:
+        verdict = "none"
+    elif tied:
+        # A tie is the answer only if the tied explanations explain: when even the best of them
+        # leaves structure beyond noise, what is missing is none of them alone.
+        best = find_discrepancy(dataset, tied[0].fit.params, noise=residuals.noise)
+        verdict = "unexplained" if best.structure.beyond_noise else "ambiguous"
+    elif not named or after.structure.beyond_noise:
+        verdict = "unexplained"
+    else:
+        verdict = "effect"
     return DiscrepancyResult(dataset, params, current, train, test, seed, residuals, tuple(rounds), tuple(named),
-                             fit, errors_before, errors_after, ok_before, ok_after)
-
-
-def _value(params: Params, parameter) -> float:
-    value = params.get(parameter.key)
-    return float(value if parameter.index is None else value[parameter.index])
+                             fit, errors_before, errors_after, ok_before, ok_after, verdict, tied, after)

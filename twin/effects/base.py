@@ -28,6 +28,7 @@ hooks take the parameter set as an argument, and the twin's compiled model by it
 from __future__ import annotations
 
 import dataclasses
+import math
 from typing import Any, Callable, Protocol
 
 import numpy as np
@@ -119,12 +120,18 @@ class FitParameter:
     Attributes:
         log: fit log(value) (for positive quantities spanning decades).
         scale: typical size, for conditioning and the finite-difference step.
+        bounds: (low, high) the physically possible values, in the parameter's unit; a fit that
+            ends on one is not determined by the data.
+        follows: (key, slope) of other scalar keys that move with this one: ``key`` changes by
+            slope times the change of the value (a modulus carries the axial stiffness with it).
     """
 
     key: str
     index: int | None = None
     log: bool = False
     scale: float = 1.0
+    bounds: tuple[float, float] = (-math.inf, math.inf)
+    follows: tuple[tuple[str, float], ...] = ()
 
     @property
     def label(self) -> str:

@@ -4,7 +4,8 @@
 Twin and prediction: the clamp's orientation (:func:`twin.effects.clamp_rotation`) is
 R_y(t_y) R_x(t_x) R_base; the world, gravity and the tracker stay put.
 
-Discrepancy: the tilt about world x and y (deg).
+Discrepancy: the tilt about world x and y (deg), each within ±10° (more is a misplaced clamp,
+visible by eye).
 """
 
 from __future__ import annotations
@@ -27,7 +28,7 @@ class BaseTiltEffect(Effect):
         return rot_y(tilt_y) @ rot_x(tilt_x) @ rotation
 
     def candidate(self, params: Params) -> Candidate:
-        return Candidate(self.name, tuple(FitParameter("effects.base_tilt_deg", i, scale=1.0) for i in range(2)))
+        return Candidate(self.name, tuple(FitParameter("effects.base_tilt_deg", i, scale=1.0, bounds=(-10.0, 10.0)) for i in range(2)))
 
 
 EFFECT = BaseTiltEffect()

@@ -11,8 +11,9 @@ unloading: hysteresis. :class:`TendonFriction` applies it before every physics s
 Prediction: the predictor takes μ with the body (:class:`twin.effects.BodySpec`) and each
 tendon's sliding direction from its encoder length (:func:`friction_direction`).
 
-Discrepancy: μ (log; starts at 0.02 when off): one coefficient for all holes, fitted for both
-sliding directions at rest (pulled / backed off), the better kept.
+Discrepancy: μ (log; starts at 0.02 when off; between 0.001 and 1 per radian, a braided line
+in a printed hole being of order 0.1): one coefficient for all holes, fitted for both sliding
+directions at rest (pulled / backed off), the better kept.
 """
 
 from __future__ import annotations
@@ -139,7 +140,7 @@ class TendonFrictionEffect(Effect):
         return TendonFriction.in_model(model, coeff, params.tendons.count) if coeff > 0 else None
 
     def candidate(self, params: Params) -> Candidate:
-        coeff = FitParameter("effects.tendon_friction_coeff", log=True)
+        coeff = FitParameter("effects.tendon_friction_coeff", log=True, bounds=(1e-3, 1.0))
         return Candidate(self.name, (coeff,), start={coeff.label: _FIT_START},
                          variants=({"effects.tendon_friction_direction": 1.0},
                                    {"effects.tendon_friction_direction": -1.0}))

@@ -6,7 +6,8 @@ Twin and prediction: load cell i reports (1 + g_i) times the true tension (with 
 divides it out (:func:`twin.effects.true_tensions_n`). The errors are a load cell that reads
 differently from what its calibration says, e.g. one loaded off its axis.
 
-Discrepancy: g_1 … g_n, one relative gain error per load cell.
+Discrepancy: g_1 … g_n, one relative gain error per load cell, within ±0.5 (a cell reading half
+or one and a half times the force is broken, not miscalibrated).
 """
 
 from __future__ import annotations
@@ -28,7 +29,7 @@ class TensionGainEffect(Effect):
         return gain * (1.0 + np.asarray(params.effects.tension_gain_error, dtype=float)), offset_n
 
     def candidate(self, params: Params) -> Candidate:
-        return Candidate(self.name, tuple(FitParameter("effects.tension_gain_error", i, scale=0.05)
+        return Candidate(self.name, tuple(FitParameter("effects.tension_gain_error", i, scale=0.05, bounds=(-0.5, 0.5))
                                           for i in range(params.tendons.count)))
 
 

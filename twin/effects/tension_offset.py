@@ -7,7 +7,7 @@ a prediction from measured tensions subtracts it (:func:`twin.effects.true_tensi
 Discrepancy: o_1, o_2 with o_3 = o_4 held. An offset common to an antagonist pair adds equal
 tension on opposite sides of the backbone and bends nothing, so only o_i − o_(i+2) can be seen;
 the fitted o_1, o_2 are those differences. In general one offset per antagonist pair (tendons
-180° apart) and one per unpaired tendon is fitted.
+180° apart) and one per unpaired tendon is fitted, within ±1 N (most of the pretension).
 """
 
 from __future__ import annotations
@@ -44,7 +44,7 @@ class TensionOffsetEffect(Effect):
         return gain, offset_n + np.asarray(params.effects.tension_offset_error_n, dtype=float)
 
     def candidate(self, params: Params) -> Candidate:
-        return Candidate(self.name, tuple(FitParameter("effects.tension_offset_error_n", i, scale=0.05)
+        return Candidate(self.name, tuple(FitParameter("effects.tension_offset_error_n", i, scale=0.05, bounds=(-1.0, 1.0))
                                           for i in _antagonist_representatives(params.tendons.angles_deg)))
 
 

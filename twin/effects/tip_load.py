@@ -5,7 +5,7 @@ Twin and prediction: the mass hung at the tip (:meth:`twin.sim.plant.Plant.set_t
 and the tip force a prediction applies (:func:`twin.effects.tip_force_n`), are the nominal mass
 times (1 + e).
 
-Discrepancy: the relative error e; only datasets with rows that hang a tip mass can show it.
+Discrepancy: the relative error e, between −0.5 and 1 (half or twice the mass); only datasets with rows that hang a tip mass can show it.
 """
 
 from __future__ import annotations
@@ -26,7 +26,7 @@ class TipLoadEffect(Effect):
         return mass_kg * (1.0 + params.effects.tip_load_error_fraction)
 
     def candidate(self, params: Params) -> Candidate:
-        return Candidate(self.name, (FitParameter("effects.tip_load_error_fraction", scale=0.1),),
+        return Candidate(self.name, (FitParameter("effects.tip_load_error_fraction", scale=0.1, bounds=(-0.5, 1.0)),),
                          applies=lambda dataset: bool(np.any(dataset["tip_mass_kg"] > 0)))
 
 

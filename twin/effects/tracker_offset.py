@@ -4,7 +4,7 @@ the tip frame (m; 0 = off): a cap mounted off the tip.
 Twin: the probes sit at their places in the cap plus this offset (:class:`twin.sim.sensors.Tracker`).
 Prediction: the tracked point is tip + R_tip · offset (:func:`twin.effects.tracked_point_m`).
 
-Discrepancy: the offset's three components (m).
+Discrepancy: the offset's three components (m), each within ±10 mm (the cap's size).
 """
 
 from __future__ import annotations
@@ -25,7 +25,7 @@ class TrackerOffsetEffect(Effect):
         return offset_m + np.asarray(params.effects.tracker_offset_m, dtype=float)
 
     def candidate(self, params: Params) -> Candidate:
-        return Candidate(self.name, tuple(FitParameter("effects.tracker_offset_m", i, scale=1e-3) for i in range(3)))
+        return Candidate(self.name, tuple(FitParameter("effects.tracker_offset_m", i, scale=1e-3, bounds=(-0.01, 0.01)) for i in range(3)))
 
 
 EFFECT = TrackerOffsetEffect()

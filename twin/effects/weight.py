@@ -4,7 +4,7 @@ fraction of it that sits at the discs instead of spread uniformly (0 = off).
 Twin and prediction: both build the body (:class:`twin.effects.BodySpec`) with the line mass
 (1 − f) m / L and f m / D more at each of the D discs, so the sag changes shape.
 
-Discrepancy: the endoscope's mass (log). Its split between backbone and discs moves the centre
+Discrepancy: the endoscope's mass (log, within a factor of ten of the model's). Its split between backbone and discs moves the centre
 of mass by a twentieth of the length and is indistinguishable from the mass on a tip-position
 sweep, so the fraction is not fitted.
 """
@@ -36,7 +36,8 @@ class WeightEffect(Effect):
                                    disc_mass_kg=spec.disc_mass_kg + fraction * b.mass_kg / d.count)
 
     def candidate(self, params: Params) -> Candidate:
-        return Candidate(self.name, (FitParameter("backbone.mass_kg", log=True),))
+        mass = params.backbone.mass_kg
+        return Candidate(self.name, (FitParameter("backbone.mass_kg", log=True, bounds=(mass / 10.0, mass * 10.0)),))
 
 
 EFFECT = WeightEffect()
