@@ -272,3 +272,35 @@ def test_convergence_error_carries_status_and_trace():
     assert len(error.trace) == 2  # the one iteration and the iterate it reached
     assert error.trace[-1].residual_nm == error.residual_nm
     assert error.trace[0].residual_nm > error.residual_nm
+
+
+@pytest.mark.parametrize("angles_deg", [[0.0, 120.0, 240.0], [0.0, 90.0, 180.0, 270.0],
+                                        [0.0, 60.0, 120.0, 180.0, 240.0, 300.0], [10.0, 100.0, 170.0, 250.0, 300.0]])
+def test_the_grid_tensions_bend_any_tendon_layout_to_the_commanded_plane_and_curvature(angles_deg):
+    from twin.rod.grid import pcc_realisable
+
+    n = len(angles_deg)
+    params = PARAMS.replace({"tendons.angles_deg": angles_deg, "effects.tension_gain_error": [0.0] * n,
+                             "effects.tension_offset_error_n": [0.0] * n,
+                             "sensors.loadcell_offset_counts": [0.0] * n})
+    model = RodModel.from_params(params)
+    bends = []
+    for phi in (0.0, 45.0, 60.0, 135.0, 200.0, 315.0):
+        assert pcc_realisable(phi, params)
+        sol = solve(model, pcc_tensions_n(13.0, phi, params))
+        x, y, _ = sol.tip_position_m
+        miss_deg = (np.degrees(np.arctan2(y, x)) - phi + 180.0) % 360.0 - 180.0
+        assert abs(miss_deg) < 0.05
+        bends.append(np.degrees(np.arccos(sol.tip_rotation[2, 2])))
+    # The same curvature in every plane: what sets the bend is κ, not the tendons nearest to φ.
+    assert np.ptp(bends) < 0.1 and bends[0] == pytest.approx(np.degrees(13.0 * params.backbone.length_m), abs=3.0)
+
+
+def test_a_plane_no_tendon_pair_brackets_is_refused_not_bent_elsewhere():
+    from twin.rod.grid import pcc_realisable
+
+    two = PARAMS.replace({"tendons.angles_deg": [0.0, 180.0], "effects.tension_gain_error": [0.0] * 2,
+                          "effects.tension_offset_error_n": [0.0] * 2, "sensors.loadcell_offset_counts": [0.0] * 2})
+    assert pcc_realisable(0.0, two) and pcc_realisable(180.0, two) and not pcc_realisable(90.0, two)
+    with pytest.raises(ValueError, match="cannot bend towards it"):
+        pcc_tensions_n(13.0, 90.0, two)
