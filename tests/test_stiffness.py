@@ -62,3 +62,18 @@ def test_stiffness_run_on_the_twin_recovers_its_youngs_modulus(tmp_path):
     assert result.youngs_modulus_pa == pytest.approx(true_e, rel=0.03)
     assert ci[0, 0] < true_e < ci[0, 1]
     assert abs(model.backbone.youngs_modulus_pa - true_e) > 3 * result.fit.std_errors[0]
+
+
+def test_a_modulus_the_data_leave_undetermined_is_named_and_never_written_as_fitted(tmp_path, capsys):
+    """On the twin the isotropic G moves the sag by 0.5%: its fit is as uncertain as it is large.
+    The command says so, exits 3, and the fitted file keeps the parameter set's G with its source."""
+    from twin.cli import main
+
+    assert main(["stiffness", "--seed", "5", "--out", str(tmp_path)]) == 3
+    err = capsys.readouterr().err
+    assert "backbone.shear_modulus_pa is not determined by these data" in err
+    (fitted,) = tmp_path.glob("stiffness-*/fitted_params.toml")
+    params, nominal = load_params(fitted), load_params()
+    assert params.backbone.shear_modulus_pa == nominal.backbone.shear_modulus_pa
+    assert params.source("backbone.shear_modulus_pa") == nominal.source("backbone.shear_modulus_pa")
+    assert params.source("backbone.youngs_modulus_pa") == "fitted"

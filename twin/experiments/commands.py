@@ -45,7 +45,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     c.add_argument("--samples", type=int, default=10, help="samples averaged per mass (default 10)")
     c.set_defaults(func=run_calibrate_cmd)
 
-    s = sub.add_parser("stiffness", help="stiffness characterisation (thesis 8.2): fit E and G on a device")
+    s = sub.add_parser("stiffness", help="stiffness characterisation (thesis 8.2): fit E and G on a device",
+                       description="Exits 3 when the data leave a modulus undetermined: it is named, and the "
+                                   "fitted parameter file keeps that modulus's value from the parameter set.")
     _device_args(s)
     s.add_argument("--resume", metavar="RUN_DIR", help="continue an interrupted run in this folder")
     s.set_defaults(func=run_stiffness_cmd)
@@ -411,7 +413,8 @@ def run_stiffness_cmd(args: argparse.Namespace) -> int:
 def _stiffness(args, folder: Path, params) -> int:
     from twin.data.dataset import RUN_DATASET, read_dataset
     from twin.experiments.protocols import run_stiffness
-    from twin.experiments.stiffness import fit_stiffness, plot_error_surface
+    from twin.data.fitting import fit_determined
+    from twin.experiments.stiffness import MODULI, fit_stiffness, plot_error_surface
 
     device = _open(args, params)
     try:
@@ -419,15 +422,28 @@ def _stiffness(args, folder: Path, params) -> int:
         run_stiffness(device, folder / RUN_DATASET, params)
     finally:
         device.close()
-    result = fit_stiffness(read_dataset(folder / RUN_DATASET), params)
+    dataset = read_dataset(folder / RUN_DATASET)
+    result = fit_stiffness(dataset, params)
     plot_error_surface(result, folder / "error_surface.png")
-    result.fit.params.save(folder / "fitted_params.toml")
-    for row in result.fit.table():
+    loose = set(result.fit.undetermined())
+    for i, row in enumerate(result.fit.table()):
+        note = "  UNDETERMINED by these data" if i in loose else ""
         print(f"{row['parameter']:28s} {row['value']:.5g}  ± {row['std_error']:.2g}  "
-              f"(95%: {row['ci95_low']:.4g} … {row['ci95_high']:.4g})")
+              f"(95%: {row['ci95_low']:.4g} … {row['ci95_high']:.4g}){note}")
     print(f"correlation E-G {result.fit.correlation[0, 1]:+.3f}; tip RMS {result.fit.rms_m * 1e3:.3f} mm")
-    print(f"fitted parameter file: {folder / 'fitted_params.toml'}")
-    return 0
+    # What the data leave undetermined keeps its value in the parameter set, never a fitted one.
+    fit, dropped = fit_determined(dataset, params, MODULI) if loose else (result.fit, [])
+    for p, value, std in dropped:
+        print(f"twin stiffness: {p.label} is not determined by these data (fit {value:.4g} ± {std:.2g}); "
+              f"the parameter file keeps {params.get(p.key)!r} ({params.source(p.key) or 'no source'})",
+              file=sys.stderr)
+    if fit is None:
+        print("twin stiffness: nothing is determined; no fitted parameter file written", file=sys.stderr)
+        return 3
+    fit.params.save(folder / "fitted_params.toml")
+    print(f"fitted parameter file: {folder / 'fitted_params.toml'} "
+          f"({', '.join(p.label for p in fit.parameters)} fitted)")
+    return 3 if dropped else 0
 
 
 def _print_calibration(cal) -> None:
