@@ -69,3 +69,11 @@ def test_commands_write_under_runs_by_default(tmp_path, monkeypatch, capsys):
     (folder,) = (tmp_path / "runs").iterdir()
     assert folder.name.startswith("crosscheck-") and (folder / "crosscheck.md").exists()
     assert str(folder.relative_to(tmp_path)) in capsys.readouterr().out
+
+
+def test_twin_sim_takes_one_value_per_tendon_of_the_robot(capsys):
+    assert main(["sim", "--robot", "three-tendon", "--tensions", "2,1,1", "--json"]) == 0
+    tip = json.loads(capsys.readouterr().out)["tip_position_m"]
+    assert tip[2] < -0.005  # tendon 1 at 0 deg bends the horizontal robot down
+    assert _run(["sim", "--robot", "three-tendon", "--tensions", "2,1,1,1"]) == 2
+    assert "--tensions has 4 values; the robot has 3 tendons" in capsys.readouterr().err

@@ -80,19 +80,22 @@ def new_run_folder(parent: str | Path, name: str) -> Path:
     raise FileExistsError(f"{parent}: a thousand {stamp} run folders already exist")
 
 
-def vector(n: int):
-    """An argparse type: ``"a,b,c"`` → float array of length ``n``."""
+def vector(n: int | None):
+    """An argparse type: ``"a,b,c"`` → float array of length ``n`` (any length for None: one
+    entry per tendon, checked by the command against the robot)."""
+
+    count = "one or more" if n is None else str(n)
 
     def parse(text: str) -> np.ndarray:
         try:
             values = np.array([float(x) for x in text.split(",")])
         except ValueError:
-            raise argparse.ArgumentTypeError(f"{text!r}: expected {n} comma-separated numbers") from None
-        if values.size != n or not np.all(np.isfinite(values)):
-            raise argparse.ArgumentTypeError(f"{text!r}: expected {n} finite comma-separated numbers")
+            raise argparse.ArgumentTypeError(f"{text!r}: expected {count} comma-separated numbers") from None
+        if (n is not None and values.size != n) or not np.all(np.isfinite(values)):
+            raise argparse.ArgumentTypeError(f"{text!r}: expected {count} finite comma-separated numbers")
         return values
 
-    parse.__name__ = f"vector{n}"
+    parse.__name__ = f"vector{n or ''}"
     return parse
 
 

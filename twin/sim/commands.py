@@ -8,7 +8,7 @@ import sys
 
 import numpy as np
 
-from twin.cliargs import (add_param_args, add_pose_args, new_run_folder, nonnegative, params_from_args, pose_overrides,
+from twin.cliargs import (UsageError, add_param_args, add_pose_args, new_run_folder, nonnegative, params_from_args, pose_overrides,
                           positive, vector)
 
 __all__ = ["register"]
@@ -17,9 +17,9 @@ __all__ = ["register"]
 def register(subparsers) -> None:
     sim = subparsers.add_parser("sim", help="settle the MuJoCo twin under tensions or tendon lengths")
     drive = sim.add_mutually_exclusive_group(required=True)
-    drive.add_argument("--tensions", type=vector(4), metavar="T1,T2,T3,T4", help="tendon tensions (N)")
-    drive.add_argument("--lengths", type=vector(4), metavar="D1,D2,D3,D4",
-                       help="relative tendon lengths (m, positive = paid out)")
+    drive.add_argument("--tensions", type=vector(None), metavar="T1,T2,...", help="tendon tensions (N), one per tendon")
+    drive.add_argument("--lengths", type=vector(None), metavar="D1,D2,...",
+                       help="relative tendon lengths (m, positive = paid out), one per tendon")
     sim.add_argument("--tip-mass-kg", type=nonnegative, default=0.0, metavar="M", help="mass hung at the tip (kg)")
     sim.add_argument("--tip-force", type=vector(3), default=np.zeros(3), metavar="FX,FY,FZ",
                      help="force on the tip, world frame (N), beside a hung mass")
@@ -53,6 +53,10 @@ def run_sim(args: argparse.Namespace) -> int:
     from twin.sim.plant import Plant
 
     params = params_from_args(args)
+    drive = args.tensions if args.tensions is not None else args.lengths
+    if drive.size != params.tendons.count:
+        option = "--tensions" if args.tensions is not None else "--lengths"
+        raise UsageError(f"{option} has {drive.size} values; the robot has {params.tendons.count} tendons")
     plant = Plant(params, base_rotation=params.rig.base_rotation, seed=args.seed)
     if args.tensions is not None:
         plant.set_tensions(args.tensions)
