@@ -113,3 +113,43 @@ def test_header_lists_the_documented_columns(tmp_path):
     with writer(tmp_path) as w:
         w.write(row(0))
     assert (tmp_path / "measurements.csv").read_text().splitlines()[0].split(",") == list(COLUMNS)
+
+
+def test_a_tension_below_the_floor_is_refused_on_writing_and_reading_and_noise_around_zero_is_kept(tmp_path):
+    with writer(tmp_path / "w") as w:
+        with pytest.raises(DatasetError, match=r"tension_2_n.*-5.0.*a tendon only pulls"):
+            w.write(row(0, tension_2_n=-5.0))
+        w.write(row(1, tension_2_n=-0.002))
+    assert read_dataset(tmp_path / "w").tensions_n[0, 1] == pytest.approx(-0.002)
+    path = tmp_path / "w" / "measurements.csv"
+    path.write_text(path.read_text().replace("-0.002", "-5.0"))
+    with pytest.raises(DatasetError, match=r"row 2, column 'tension_2_n': '-5.0' is below -0.5 N"):
+        read_dataset(tmp_path / "w")
+
+
+@pytest.mark.parametrize("change, message", [
+    (lambda meta: [meta], "format 'list'"),
+    (lambda meta: {**meta, "base_rotation": "[[1, 0, 0], [0, 1, 0], [0, 0, 1]]"}, "base_rotation .* is not a 3x3"),
+    (lambda meta: {**meta, "params": ["backbone"]}, "params is a JSON array, expected an object of sections"),
+    (lambda meta: {**meta, "params": {"backbone": 3}}, "params section 'backbone' is a JSON number"),
+])
+def test_malformed_metadata_is_refused_naming_file_and_entry(tmp_path, change, message):
+    with writer(tmp_path) as w:
+        w.write(row(0))
+    meta_path = tmp_path / "metadata.json"
+    meta_path.write_text(json.dumps(change(json.loads(meta_path.read_text()))))
+    with pytest.raises(DatasetError, match=message) as info:
+        read_dataset(tmp_path)
+    assert str(meta_path) in str(info.value)
+
+
+def test_a_duplicated_column_is_refused_naming_it_and_both_fields(tmp_path):
+    with writer(tmp_path) as w:
+        w.write(row(0))
+    path = tmp_path / "measurements.csv"
+    lines = path.read_text().splitlines()
+    header = lines[0].split(",")
+    path.write_text("\r\n".join([lines[0] + ",tension_3_n", lines[1] + ",9.0"]) + "\r\n")
+    with pytest.raises(DatasetError, match=rf"row 1, column 'tension_3_n' appears twice \(fields "
+                                           rf"{header.index('tension_3_n') + 1} and {len(header) + 1}\)"):
+        read_dataset(tmp_path)
