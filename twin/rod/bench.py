@@ -8,7 +8,6 @@ import numpy as np
 
 from twin.params import Params, load_params
 from twin.pcc import validation_grid
-from twin.pose import HORIZONTAL
 from twin.rod.grid import GRAVITY_TIP_FORCE_N, pcc_tensions_n
 from twin.rod.jacobian import tip_jacobian
 from twin.rod.model import RodModel
@@ -29,22 +28,23 @@ def bench_predictor(params: Params | None = None, *, stream_samples: int = 400) 
     """
     params = params or load_params()
     model = RodModel.from_params(params)
+    pose = params.rig.base_rotation
     g = params.environment.gravity_m_s2
     grid = validation_grid()[::7]
     cases = [(pcc_tensions_n(k, phi, params), GRAVITY_TIP_FORCE_N(m, g)) for _, k, phi, m in grid]
-    solve(model, cases[0][0], tip_force_n=cases[0][1], base_rotation=HORIZONTAL)  # compile / load cache
+    solve(model, cases[0][0], tip_force_n=cases[0][1], base_rotation=pose)  # compile / load cache
 
     cold = []
     for tensions, force in cases:
         t0 = time.perf_counter()
-        solve(model, tensions, tip_force_n=force, base_rotation=HORIZONTAL)
+        solve(model, tensions, tip_force_n=force, base_rotation=pose)
         cold.append(time.perf_counter() - t0)
 
     fine = model.replace(steps=640)
     error = 0.0
     for tensions, force in cases[::3]:
-        a = solve(model, tensions, tip_force_n=force, base_rotation=HORIZONTAL).tip_position_m
-        b = solve(fine, tensions, tip_force_n=force, base_rotation=HORIZONTAL).tip_position_m
+        a = solve(model, tensions, tip_force_n=force, base_rotation=pose).tip_position_m
+        b = solve(fine, tensions, tip_force_n=force, base_rotation=pose).tip_position_m
         error = max(error, float(np.linalg.norm(a - b)))
 
     warm, jac = [], []
@@ -52,10 +52,12 @@ def bench_predictor(params: Params | None = None, *, stream_samples: int = 400) 
     base = pcc_tensions_n(13.0, 0.0, params)
     for k in range(stream_samples):
         t = k / 40.0
-        tensions = base + 0.5 * np.array([np.sin(np.pi * t), np.cos(np.pi * t), 0.0, 0.0]).clip(0) * 0.5
+        wiggle = np.zeros(model.tendon_count)
+        wiggle[:2] = [np.sin(np.pi * t), np.cos(np.pi * t)]  # the first two tendons, whatever the count
+        tensions = base + 0.5 * wiggle.clip(0) * 0.5
         force = GRAVITY_TIP_FORCE_N(0.005 * (1 + np.sin(0.2 * np.pi * t)), g)
         t0 = time.perf_counter()
-        sol = predictor.solve(tensions, tip_force_n=force, base_rotation=HORIZONTAL)
+        sol = predictor.solve(tensions, tip_force_n=force, base_rotation=pose)
         t1 = time.perf_counter()
         tip_jacobian(model, sol)
         t2 = time.perf_counter()
