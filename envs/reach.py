@@ -51,15 +51,16 @@ class EndoscopeReachEnv(gym.Env):
     ============  =====  ==============================================================  ======
     action_mode   n_a    setpoint of tendon / pair i                                     unit
     ============  =====  ==============================================================  ======
-    ``tensions``  4      τ_i = τ_lo + (a_i + 1)/2 · (τ_hi − τ_lo)  (``tension_range_n``)   N
-    ``lengths``   4      Δℓ_i = a_i · ``max_length_m`` from the pretensioned zero        m
-    ``pairs``     2      d₁₃, d₂₄ = a_i · ``max_length_m``; tendon 1 → +d₁₃, 3 → −d₁₃    m
+    ``tensions``  n      τ_i = τ_lo + (a_i + 1)/2 · (τ_hi − τ_lo)  (``tension_range_n``)   N
+    ``lengths``   n      Δℓ_i = a_i · ``max_length_m`` from the pretensioned zero        m
+    ``pairs``     n/2    d₁₃, d₂₄ = a_i · ``max_length_m``; tendon 1 → +d₁₃, 3 → −d₁₃    m
     ============  =====  ==============================================================  ======
 
     Positive lengths pay tendon out. With ``randomization.latency_steps`` an action reaches the
     board that many steps late.
 
-    **Observations** — ``Box(float32)`` of size 18 + n_a:
+    n is the robot's tendon count (``tendons.angles_deg``; 4 on the thesis endoscope, the indices
+    below). **Observations** — ``Box(float32)`` of size 2n + 10 + n_a:
 
     ========  ============================================================  ========
     index     quantity                                                      unit
@@ -67,6 +68,7 @@ class EndoscopeReachEnv(gym.Env):
     0–3       tendon lengths from the pretensioned straight zero (encoders)  m
     4–7       tendon tensions (load cells)                                  N
     8–10      tip position from the tracker, world frame, base at origin     m
+              (``env.tip_slice`` for any n)
     11–14     tip orientation from the tracker, quaternion (w, x, y, z)      —
     15–17     target tip position, world frame                              m
     18–       previous action (as given, before any latency)                —
@@ -78,7 +80,7 @@ class EndoscopeReachEnv(gym.Env):
     **Reward** — per step, with e the tip-to-target distance, τ the tensions and u the motor
     duties of the sample:
 
-        r = −e / 10 mm − w_τ · Σ τ_i / (4 τ_limit) − w_u · mean(u_i²) − (fault_penalty if a fault)
+        r = −e / 10 mm − w_τ · Σ τ_i / (n τ_limit) − w_u · mean(u_i²) − (fault_penalty if a fault)
 
     **Termination** on a latched board fault: a tension over the limit (``rig.tension_limit_n``)
     or the watchdog. **Truncation** by the registered ``max_episode_steps`` (200 = 5 s).
@@ -136,9 +138,11 @@ class EndoscopeReachEnv(gym.Env):
         self.pretension_n = self.params.tendons.pretension_n if pretension_n is None else float(pretension_n)
         self.tension_weight, self.effort_weight, self.fault_penalty = tension_weight, effort_weight, fault_penalty
 
-        n_a = 2 if action_mode == "pairs" else 4
+        n = self.params.tendons.count
+        n_a = n // 2 if action_mode == "pairs" else n
         self.action_space = spaces.Box(-1.0, 1.0, (n_a,), np.float32)
-        high_obs = np.concatenate([np.full(4, _LENGTH_BOUND_M), np.full(4, _TENSION_BOUND_N),
+        self.tip_slice = slice(2 * n, 2 * n + 3)
+        high_obs = np.concatenate([np.full(n, _LENGTH_BOUND_M), np.full(n, _TENSION_BOUND_N),
                                    np.full(3, _POSITION_BOUND_M), np.ones(4), np.full(3, _POSITION_BOUND_M),
                                    np.ones(n_a)]).astype(np.float32)
         self.observation_space = spaces.Box(-high_obs, high_obs, dtype=np.float32)
@@ -206,7 +210,7 @@ class EndoscopeReachEnv(gym.Env):
         fault = rejected or bool(sample.fault_flags & _FAULTS) or not sample.enabled
         duty = sample.motor_commands.tolist()
         reward = (-error / 0.01
-                  - self.tension_weight * sum(sample.tensions_n.tolist()) / (4 * self.params.rig.tension_limit_n)
+                  - self.tension_weight * sum(sample.tensions_n.tolist()) / (len(duty) * self.params.rig.tension_limit_n)
                   - self.effort_weight * sum(u * u for u in duty) / len(duty)
                   - (self.fault_penalty if fault else 0.0))
         return self._observation(sample), reward, fault, False, self._info(sample, error)
@@ -258,7 +262,7 @@ class EndoscopeReachEnv(gym.Env):
     # ------------------------------------------------------------------ internals
     def _neutral_action(self) -> np.ndarray:
         if self.action_mode == "tensions":
-            return self.action_for(np.full(4, self.pretension_n))
+            return self.action_for(np.full(self.params.tendons.count, self.pretension_n))
         return np.zeros(self.action_space.shape, dtype=np.float32)
 
     def _command(self, action) -> None:

@@ -14,8 +14,9 @@ model-based tip-tracking controller on top of it.
    again here because the step rollout rewards a slow integral (its largest steps are partly
    out of reach, and a fast integral winds up on them) while the tracker needs the tensions it
    asks for: on stage 1's ki of ~0.03–0.05 the tuned tracker missed by 1.9–2.2 mm, with ki
-   tuned alongside by 0.6–0.7 mm. Episodes are independent, so they run in parallel
-   processes (``workers``).
+   tuned alongside by 0.6–0.7 mm. Episodes are independent and seed themselves, so they run
+   in parallel processes (``workers``) or on a Ray cluster (``cluster``) with the same result
+   (:func:`twin.scaleout.map_ordered`).
 
 ``python -m twin.tuning`` (or ``twin tune``) runs both and prints the metrics before and
 after. The tuning drives the env, so it sits above both :mod:`envs` and :mod:`twin.control`; the
@@ -25,7 +26,6 @@ controllers take its result from :mod:`twin.control.gains`.
 from __future__ import annotations
 
 import argparse
-import concurrent.futures
 import dataclasses
 import math
 import sys
@@ -42,6 +42,7 @@ from twin.control.gains import DEFAULT_TENSION_GAINS, TUNED_TENSION_GAINS
 from twin.params import Params, load_params
 from twin.rod import Predictor, RodModel, tip_jacobian
 from twin.rod.grid import GRAVITY_TIP_FORCE_N
+from twin.scaleout import map_ordered
 
 __all__ = ["TipTrackingController", "TuningResult", "tension_cost", "tracking_cost", "tune_tension_gains", "tune_tracking_gains",
            "main", "register"]
@@ -208,7 +209,7 @@ def _tracking_episode(args) -> float:
             if faulted:
                 return _FAULT_COST
             errors.append(info["tip_error_m"] * 1e3)
-            action = env.action_for(controller.update(observation[8:11]))
+            action = env.action_for(controller.update(observation[env.tip_slice]))
         # The second half: how well the target is held once reached.
         return float(np.mean(errors[steps // 2:]))
     finally:
@@ -216,16 +217,13 @@ def _tracking_episode(args) -> float:
 
 
 def tracking_cost(gains: dict, *, params: Params | None = None, seeds: Sequence[int] = (0, 1, 2),
-                  steps: int = TRACKING_STEPS, tension_gains: dict | None = None, workers: int = 1) -> float:
+                  steps: int = TRACKING_STEPS, tension_gains: dict | None = None, workers: int = 1,
+                  cluster: str | None = None) -> float:
     """Mean tip error (mm) over the second half of episodes with the :class:`TipTrackingController` gains
-    ``gains`` (``gain``, ``velocity_gain_s``)."""
+    ``gains`` (``gain``, ``velocity_gain_s``), one episode per seed in ``seeds``, run by
+    :func:`twin.scaleout.map_ordered` (``workers`` local processes, or the Ray ``cluster``)."""
     jobs = [(gains, params, seed, steps, tension_gains or TUNED_TENSION_GAINS) for seed in seeds]
-    if workers > 1:
-        with concurrent.futures.ProcessPoolExecutor(workers) as pool:
-            costs = list(pool.map(_tracking_episode, jobs))
-    else:
-        costs = [_tracking_episode(job) for job in jobs]
-    return float(np.mean(costs))
+    return float(np.mean(map_ordered(_tracking_episode, jobs, workers=workers, cluster=cluster)))
 
 
 def tune_tracking_gains(*, params: Params | None = None, start: dict | None = None, evaluations: int = 20,
@@ -269,6 +267,10 @@ def main(argv: list[str] | None = None) -> int:
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--quick", action="store_true", help="few rollouts (a minute): the worked example")
     parser.add_argument("--workers", type=int, default=2, help="processes for the tracking episodes")
+    parser.add_argument("--cluster", default=None, metavar="ADDRESS",
+                        help="run the tracking episodes on the Ray cluster whose head is at ADDRESS (HOST:PORT, "
+                             "'auto' for the one running here, 'local' for a new one of --workers CPUs); "
+                             "needs pip install 'twin[cluster]'")
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -285,7 +287,8 @@ def run(args: argparse.Namespace, params: Params | None = None) -> int:
     pid = tune_tension_gains(params=params, evaluations=12 if quick else 40)
     print(pid.line())
     tracking = tune_tracking_gains(params=params, tension_gains=pid.after, evaluations=12 if quick else 35,
-                                   seeds=(0, 1) if quick else (0, 1, 2, 3), workers=args.workers)
+                                   seeds=(0, 1) if quick else (0, 1, 2, 3), workers=args.workers,
+                                   cluster=args.cluster)
     print(tracking.line())
     return 0
 
