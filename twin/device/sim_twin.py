@@ -55,6 +55,10 @@ class SimTwin:
         """True tip position (3,) m and rotation (3, 3), world frame, base at the origin."""
         return self._board.plant.tip_pose()
 
+    def backbone_positions_m(self) -> np.ndarray:
+        """(N + 2, 3) true positions of the base, each station and the tip, world frame (m)."""
+        return self._board.plant.backbone_positions_m()
+
     def true_tensions_n(self) -> np.ndarray:
         """(4,) true tension at the spool end of each tendon (N): what a perfect load cell reads."""
         return self._board.plant.true_tensions_n()
