@@ -44,6 +44,12 @@ def register(subparsers) -> None:
                             "table in zoo.md")
     check.add_argument("--quick", action="store_true", help="the reduced grid (QUICK_GRID), no cause studies")
     check.add_argument("--no-causes", action="store_true", help="skip the cause studies")
+    check.add_argument("--workers", type=int, default=1, metavar="N",
+                       help="with --robot all: cross-check N robots at a time in local processes")
+    check.add_argument("--cluster", default=None, metavar="ADDRESS",
+                       help="with --robot all: cross-check the robots on the Ray cluster whose head is at ADDRESS "
+                            "(HOST:PORT, 'auto', or 'local' for a new one of --workers CPUs); needs "
+                            "pip install 'twin[cluster]'")
     add_pose_args(check)
     add_param_args(check, robot=False)
     check.set_defaults(func=run_crosscheck_command)
@@ -103,16 +109,24 @@ def run_crosscheck_command(args: argparse.Namespace) -> int:
     if args.robot not in (None, "all") and args.robot not in ROBOTS:
         print(f"twin crosscheck: --robot {args.robot}: expected all or one of {', '.join(ROBOTS)}", file=sys.stderr)
         return 2
+    if (args.workers != 1 or args.cluster is not None) and args.robot != "all":
+        print("twin crosscheck: --workers and --cluster spread the robots of --robot all", file=sys.stderr)
+        return 2
     if args.robot is not None and args.params is not None:
         print("twin crosscheck: --robot and --params: give one (a robot is its parameter file)", file=sys.stderr)
         return 2
-    # Every robot's parameter set is checked before a report folder is made.
+    # Every robot's parameter set and the cluster are checked before a report folder is made.
     for name in (ROBOTS if args.robot == "all" else [args.robot] if args.robot else []):
         robot_params(name, overrides)
+    if args.cluster is not None:
+        from twin.scaleout import connect
+
+        connect(args.cluster, args.workers)
     params = params_from_args(args).replace(overrides) if args.robot is None else None
     out = args.out or new_run_folder("runs", "crosscheck")
     if args.robot == "all":
-        table, summaries = run_zoo(out, configs=configs, overrides=overrides)
+        table, summaries = run_zoo(out, configs=configs, overrides=overrides, workers=args.workers,
+                                    cluster=args.cluster)
         print(f"report: {table}")
         for name, summary in summaries.items():
             _print_summary(name, summary)

@@ -27,6 +27,7 @@ import functools
 import math
 import time
 from pathlib import Path
+from typing import Sequence
 
 import numpy as np
 
@@ -34,6 +35,7 @@ from twin.params import Params, load_params
 from twin.robots import description, load_robot, robot_names
 from twin.pcc import GRID_KAPPA_PER_M, GRID_TIP_MASS_KG, validation_grid
 from twin.rod.grid import pcc_tensions_n
+from twin.scaleout import map_ordered
 from twin.sim.plant import Plant
 
 __all__ = ["CAUSES", "GOAL_MEDIAN_PCT", "GOAL_WORST_PCT", "QUICK_GRID", "ROBOTS", "CrosscheckResult",
@@ -395,18 +397,30 @@ def run_crosscheck(params: Params | None = None, out_dir: str | Path = "reports/
     return write_report(result, studies, out_dir, params, robot=robot), result.summary()
 
 
-def run_zoo(out_dir: str | Path = "reports/crosscheck", *, configs=None,
-            overrides: dict | None = None) -> tuple[Path, dict[str, dict]]:
-    """Every robot of :data:`ROBOTS` over the grid: each one's report in ``out_dir/<robot>/``
-    (the default robot's in ``out_dir`` itself, with the cause studies) and a table of all in
-    ``out_dir/zoo.md``. Returns (table path, {robot: summary})."""
+def _robot_crosscheck(job) -> tuple[CrosscheckResult, list]:
+    """One robot's grid and, if asked, cause studies: a job of :func:`run_zoo`."""
+    params, configs, with_causes = job
+    return crosscheck(params, configs=configs), cause_studies(params) if with_causes else []
+
+
+def run_zoo(out_dir: str | Path = "reports/crosscheck", *, configs=None, overrides: dict | None = None,
+            robots: Sequence[str] | None = None, workers: int = 1,
+            cluster: str | None = None) -> tuple[Path, dict[str, dict]]:
+    """Every robot of ``robots`` (default :data:`ROBOTS`) over the grid: each one's report in
+    ``out_dir/<robot>/`` (the default robot's in ``out_dir`` itself, with the cause studies) and a
+    table of all in ``out_dir/zoo.md``. One job per robot, run by :func:`twin.scaleout.map_ordered`
+    (``workers`` local processes, or the Ray ``cluster``); the reports are written here.
+    Returns (table path, {robot: summary})."""
     out = Path(out_dir)
+    names = list(ROBOTS if robots is None else robots)
+    default = next(iter(ROBOTS))
+    params = {name: robot_params(name, overrides) for name in names}
+    outcomes = map_ordered(_robot_crosscheck, [(params[name], configs, name == default) for name in names],
+                           workers=workers, cluster=cluster)
     summaries = {}
-    for name in ROBOTS:
-        params = robot_params(name, overrides)
-        default = name == next(iter(ROBOTS))
-        _, summaries[name] = run_crosscheck(params, out if default else out / name, with_causes=default,
-                                            configs=configs, robot=name)
+    for name, (result, studies) in zip(names, outcomes):
+        write_report(result, studies, out if name == default else out / name, params[name], robot=name)
+        summaries[name] = result.summary()
     lines = ["# Twin vs predictor across the robots", "",
              "Written by `twin crosscheck --robot all`; each robot's report beside it "
              f"(goal: median ≤ {GOAL_MEDIAN_PCT:g}%, worst ≤ {GOAL_WORST_PCT:g}% of L, every configuration compared).",
