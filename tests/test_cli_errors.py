@@ -30,6 +30,11 @@ MISTAKES = [
     (["crosscheck", "--quick", "--elements", "-3"], 2, ["elements", "-3"]),
     (["emulate", "--seed", "abc"], 2, ["--seed", "abc"]),
     (["no-such-command"], 2, ["no-such-command"]),
+    (["sim", "--tensions", "1,1,1,1", "--seed", "-5"], 2, ["--seed", "-5"]),
+    (["compensate", "--quick", "--corrections", "-1"], 2, ["--corrections", "-1"]),
+    (["calibrate", "--refit", "--file", "/no/such.json"], 1, ["--file", "/no/such.json"]),
+    (["emulate", "--link", "/no/such/dir/port"], 1, ["--link", "/no/such/dir/port"]),
+    (["validate", "--quick", "--out", "/proc/no-such"], 1, ["--out", "/proc/no-such"]),
 ]
 
 

@@ -60,6 +60,19 @@ def _format(message, category, filename, lineno, line=None) -> str:
     return _format_warning(message, category, filename, lineno, line)
 
 
+def _os_error(args: argparse.Namespace, exc: OSError) -> str:
+    """An I/O error in one line, naming the argument whose path it is when one is (``--out DIR``)."""
+    paths = [str(p) for p in (exc.filename, exc.filename2) if p is not None]
+    if not paths:
+        return str(exc)
+    for failing in reversed(paths):
+        for name, value in vars(args).items():
+            if isinstance(value, (str, os.PathLike)) and value and (
+                    failing == str(value) or failing.startswith((f"{value}/", f"{value}."))):
+                return f"--{name.replace('_', '-')} {value}: {exc.strerror or exc} ({failing})"
+    return f"{' -> '.join(paths)}: {exc.strerror or exc}"
+
+
 def main(argv: list[str] | None = None) -> int:
     """Run one command; bad input and failing files end in one line on stderr, not a traceback.
 
@@ -89,7 +102,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"twin {args.command}: {exc}", file=sys.stderr)
         return 2
     except OSError as exc:
-        print(f"twin: {exc}", file=sys.stderr)
+        print(f"twin {args.command}: {_os_error(args, exc)}", file=sys.stderr)
         return 1
     except NativeBuildError as exc:
         # No compiler, or a build that failed: what to install, or the compiler's own output.

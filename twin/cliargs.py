@@ -13,7 +13,7 @@ from twin.params import ParameterError, Params, load_params
 from twin.robots import robot_path
 from twin.pose import base_rotation_from, matrix_to_quat
 
-__all__ = ["UsageError", "add_param_args", "add_pose_args", "new_run_folder", "params_from_args", "pose_overrides",
+__all__ = ["UsageError", "add_param_args", "add_pose_args", "count", "new_run_folder", "params_from_args", "pose_overrides",
            "nonnegative", "positive", "values_as_arguments", "vector"]
 
 
@@ -49,6 +49,17 @@ def nonnegative(text: str) -> float:
     """An argparse type: a finite number >= 0."""
     value = _number(text)
     if not value >= 0:
+        raise argparse.ArgumentTypeError(f"{text!r}: must be >= 0")
+    return value
+
+
+def count(text: str) -> int:
+    """An argparse type: a whole number >= 0 (seeds, counts)."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r}: expected a whole number") from None
+    if value < 0:
         raise argparse.ArgumentTypeError(f"{text!r}: must be >= 0")
     return value
 

@@ -8,7 +8,7 @@ import json
 import time
 from pathlib import Path
 
-from twin.cliargs import add_param_args, new_run_folder, params_from_args
+from twin.cliargs import add_param_args, count, new_run_folder, params_from_args
 from twin.device.commands import open_device_arg
 
 __all__ = ["register"]
@@ -26,7 +26,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--ceiling", type=float, default=None,
                    help="highest tendon tension of the compensation (N); default what the tension loop can hold "
                         "at its duty clamp, with headroom (5.12 N for the tuned gains)")
-    p.add_argument("--corrections", type=int, default=2,
+    p.add_argument("--corrections", type=count, default=2,
                    help="most closed-loop corrections from the tracker per mass (0: feed-forward only)")
     add_param_args(p)
     p.set_defaults(func=run_compensate)

@@ -8,7 +8,7 @@ import signal
 import sys
 import threading
 
-from twin.cliargs import UsageError, add_param_args, add_pose_args, params_from_args
+from twin.cliargs import UsageError, add_param_args, add_pose_args, count, params_from_args
 
 __all__ = ["open_device_arg", "register"]
 
@@ -29,7 +29,7 @@ def register(subparsers) -> None:
         "emulate",
         help="run the emulated board (firmware core + MuJoCo twin) on a pseudo-terminal until Ctrl-C or SIGTERM",
     )
-    p.add_argument("--seed", type=int, default=0, help="sensor-noise seed of the twin")
+    p.add_argument("--seed", type=count, default=0, help="sensor-noise seed of the twin")
     p.add_argument("--link", metavar="PATH", default=None,
                    help="also make PATH a symbolic link to the port (stable across replugs); PATH must not exist")
     add_pose_args(p)

@@ -9,7 +9,7 @@ import sys
 import time
 from pathlib import Path
 
-from twin.cliargs import UsageError, add_param_args, new_run_folder, params_from_args
+from twin.cliargs import UsageError, add_param_args, count, new_run_folder, params_from_args
 from twin.device.commands import open_device_arg
 from twin.params import parse_override
 from twin.pcc import validation_grid
@@ -59,7 +59,7 @@ def _device_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--calibration", metavar="FILE", help="load-cell calibration file (default: the parameter set's)")
     p.add_argument("--twin-set", dest="twin_overrides", action="append", default=[], metavar="KEY=VALUE",
                    help="sim:// only: change the simulated rig but not the model (a hidden effect), repeatable")
-    p.add_argument("--seed", type=int, default=None, help="sim:// noise seed")
+    p.add_argument("--seed", type=count, default=None, help="sim:// noise seed")
     add_param_args(p)
 
 

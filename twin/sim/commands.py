@@ -5,10 +5,11 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+import time
 
 import numpy as np
 
-from twin.cliargs import (UsageError, add_param_args, add_pose_args, new_run_folder, nonnegative, params_from_args, pose_overrides,
+from twin.cliargs import (UsageError, add_param_args, count, add_pose_args, new_run_folder, nonnegative, params_from_args, pose_overrides,
                           positive, vector)
 
 __all__ = ["register"]
@@ -26,8 +27,9 @@ def register(subparsers) -> None:
     sim.add_argument("--tip-moment", type=vector(3), default=np.zeros(3), metavar="MX,MY,MZ",
                      help="moment on the tip, world frame (N·m)")
     sim.add_argument("--timeout-s", type=positive, default=3.0, help="simulated time allowed to settle (s)")
-    sim.add_argument("--seed", type=int, default=0, help="sensor-noise seed")
+    sim.add_argument("--seed", type=count, default=0, help="sensor-noise seed")
     sim.add_argument("--json", action="store_true", help="print one JSON object")
+    add_live_argument(sim)
     add_pose_args(sim)
     add_param_args(sim)
     sim.set_defaults(func=run_sim)
@@ -56,6 +58,7 @@ def register(subparsers) -> None:
 
 
 def run_sim(args: argparse.Namespace) -> int:
+    from twin.live import live_view_from_args
     from twin.sim.plant import Plant
 
     params = params_from_args(args)
@@ -71,6 +74,7 @@ def run_sim(args: argparse.Namespace) -> int:
     plant.set_tip_mass_kg(args.tip_mass_kg)
     plant.set_tip_load(args.tip_force, args.tip_moment)
     result = plant.settle(timeout_s=args.timeout_s)
+    view = live_view_from_args(args, params, base_rotation=params.rig.base_rotation, command="sim")
     position, rotation = plant.tip_pose()
     # What the load cells report, through the nominal calibration (gain and offset).
     s = params.sensors
@@ -94,8 +98,27 @@ def run_sim(args: argparse.Namespace) -> int:
         print(f"twin sim: did not settle within {args.timeout_s} s of simulated time "
               f"(last 20 ms moved {result.last_change_m:.3g} m); the state above is not static",
               file=sys.stderr)
-        return 1
-    return 0
+        code = 1
+    else:
+        code = 0
+    if view is not None:
+        _serve_settled(view, plant)
+    return code
+
+
+def _serve_settled(view, plant) -> None:
+    """Show the settled twin (and the prediction for its tensions) until Ctrl-C."""
+    from twin.live import show_twin
+
+    show_twin(view, plant, label="settled")
+    print("twin sim: serving the settled state; Ctrl-C to stop", file=sys.stderr, flush=True)
+    try:
+        while True:
+            time.sleep(1.0)
+    except KeyboardInterrupt:
+        pass
+    finally:
+        view.close()
 
 
 def run_crosscheck_command(args: argparse.Namespace) -> int:
