@@ -11,6 +11,7 @@ import numpy as np
 
 from twin.cliargs import (UsageError, add_param_args, count, add_pose_args, new_run_folder, nonnegative, params_from_args, pose_overrides,
                           positive, vector)
+from twin.live import add_live_argument
 
 __all__ = ["register"]
 
