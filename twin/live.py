@@ -27,7 +27,7 @@ import numpy as np
 if TYPE_CHECKING:
     from twin.params import Params
 
-__all__ = ["COLORS", "LiveDevice", "LiveState", "LiveView", "show_twin"]
+__all__ = ["COLORS", "LiveDevice", "LiveState", "LiveView", "add_live_argument", "live_view_from_args", "show_twin"]
 
 # RGB of each thing drawn; the page's legend names them in these colours. Colour-blind safe
 # (Okabe-Ito): vermillion, blue, bluish green, reddish purple.
@@ -348,3 +348,26 @@ class _LiveTracker:
             self._device._tip_m = result.pose.position_m
             self._device._publish()
         return result
+
+
+def add_live_argument(parser) -> None:
+    """``--live [PORT]`` on a command's parser (``args.live``: None, or the port; 0 picks one)."""
+    parser.add_argument("--live", nargs="?", type=int, const=0, default=None, metavar="PORT",
+                        help="serve a live 3D view of the endoscope on http://127.0.0.1:PORT (default a free "
+                             "port; the URL is printed); needs pip install 'twin[live]'")
+
+
+def live_view_from_args(args, params: Params, *, base_rotation=None, command: str) -> LiveView | None:
+    """The :class:`LiveView` that ``--live`` asks for (None without it); its URL goes to stderr.
+
+    Raises:
+        SystemExit: viser is not installed (the message says how to install it).
+    """
+    if getattr(args, "live", None) is None:
+        return None
+    try:
+        view = LiveView(params, port=args.live, base_rotation=base_rotation)
+    except ImportError as exc:
+        raise SystemExit(f"twin {command}: --live needs viser ({exc}); pip install 'twin[live]'") from None
+    print(f"twin {command}: live view at {view.url}", file=sys.stderr, flush=True)
+    return view
