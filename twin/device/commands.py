@@ -9,6 +9,7 @@ import sys
 import threading
 
 from twin.cliargs import UsageError, add_param_args, add_pose_args, count, params_from_args
+from twin.live import add_live_argument
 
 __all__ = ["open_device_arg", "register"]
 
@@ -32,6 +33,7 @@ def register(subparsers) -> None:
     p.add_argument("--seed", type=count, default=0, help="sensor-noise seed of the twin")
     p.add_argument("--link", metavar="PATH", default=None,
                    help="also make PATH a symbolic link to the port (stable across replugs); PATH must not exist")
+    add_live_argument(p)
     add_pose_args(p)
     add_param_args(p)
     p.set_defaults(func=run_emulate)
@@ -54,13 +56,13 @@ def run_emulate(args: argparse.Namespace) -> int:
     stop = threading.Event()
     previous = signal.signal(signal.SIGTERM, lambda signum, frame: stop.set())
     try:
-        board = PtyBoard(params_from_args(args), seed=args.seed, link_path=args.link)
+        params = params_from_args(args)
+        board = PtyBoard(params, seed=args.seed, link_path=args.link)
         with board:
             print(f"port: {board.port}", flush=True)
             print(f"url:  {board.url}", flush=True)
             try:
-                while not stop.wait(1.0):
-                    pass
+                _serve(board, stop, params, args)
             except KeyboardInterrupt:
                 pass
             print(f"stopped after {board.ticks} ticks ({board.ticks * TICK_S:.1f} s of board time), "
@@ -68,3 +70,26 @@ def run_emulate(args: argparse.Namespace) -> int:
     finally:
         signal.signal(signal.SIGTERM, previous)
     return 0
+
+
+def _serve(board, stop: threading.Event, params, args) -> None:
+    """Wait for the stop; with ``--live``, show the twin behind the port meanwhile. The board's
+    thread steps the plant while this one reads it: a frame may mix two steps, which a view
+    drawn a few times a second cannot show."""
+    from twin.live import live_view_from_args
+
+    view = live_view_from_args(args, params, command="emulate")
+    if view is None:
+        while not stop.wait(1.0):
+            pass
+        return
+    from twin.device.board import TICK_S
+    from twin.device.sim_twin import SimTwin
+    from twin.live import show_twin
+
+    twin = SimTwin(board.board)
+    try:
+        while not stop.wait(0.25):
+            show_twin(view, twin, label=f"board time {board.ticks * TICK_S:.1f} s")
+    finally:
+        view.close()
