@@ -94,3 +94,16 @@ def test_the_status_of_a_twin_out_of_bounds_carries_a_warning():
     status = crosscheck_status(load_params(overrides=['sim.tendon_routing="discs"']))
     assert not status.meets_goal and status.worst_pct > GOAL_WORST_PCT
     assert "out of bounds" in status.warning and status.verdict in status.warning
+
+
+def test_a_layout_that_cannot_bend_a_plane_leaves_it_out_and_says_so():
+    # Two antagonistic tendons bend in one plane only: the grid's other planes are not run.
+    two = load_params(overrides={"tendons.angles_deg": [0.0, 180.0], "effects.tension_gain_error": [0.0] * 2,
+                                 "effects.tension_offset_error_n": [0.0] * 2,
+                                 "sensors.loadcell_offset_counts": [0.0] * 2})
+    result = crosscheck(two, configs=QUICK_GRID)
+    planes = {row[2] for row in result.rows}
+    assert planes <= {0.0, 180.0} and result.left_out
+    assert all(row[2] not in (0.0, 180.0) and row[1] > 0 for row in result.left_out)
+    assert result.summary()["left_out"] == len(result.left_out)
+    assert "left out: the tendon layout cannot bend their planes" in result.verdict()
