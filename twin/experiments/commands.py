@@ -11,6 +11,7 @@ from pathlib import Path
 
 from twin.cliargs import UsageError, add_param_args, count, new_run_folder, params_from_args
 from twin.device.commands import open_device_arg
+from twin.live import add_live_argument
 from twin.params import parse_override
 from twin.pcc import validation_grid
 
@@ -27,6 +28,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     v.add_argument("--quick", action="store_true",
                    help="a 24-configuration subset (kappa 0/13/26.2, phi 0/90/180/270, 0 and 10 g) for a fast look")
     v.add_argument("--resume", metavar="RUN_DIR", help="continue an interrupted run in this folder")
+    add_live_argument(v)
     v.set_defaults(func=run_validate)
 
     c = sub.add_parser(
@@ -357,6 +359,7 @@ def _validate(args, folder: Path, params) -> int:
     from twin.experiments.analysis import analyse_validation
     from twin.experiments.protocols import run_validation
     from twin.experiments.report import write_validation_report
+    from twin.live import LiveDevice, live_view_from_args
 
     grid = validation_grid()
     if args.quick:
@@ -364,12 +367,16 @@ def _validate(args, folder: Path, params) -> int:
     print(f"twin validate: {len(grid)} configurations on {args.device}, run folder {folder}", file=sys.stderr)
     start = time.perf_counter()
     device = _open(args, params)
+    view = live_view_from_args(args, params, base_rotation=device.base_rotation, command="validate")
     try:
         calibration = _calibration(args, params, device)
-        run_validation(device, folder / RUN_DATASET, params, grid=grid, calibration=calibration)
+        run_validation(device if view is None else LiveDevice(device, view), folder / RUN_DATASET, params,
+                       grid=grid, calibration=calibration)
         pose = device.base_rotation
     finally:
         device.close()
+        if view is not None:
+            view.close()
     sweep_s = time.perf_counter() - start
     dataset = read_dataset(folder / RUN_DATASET)
     result = analyse_validation(dataset, params, progress=True)
