@@ -7,6 +7,8 @@ say so (``ambiguous``). A dataset with no effect must name none; one with an eff
 library must end ``unexplained``, not with a confident name.
 """
 
+import json
+
 import numpy as np
 import pytest
 
@@ -191,6 +193,7 @@ def test_hidden_friction_shows_the_thesis_pattern_and_adding_it_removes_it(resul
 def test_two_hidden_effects_are_named_in_turn(results):
     result = results("two")
     assert set(result.named) == {"tendon_friction", "tracker_offset"}
+    assert result.verdict == "effect"
     values = dict(zip([p.label for p in result.fit.parameters], result.fit.values))
     assert values["effects.tendon_friction_coeff"] == pytest.approx(0.12, abs=0.012)
     assert values["effects.tracker_offset_m[2]"] == pytest.approx(0.0025, abs=3e-4)
@@ -218,6 +221,18 @@ def test_report_has_the_tables_and_figures(results, tmp_path):
     for png in ("before_after", "signature", "ranking", "residuals_error_y", "residuals_front_view"):
         assert (tmp_path / "figures" / f"{png}.png").stat().st_size > 5000
     assert (tmp_path / "summary.json").exists()
+
+
+def test_report_opens_with_the_verdict_and_shows_what_remains_or_what_ties(results, tmp_path):
+    text = write_report(results("angle"), tmp_path / "angle").read_text()
+    assert "**Verdict: unexplained." in text and "## Verdict" in text
+    assert "### What remains (all rows, the fitted model)" in text and "Worst configurations" in text
+    weight = results("weight")
+    text = write_report(weight, tmp_path / "weight").read_text()
+    assert f"**Verdict: {weight.verdict}." in text
+    assert ("### Tied candidates" in text) == bool(weight.tied)
+    summary = json.loads((tmp_path / "weight" / "summary.json").read_text())
+    assert summary["verdict"] == weight.verdict and len(summary["candidates"]) == len(weight.tied)
 
 
 def test_repeats_give_the_noise_estimate(tmp_path):
@@ -258,3 +273,18 @@ def test_the_library_covers_the_vocabulary():
     assert [p.index for p in library["tension_offset"].parameters] == [0, 1]
     with pytest.raises(ValueError, match="outside its effect's keys"):
         Candidate("weight", (FitParameter("backbone.youngs_modulus_pa"),))
+
+
+@pytest.mark.slow
+def test_two_effects_at_once_are_found_jointly_on_the_full_sweep(tmp_path):
+    # Weight ×1.5 and a 2 mm cap offset along the tip axis; on the full 216-row sweep (smaller
+    # ones cannot tell the weight from a clamp tilt) both are named and refitted together.
+    truth = NOMINAL.replace({"backbone.mass_kg": 1.5 * NOMINAL.backbone.mass_kg,
+                             "effects.tracker_offset_m": [0.0, 0.0, 0.002]})
+    result = run_discrepancy(synthetic_validation_dataset(tmp_path, NOMINAL, truth, seed=7))
+    assert result.verdict == "effect" and set(result.named) == {"weight", "tracker_offset"}, result.statement()
+    values = dict(zip([p.label for p in result.fit.parameters], result.fit.values))
+    assert values["backbone.mass_kg"] == pytest.approx(1.5 * NOMINAL.backbone.mass_kg, rel=0.05)
+    assert values["effects.tracker_offset_m[2]"] == pytest.approx(0.002, abs=2e-4)
+    assert abs(values["effects.tracker_offset_m[0]"]) < 3e-4
+    assert result.rms_after_m < 1.3 * result.residuals.noise.rms_3d_m

@@ -108,10 +108,12 @@ def predict_rows(params: Params, base_rotation, tensions_n, tip_mass_kg, lengths
     return tip, converged, residual, times
 
 
-def predict_dataset(dataset: Dataset, params: Params | None = None, *, progress: bool = False) -> Predictions:
-    """Predict every row of ``dataset`` with ``params`` (default: the dataset's own parameter set)."""
+def predict_dataset(dataset: Dataset, params: Params | None = None, *, progress: bool = False,
+                    guesses: list | None = None) -> Predictions:
+    """Predict every row of ``dataset`` with ``params`` (default: the dataset's own parameter set);
+    ``guesses`` as for :func:`predict_rows`."""
     params = params or dataset.params
     tip, converged, residual, times = predict_rows(
         params, dataset.base_rotation, dataset.tensions_n, dataset["tip_mass_kg"], dataset.lengths_m,
-        progress=progress)
+        progress=progress, guesses=guesses)
     return Predictions(tip, dataset.tip_positions_m, converged, residual, times)

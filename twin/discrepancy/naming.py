@@ -211,8 +211,10 @@ class _Baseline:
     test_guesses: list
 
     @classmethod
-    def of(cls, dataset, params, train, test, *, source, max_evaluations, tries) -> "_Baseline":
-        train_guesses, test_guesses = [None] * int(train.sum()), [None] * int(test.sum())
+    def of(cls, dataset, params, train, test, *, source, max_evaluations, tries, guesses=None) -> "_Baseline":
+        guesses = guesses if guesses is not None else [None] * len(dataset)
+        train_guesses = [guesses[i] for i in np.flatnonzero(train)]
+        test_guesses = [guesses[i] for i in np.flatnonzero(test)]
         base_train, _ = row_errors(dataset, params, train, train_guesses)
         base_test, _ = row_errors(dataset, params, test, test_guesses)
         return cls(dataset, params, train, test, source, max_evaluations, NAME_ALPHA / max(1, tries), base_train,
@@ -307,7 +309,7 @@ def _applicable(candidate: Candidate, dataset: Dataset, train: np.ndarray) -> bo
 
 def rank_candidates(dataset: Dataset, params: Params, candidates: Sequence[Candidate], train: np.ndarray,
                     test: np.ndarray, *, source: str, named: Sequence[FitParameter] = (), max_evaluations: int = 25,
-                    progress: bool = False, label: str = "candidates") -> Round:
+                    progress: bool = False, label: str = "candidates", guesses: list | None = None) -> Round:
     """Fit each candidate on ``train`` jointly with ``named``, score it on ``test`` (module rule)
     and pick the winner.
 
@@ -321,9 +323,11 @@ def rank_candidates(dataset: Dataset, params: Params, candidates: Sequence[Candi
         max_evaluations: optimiser iterations per fit (see :func:`twin.data.fitting.fit_parameters`).
         progress: show a progress bar on stderr.
         label: the progress bar's title.
+        guesses: per row of ``dataset``, a solution to start its solves from (e.g. of a nearby
+            model; not changed).
     """
     base = _Baseline.of(dataset, params, train, test, source=source, max_evaluations=max_evaluations,
-                        tries=len(candidates))
+                        tries=len(candidates), guesses=guesses)
     scores = []
     bar = tqdm(candidates, desc=label, unit="effect", disable=not progress, leave=False)
     for candidate in bar:
@@ -340,7 +344,7 @@ def rank_candidates(dataset: Dataset, params: Params, candidates: Sequence[Candi
 
 def rank_pairs(dataset: Dataset, params: Params, candidates: Sequence[Candidate], train: np.ndarray,
                test: np.ndarray, *, source: str, tries: int, max_evaluations: int = 25,
-               progress: bool = False) -> Round:
+               progress: bool = False, guesses: list | None = None) -> Round:
     """Fit every pair of ``candidates`` jointly on ``train`` and score it on ``test`` as one candidate
     with both effects' parameters (module rule).
 
@@ -348,7 +352,8 @@ def rank_pairs(dataset: Dataset, params: Params, candidates: Sequence[Candidate]
         tries: how many candidates and pairs are tried in all (the Bonferroni divisor).
         (others as for :func:`rank_candidates`)
     """
-    base = _Baseline.of(dataset, params, train, test, source=source, max_evaluations=max_evaluations, tries=tries)
+    base = _Baseline.of(dataset, params, train, test, source=source, max_evaluations=max_evaluations, tries=tries,
+                        guesses=guesses)
     usable = [c for c in candidates if _applicable(c, dataset, train)]
     pairs = list(itertools.combinations(usable, 2))
     scores = []

@@ -1,8 +1,10 @@
 """Show: the workflow's outcome as a Markdown report with figures and a JSON summary.
 
-``report.md`` holds the verdict of the Find step and its breakdowns (axis, plane, load,
-curvature), every round's ranking, the named effects with fitted values and uncertainties,
-and the held-out error per configuration and in total before and after; ``figures/`` holds
+``report.md`` holds the workflow's verdict (:data:`twin.discrepancy.workflow.VERDICTS`: the tie's
+candidates, or where the unexplained residual is), the verdict of the Find step and its
+breakdowns (axis, plane, load, curvature), every round's ranking, the named effects with fitted
+values and uncertainties, and the held-out error per configuration and in total before and
+after; ``figures/`` holds
 
 * ``before_after.png``: |e| per held-out configuration, before and after;
 * ``signature.png``: e_y and e_z over the bending plane φ, before and after (thesis Figs. 19–20);
@@ -110,20 +112,35 @@ def write_report(result: DiscrepancyResult, folder: str | Path) -> Path:
     (folder / "summary.json").write_text(json.dumps(summary, indent=1))
     named = ", ".join(f"`{e}`" for e in result.named) or "`none`"
     lines = [f"# Discrepancy: {result.dataset.path.name if result.dataset.path else 'dataset'}", "",
-             f"**Named effect(s): {named}.** Held-out RMS error {result.rms_before_m * 1e3:.3g} mm before, "
+             f"**Verdict: {result.verdict}. Named effect(s): {named}.** Held-out RMS error "
+             f"{result.rms_before_m * 1e3:.3g} mm before, "
              f"{result.rms_after_m * 1e3:.3g} mm after ({int(result.test.sum())} held-out rows, "
              f"{int(result.train.sum())} training rows, split seed {result.seed}).", "",
+             "## Verdict", "", result.statement(), ""]
+    if result.tied:
+        lines += ["### Tied candidates", "", markdown_table([
+            {"effect": c["effect"], "heldout_rms_mm": c["heldout_rms_m"] * 1e3, "score": c["score"],
+             "worse_than_best_sigma": c["worse_z"]} for c in result.candidates()])]
+    if result.verdict == "unexplained":
+        where = result.where()
+        lines += ["### What remains (all rows, the fitted model)", "", markdown_table(where["by_axis"]),
+                  markdown_table(where["by_plane"]), markdown_table(where["by_curvature"]),
+                  markdown_table(where["by_load"]), "Worst configurations:", "", markdown_table(where["worst"])]
+    lines += [
              "## Find", "", find.statement, "", f"Noise estimate: {find.noise.detail}.", "",
              "### By axis", "", markdown_table(find.by_axis()),
              "### By bending plane", "", markdown_table(find.by("phi_cmd_deg")),
              "### By tip load", "", markdown_table(find.by("tip_mass_kg")),
              "### By curvature", "", markdown_table(find.by("kappa_cmd_per_m")), ""]
     lines += ["## Name", "",
-              "Each candidate is fitted on the training rows and scored on the held-out rows: "
-              "S = N_h ln(MSE_h / MSE_h,0) + k ln(N_t) (held-out log-likelihood gain plus a BIC price per "
-              "parameter; lower is better, the current model scores 0). A candidate beats noise when S < 0 and "
-              "its training fit passes an F-test against the current model at p < 0.001 / candidates. "
-              "The winner is added and the rest ranked again.", ""]
+              "Each candidate is fitted on the training rows, jointly with the effects already named, within "
+              "physical bounds and without the parameters the data leave undetermined, and scored on the "
+              "held-out rows: S = N_h ln(MSE_h / MSE_h,0) + k ln(N_t) (held-out log-likelihood gain plus a BIC "
+              "price per parameter; lower is better, the current model scores 0). The best score wins if it "
+              "beats noise: S < 0, a training F-test against the current model at p < 0.001 / candidates, and "
+              "a tenth off the held-out RMS. Candidates that also beat noise and whose held-out error is within "
+              "two standard errors of the winner's tie with it. The winner is added and the rest ranked again.",
+              ""]
     for i, rnd in enumerate(result.rounds):
         lines += [f"### Round {i + 1}: {rnd.winner.effect if rnd.winner else 'none'}", "",
                   f"Current model: training RMS {rnd.baseline_train_rms_m * 1e3:.3g} mm, held-out "

@@ -213,12 +213,14 @@ class ResidualMap:
 
 
 def find_discrepancy(dataset: Dataset, params: Params | None = None, *, progress: bool = False,
-                     noise: NoiseEstimate | None = None) -> ResidualMap:
+                     noise: NoiseEstimate | None = None, guesses: list | None = None) -> ResidualMap:
     """Predict every row with ``params`` (default the dataset's), estimate the noise and test for structure.
 
     Args:
         noise: the noise estimate to test against (default: estimated from these residuals),
             e.g. the starting model's when checking what a fitted one leaves.
+        guesses: per row, a solution to start its solve from, replaced by the new one (as for
+            :func:`twin.data.prediction.predict_rows`).
 
     Raises:
         ValueError: no row can be predicted, or too few to tell structure from noise
@@ -228,7 +230,7 @@ def find_discrepancy(dataset: Dataset, params: Params | None = None, *, progress
     if len(dataset) < MIN_ROWS:
         raise ValueError(f"{dataset.path or 'dataset'}: {len(dataset)} row(s), too few to estimate the noise and "
                          f"tell structure from it (at least {MIN_ROWS})")
-    predictions = predict_dataset(dataset, params, progress=progress)
+    predictions = predict_dataset(dataset, params, progress=progress, guesses=guesses)
     ok = predictions.converged
     if not ok.any():
         raise ValueError(f"find_discrepancy: none of the {len(dataset)} rows can be predicted with these parameters")

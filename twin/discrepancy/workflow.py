@@ -237,7 +237,9 @@ def run_discrepancy(dataset: Dataset, params: Params | None = None, *, holdout_f
         raise ValueError(f"max_effects = {max_effects!r}: must be >= 1")
     params = params or dataset.params
     train, test = split_rows(dataset, holdout_fraction, seed)
-    residuals = find_discrepancy(dataset, params, progress=progress)
+    # Each row's solution with the starting model: every later solve of the row starts from it.
+    solutions: list = [None] * len(dataset)
+    residuals = find_discrepancy(dataset, params, progress=progress, guesses=solutions)
     name = dataset.path.name if dataset.path else "dataset"
     source = f"fitted: discrepancy {name} (training split, seed {seed})"
     library = candidate_library(params)
@@ -246,7 +248,7 @@ def run_discrepancy(dataset: Dataset, params: Params | None = None, *, holdout_f
     named: list[str] = []
     fit: ParameterFit | None = None
     tied: tuple[CandidateScore, ...] = ()
-    options = dict(source=source, max_evaluations=max_evaluations, progress=progress)
+    options = dict(source=source, max_evaluations=max_evaluations, progress=progress, guesses=solutions)
     while len(named) < max_effects:
         remaining = [c for effect, c in library.items() if effect not in named]
         if not remaining:
@@ -273,15 +275,16 @@ def run_discrepancy(dataset: Dataset, params: Params | None = None, *, holdout_f
         named.extend(ranked.winner.effects)
         fit = ranked.winner.fit
         current = fit.params
-    errors_before, ok_before = row_errors(dataset, params, test)
-    errors_after, ok_after = row_errors(dataset, current, test)
-    after = find_discrepancy(dataset, current, noise=residuals.noise) if named else residuals
+    held = np.flatnonzero(test)
+    errors_before, ok_before = row_errors(dataset, params, test, [solutions[i] for i in held])
+    errors_after, ok_after = row_errors(dataset, current, test, [solutions[i] for i in held])
+    after = find_discrepancy(dataset, current, noise=residuals.noise, guesses=list(solutions)) if named else residuals
     if not residuals.structure.beyond_noise:
         verdict = "none"
     elif tied:
         # A tie is the answer only if the tied explanations explain: when even the best of them
         # leaves structure beyond noise, what is missing is none of them alone.
-        best = find_discrepancy(dataset, tied[0].fit.params, noise=residuals.noise)
+        best = find_discrepancy(dataset, tied[0].fit.params, noise=residuals.noise, guesses=list(solutions))
         verdict = "unexplained" if best.structure.beyond_noise else "ambiguous"
     elif not named or after.structure.beyond_noise:
         verdict = "unexplained"
