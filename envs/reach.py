@@ -102,6 +102,9 @@ class EndoscopeReachEnv(gym.Env):
         pretension_n: pretension per tendon at reset (N); default ``tendons.pretension_n``.
         tension_weight, effort_weight: w_τ and w_u of the reward.
         fault_penalty: reward subtracted on the faulting step.
+        live_port: serve a live browser view of the endoscope, its prediction, the target and the
+            tensions (:mod:`twin.live`) on this port of 127.0.0.1 (0: a free one); ``env.live_url``
+            says where once the first :meth:`reset` opened the device. Needs viser.
     """
 
     metadata = {"render_modes": ["rgb_array", "human"], "render_fps": 40}
@@ -111,7 +114,7 @@ class EndoscopeReachEnv(gym.Env):
                  gains: dict | None = None, target_curvature_per_m: tuple[float, float] = (0.0, 20.0),
                  tension_range_n: tuple[float, float] = (0.3, 5.0), max_length_m: float = 0.008,
                  pretension_n: float | None = None, tension_weight: float = 0.1, effort_weight: float = 1.0,
-                 fault_penalty: float = 10.0, render_mode: str | None = None):
+                 fault_penalty: float = 10.0, render_mode: str | None = None, live_port: int | None = None):
         if render_mode not in (None, *self.metadata["render_modes"]):
             raise ValueError(f"render_mode = {render_mode!r}: must be None or one of "
                              f"{', '.join(self.metadata['render_modes'])}")
@@ -149,6 +152,9 @@ class EndoscopeReachEnv(gym.Env):
 
         self.render_mode = render_mode
         self._view = None  # the camera (rgb_array) or viewer (human) on the twin, made on first use
+        self.live_port = live_port
+        self._live = None  # the twin.live.LiveView, made with the first device
+        self.live_url: str | None = None
         self.device = None
         self._device_params: Params | None = None
         self._neutral = self._neutral_action()
@@ -176,6 +182,8 @@ class EndoscopeReachEnv(gym.Env):
         device.fixture.settle_s = 0.0
         self._tip_mass_kg = mass
         self.target_m = np.asarray(options["target_m"], dtype=float) if "target_m" in options else self._sample_target(rng)
+        if self._live is not None:
+            device.target_m = self.target_m
         self._latency = latency
         self._queue = collections.deque([self._neutral] * latency)
         self._previous = self._neutral.copy()
@@ -233,6 +241,12 @@ class EndoscopeReachEnv(gym.Env):
         return None
 
     def close(self):
+        if self._live is not None:
+            self._live.close()
+            self._live = None
+        self._close_device()
+
+    def _close_device(self) -> None:
         if self._view is not None:
             self._view.close()
             self._view = None
@@ -282,9 +296,17 @@ class EndoscopeReachEnv(gym.Env):
                 self.device.twin.reset(seed)
                 self.device.reconnect()
             return
-        self.close()
+        self._close_device()
         self.device = open_device(self.device_url, params=params, seed=seed if scheme == "sim" else None)
         self.device.connect()
+        if self.live_port is not None:
+            from twin.live import LiveDevice, LiveView
+
+            if self._live is None:
+                self._live = LiveView(self.params, port=self.live_port, base_rotation=self.device.base_rotation)
+                self.live_url = self._live.url
+            # What the env reads of the device (telemetry, tracker, the twin after each wait) goes to the view.
+            self.device = LiveDevice(self.device, self._live)
         if self.device.tracker is None:
             raise ValueError(f"device_url = {self.device_url!r}: the env needs a tracker (serial:// takes ?igtl=host:port)")
         self._device_params = params

@@ -165,3 +165,28 @@ def test_the_page_shows_the_bent_backbone_in_headless_chromium(bent_plant, tmp_p
     # band a few pixels high).
     ys, xs = np.nonzero(drawn)
     assert xs.max() - xs.min() > 80 and ys.max() - ys.min() > 50, (xs.min(), xs.max(), ys.min(), ys.max())
+
+
+def test_the_env_with_live_port_shows_its_episode_without_changing_it():
+    from envs.reach import EndoscopeReachEnv
+
+    target = np.array([0.05, 0.0, -0.02])
+    runs = []
+    for live_port in (None, 0):
+        env = EndoscopeReachEnv(live_port=live_port)
+        try:
+            observation, _ = env.reset(seed=3, options={"target_m": target, "tip_mass_kg": 0.0})
+            steps = [env.step(np.full(env.action_space.shape, 0.2, np.float32))[0] for _ in range(3)]
+            runs.append(np.vstack([observation, *steps]))
+            if live_port is not None:
+                assert env.live_url.startswith("http://127.0.0.1:")
+                view = env._live
+                assert view.wait_drawn(1, timeout_s=30.0)
+                time.sleep(0.5)
+                env.step(np.zeros(env.action_space.shape, np.float32))
+                assert view.wait_drawn(2, timeout_s=30.0)
+                assert np.allclose(view._handles["target"].position, target)
+                assert view._handles["measured"].visible
+        finally:
+            env.close()
+    assert np.array_equal(runs[0], runs[1])  # watching adds no command, ping or tracker sample

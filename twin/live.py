@@ -281,11 +281,15 @@ class LiveDevice:
     Args:
         device: the device.
         view: the :class:`LiveView`.
+
+    Attributes:
+        target_m: (3,) target tip position shown with the state (m), or None.
     """
 
     def __init__(self, device, view: LiveView):
         self._device = device
         self._view = view
+        self.target_m: np.ndarray | None = None
         self._tensions_n: np.ndarray | None = None
         self._tip_m: np.ndarray | None = None
         self._tracker = None if device.tracker is None else _LiveTracker(device.tracker, self)
@@ -326,10 +330,10 @@ class LiveDevice:
             return
         self._next_s = now_s + self._view._period_s
         if self._twin is not None:
-            self._view.show(backbone_m=self._twin.backbone_positions_m(), tip_m=self._tip_m,
+            self._view.show(backbone_m=self._twin.backbone_positions_m(), tip_m=self._tip_m, target_m=self.target_m,
                             tensions_n=self._tensions_n, tip_mass_kg=self._twin.tip_mass_kg)
         else:
-            self._view.show(tip_m=self._tip_m, tensions_n=self._tensions_n)
+            self._view.show(tip_m=self._tip_m, target_m=self.target_m, tensions_n=self._tensions_n)
 
 
 class _LiveTracker:
