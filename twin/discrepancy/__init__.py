@@ -5,25 +5,26 @@ Example:
     >>> from twin.data.dataset import read_dataset
     >>> from twin.discrepancy import run_discrepancy, write_report
     >>> result = run_discrepancy(read_dataset("runs/validate"), progress=True)
-    >>> result.effect, result.parameters()
+    >>> result.verdict, result.named, result.parameters(), result.remaining_rms_m
     >>> write_report(result, "reports/discrepancy")
 
 Modules: :mod:`~twin.discrepancy.residuals` (find), :mod:`~twin.discrepancy.noise`,
 :mod:`~twin.discrepancy.candidates` (the library), :mod:`~twin.discrepancy.naming` (fit, rank,
-name), :mod:`~twin.discrepancy.workflow` (greedy find–name–add), :mod:`~twin.discrepancy.report`
+name), :mod:`~twin.discrepancy.workflow` (greedy find–name–add and the verdict), :mod:`~twin.discrepancy.report`
 (show), :mod:`~twin.discrepancy.synthetic` (datasets with a hidden effect), ``commands`` (CLI).
 """
 
 from twin.discrepancy.candidates import Candidate, candidate_library
-from twin.discrepancy.naming import CandidateScore, Round, rank_candidates, split_rows
+from twin.discrepancy.naming import CandidateScore, Round, rank_candidates, rank_pairs, split_rows
 from twin.discrepancy.noise import NoiseEstimate, estimate_noise
 from twin.discrepancy.report import write_report
 from twin.discrepancy.residuals import ResidualMap, StructureTest, find_discrepancy, thesis_signature
 from twin.discrepancy.synthetic import synthetic_validation_dataset
-from twin.discrepancy.workflow import DiscrepancyResult, run_discrepancy
+from twin.discrepancy.workflow import VERDICTS, DiscrepancyResult, run_discrepancy
 
 __all__ = [
-    "Candidate", "CandidateScore", "DiscrepancyResult", "NoiseEstimate", "ResidualMap", "Round", "StructureTest",
-    "candidate_library", "estimate_noise", "find_discrepancy", "rank_candidates", "run_discrepancy", "split_rows",
+    "VERDICTS", "Candidate", "CandidateScore", "DiscrepancyResult", "NoiseEstimate", "ResidualMap", "Round",
+    "StructureTest", "candidate_library", "estimate_noise", "find_discrepancy", "rank_candidates", "rank_pairs",
+    "run_discrepancy", "split_rows",
     "synthetic_validation_dataset", "thesis_signature", "write_report",
 ]

@@ -40,7 +40,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
                    help="override a parameter of that model (repeatable)")
     p.add_argument("--json", action="store_true",
-                   help="print one JSON object (verdict, effects, candidates of a tie, parameters, remaining_rms_m, ...)")
+                   help="print one JSON object (verdict, effects, candidates of a tie, parameters, "
+                   "remaining_rms_m, ...)")
     p.add_argument("--report", metavar="DIR", help="write a Markdown report with figures into DIR")
     p.add_argument("--out-params", metavar="FILE", help="write the parameter set with the fitted effect(s) to FILE")
     p.add_argument("--seed", type=int, default=0, help="seed of the training/held-out split (default 0)")

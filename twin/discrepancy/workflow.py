@@ -40,7 +40,8 @@ import dataclasses
 import numpy as np
 
 from twin.discrepancy.candidates import UNTESTABLE_EFFECTS, candidate_library
-from twin.discrepancy.naming import PAIR_POOL, CandidateScore, Round, rank_candidates, rank_pairs, row_errors, split_rows
+from twin.discrepancy.naming import (PAIR_POOL, CandidateScore, Round, rank_candidates, rank_pairs, row_errors,
+                                     split_rows)
 from twin.discrepancy.residuals import ResidualMap, find_discrepancy, thesis_signature
 from twin.data.dataset import Dataset
 from twin.data.fitting import ParameterFit

@@ -28,7 +28,8 @@ class BaseTiltEffect(Effect):
         return rot_y(tilt_y) @ rot_x(tilt_x) @ rotation
 
     def candidate(self, params: Params) -> Candidate:
-        return Candidate(self.name, tuple(FitParameter("effects.base_tilt_deg", i, scale=1.0, bounds=(-10.0, 10.0)) for i in range(2)))
+        return Candidate(self.name, tuple(FitParameter("effects.base_tilt_deg", i, scale=1.0, bounds=(-10.0, 10.0))
+                                          for i in range(2)))
 
 
 EFFECT = BaseTiltEffect()

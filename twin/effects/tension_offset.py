@@ -44,7 +44,8 @@ class TensionOffsetEffect(Effect):
         return gain, offset_n + np.asarray(params.effects.tension_offset_error_n, dtype=float)
 
     def candidate(self, params: Params) -> Candidate:
-        return Candidate(self.name, tuple(FitParameter("effects.tension_offset_error_n", i, scale=0.05, bounds=(-1.0, 1.0))
+        return Candidate(self.name, tuple(FitParameter("effects.tension_offset_error_n", i, scale=0.05,
+                                                       bounds=(-1.0, 1.0))
                                           for i in _antagonist_representatives(params.tendons.angles_deg)))
 
 

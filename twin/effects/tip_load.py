@@ -5,7 +5,8 @@ Twin and prediction: the mass hung at the tip (:meth:`twin.sim.plant.Plant.set_t
 and the tip force a prediction applies (:func:`twin.effects.tip_force_n`), are the nominal mass
 times (1 + e).
 
-Discrepancy: the relative error e, between −0.5 and 1 (half or twice the mass); only datasets with rows that hang a tip mass can show it.
+Discrepancy: the relative error e, between −0.5 and 1 (half or twice the mass); only datasets
+with rows that hang a tip mass can show it.
 """
 
 from __future__ import annotations

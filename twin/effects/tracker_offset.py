@@ -25,7 +25,8 @@ class TrackerOffsetEffect(Effect):
         return offset_m + np.asarray(params.effects.tracker_offset_m, dtype=float)
 
     def candidate(self, params: Params) -> Candidate:
-        return Candidate(self.name, tuple(FitParameter("effects.tracker_offset_m", i, scale=1e-3, bounds=(-0.01, 0.01)) for i in range(3)))
+        return Candidate(self.name, tuple(FitParameter("effects.tracker_offset_m", i, scale=1e-3, bounds=(-0.01, 0.01))
+                                          for i in range(3)))
 
 
 EFFECT = TrackerOffsetEffect()

@@ -4,9 +4,9 @@ fraction of it that sits at the discs instead of spread uniformly (0 = off).
 Twin and prediction: both build the body (:class:`twin.effects.BodySpec`) with the line mass
 (1 − f) m / L and f m / D more at each of the D discs, so the sag changes shape.
 
-Discrepancy: the endoscope's mass (log, within a factor of ten of the model's). Its split between backbone and discs moves the centre
-of mass by a twentieth of the length and is indistinguishable from the mass on a tip-position
-sweep, so the fraction is not fitted.
+Discrepancy: the endoscope's mass (log, within a factor of ten of the model's). Its split
+between backbone and discs moves the centre of mass by a twentieth of the length and is
+indistinguishable from the mass on a tip-position sweep, so the fraction is not fitted.
 """
 
 from __future__ import annotations
