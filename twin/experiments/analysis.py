@@ -77,8 +77,22 @@ def analyse_validation(dataset: Dataset, params: Params | None = None, *, progre
     return ValidationResult(dataset, predict_dataset(dataset, params, progress=progress))
 
 
+# Figures are at most this wide (inches at the 100 dpi they are saved with): a report page's width.
+_MAX_WIDTH_IN = 15.0
+
+
+def _nice_at_most(value: float) -> float:
+    """The largest 1, 2 or 5 × 10^n not above ``value`` (> 0): a reference size a reader reads at once."""
+    exponent = np.floor(np.log10(value))
+    for mantissa in (5.0, 2.0, 1.0):
+        if mantissa * 10**exponent <= value:
+            return float(mantissa * 10**exponent)
+    return float(10 ** (exponent - 1) * 5.0)
+
+
 def plot_validation(result: ValidationResult, folder: str | Path) -> dict[str, Path]:
-    """Write the thesis-style figures into ``folder``; returns name → path."""
+    """Write the thesis-style figures into ``folder``; returns name → path. The first,
+    ``error_magnitude``, answers the sweep's question (how far off is the prediction)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -90,11 +104,13 @@ def plot_validation(result: ValidationResult, folder: str | Path) -> dict[str, P
     masses = np.unique(d["tip_mass_kg"])
     kappas = np.unique(d["kappa_cmd_per_m"])
     err = p.errors_m * 1e3
-    quantities = {"error_magnitude": (result.error_mm, "|e_p| (mm)"), "error_x": (err[:, 0], "e_x (mm)"),
-                  "error_y": (err[:, 1], "e_y (mm)"), "error_z": (err[:, 2], "e_z (mm)")}
+    quantities = {"error_magnitude": (result.error_mm, "prediction error |e_p| (mm)"),
+                  "error_x": (err[:, 0], "error along x, e_x (mm)"), "error_y": (err[:, 1], "error along y, e_y (mm)"),
+                  "error_z": (err[:, 2], "error along z, e_z (mm)")}
     paths: dict[str, Path] = {}
     for name, (values, label) in quantities.items():
-        fig, axes = plt.subplots(1, len(masses), figsize=(4.2 * len(masses), 3.6), sharey=True, squeeze=False)
+        fig, axes = plt.subplots(1, len(masses), figsize=(min(4.2 * len(masses), _MAX_WIDTH_IN), 3.6), sharey=True,
+                                 squeeze=False)
         for ax, mass in zip(axes[0], masses):
             for kappa in kappas:
                 sel = (d["tip_mass_kg"] == mass) & (d["kappa_cmd_per_m"] == kappa)
@@ -105,25 +121,45 @@ def plot_validation(result: ValidationResult, folder: str | Path) -> dict[str, P
             ax.set(title=f"tip mass {mass * 1e3:g} g", xlabel="bending plane φ (deg)")
             ax.grid(alpha=0.3)
         axes[0][0].set_ylabel(label)
-        axes[0][-1].legend(fontsize=7, title="1/m", title_fontsize=7)
+        axes[0][-1].legend(fontsize=7, title="curvature (1/m)", title_fontsize=7)
         fig.tight_layout()
         paths[name] = folder / f"{name}.png"
         fig.savefig(paths[name], dpi=100)
         plt.close(fig)
     # Front views (yz plane) with error circles, thesis Figs. 21-22; failed predictions in red.
-    fig, axes = plt.subplots(1, len(masses), figsize=(4.2 * len(masses), 4.2), squeeze=False)
-    scale = 1.0 / max(1e-9, np.nanmax(result.error_mm[p.converged])) if p.converged.any() else 1.0
+    # A circle's radius is the error magnified ``gain`` times (the largest one 6 mm on the plot);
+    # a reference circle of a round error in each panel's corner is the scale.
+    from matplotlib.lines import Line2D
+
+    fig, axes = plt.subplots(1, len(masses), figsize=(min(4.2 * len(masses), _MAX_WIDTH_IN), 4.4), squeeze=False)
+    worst_mm = float(np.nanmax(result.error_mm[p.converged])) if p.converged.any() else 0.0
+    gain = 6.0 / worst_mm if worst_mm > 1e-9 else 1.0
+    reference_mm = _nice_at_most(worst_mm) if worst_mm > 1e-9 else 1.0
     for ax, mass in zip(axes[0], masses):
         sel = d["tip_mass_kg"] == mass
         tips = d.tip_positions_m[sel] * 1e3
         ok = p.converged[sel]
-        ax.scatter(tips[ok, 1], tips[ok, 2], s=6, c="k")
-        ax.scatter(tips[~ok, 1], tips[~ok, 2], s=14, c="red", label="no prediction")
+        ax.scatter(tips[ok, 1], tips[ok, 2], s=6, c="k", label="measured tip")
+        if (~ok).any():
+            ax.scatter(tips[~ok, 1], tips[~ok, 2], s=14, c="red", label="no prediction")
         for (_, y, z), e in zip(tips[ok], result.error_mm[sel][ok]):
-            ax.add_patch(plt.Circle((y, z), 6.0 * e * scale, fill=False, lw=0.8, color="tab:blue"))
+            ax.add_patch(plt.Circle((y, z), gain * e, fill=False, lw=0.8, color="tab:blue"))
         ax.set(title=f"front view, {mass * 1e3:g} g", xlabel="y (mm)", ylabel="z (mm)", aspect="equal")
+        ax.autoscale_view()
+        (x0, x1), (y0, y1) = ax.get_xlim(), ax.get_ylim()
+        radius = gain * reference_mm
+        # Room above the data for the reference circle, in the upper left corner.
+        ax.set_ylim(y0, y1 + 3.0 * radius)
+        centre = (x0 + 1.5 * radius, y1 + 1.5 * radius)
+        ax.add_patch(plt.Circle(centre, radius, fill=False, lw=1.2, color="tab:blue"))
+        ax.annotate(f"{reference_mm:g} mm error", (centre[0] + 1.3 * radius, centre[1]), va="center", fontsize=7,
+                    color="tab:blue")
         ax.grid(alpha=0.3)
-    fig.tight_layout()
+    handles = {h.get_label(): h for ax in axes[0] for h in ax.get_legend_handles_labels()[0]}
+    handles[f"prediction error |e_p| (circle radius = |e_p| × {gain:.3g})"] = Line2D(
+        [], [], marker="o", ls="", mfc="none", mec="tab:blue", ms=8)
+    fig.legend(list(handles.values()), list(handles), loc="lower center", ncol=len(handles), fontsize=8)
+    fig.tight_layout(rect=(0, 0.07, 1, 1))
     paths["front_view"] = folder / "front_view.png"
     fig.savefig(paths["front_view"], dpi=100)
     plt.close(fig)

@@ -41,6 +41,12 @@ def write_validation_report(result: ValidationResult, folder: str | Path, *, tit
     meta = result.dataset.metadata
     lines = [f"# {title}", ""]
     lines += [f"**{w}**" for w in warnings] + ([""] if warnings else [])
+    # The figure that answers the question (how far off is the prediction) opens the report.
+    answer = figures["error_magnitude"]
+    lines += [f"![prediction error per configuration]({answer.relative_to(folder)})", "",
+              f"**Prediction error |p̂ − p*|: median {summary['median_error_mm']:.3g} mm, RMS "
+              f"{summary['rms_error_mm']:.3g} mm, worst {summary['worst_error_mm']:.3g} mm** over "
+              f"{summary['rows']} configurations ({summary['failed_predictions']} failed predictions).", ""]
     lines += [f"Device `{meta.get('device')}`, {summary['rows']} static measurements, experiment "
               f"`{meta.get('experiment')}`, recorded {meta.get('created')}.", ""]
     if picture is not None and Path(picture).exists():
@@ -54,7 +60,8 @@ def write_validation_report(result: ValidationResult, folder: str | Path, *, tit
     lines += ["## By bending plane", "", markdown_table(result.by_group("phi_cmd_deg")), ""]
     lines += ["## Figures", ""]
     for name, path in figures.items():
-        lines += [f"### {name.replace('_', ' ')}", "", f"![{name}]({path.relative_to(folder)})", ""]
+        if name != "error_magnitude":
+            lines += [f"### {name.replace('_', ' ')}", "", f"![{name}]({path.relative_to(folder)})", ""]
     worst = sorted(result.rows_table(), key=lambda r: -r["error_mm"] if r["converged"] else float("-inf"))[:15]
     lines += ["## Worst configurations", "", markdown_table(worst), ""]
     lines += ["## All configurations", "", markdown_table(result.rows_table()), ""]
