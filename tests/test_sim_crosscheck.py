@@ -8,6 +8,7 @@ from twin.cli import main
 from twin.params import load_params
 from twin.pose import UP
 from twin.rod import RodModel, solve
+from twin.rod.grid import pcc_tensions_n
 from twin.sim import Plant
 from twin.sim.crosscheck import (GOAL_MEDIAN_PCT, GOAL_WORST_PCT, QUICK_GRID, ROBOTS, crosscheck, crosscheck_status,
                                  robot_params, write_report)
@@ -107,3 +108,23 @@ def test_a_layout_that_cannot_bend_a_plane_leaves_it_out_and_says_so():
     assert all(row[2] not in (0.0, 180.0) and row[1] > 0 for row in result.left_out)
     assert result.summary()["left_out"] == len(result.left_out)
     assert "left out: the tendon layout cannot bend their planes" in result.verdict()
+
+
+def test_tendons_anchored_at_a_middle_disc_bend_only_their_segment_in_both_models():
+    from twin.robots import load_robot
+    from twin.rod import RodModel, solve
+
+    two = load_robot("two-segment")
+    to_tip = two.replace({"tendons.end_discs": []})
+    tips = {}
+    for name, params in (("segments", two), ("to the tip", to_tip)):
+        tensions = pcc_tensions_n(26.2, 0.0, params)  # the proximal tendon at 0 deg alone pulls
+        plant = Plant(params)
+        plant.set_tensions(tensions)
+        assert plant.settle().settled
+        rod = solve(RodModel.from_params(params), tensions, base_rotation=params.rig.base_rotation)
+        tips[name] = plant.tip_pose()[0], rod.tip_position_m
+    for twin_tip, rod_tip in tips.values():
+        assert np.linalg.norm(twin_tip - rod_tip) < 0.003 * two.backbone.length_m
+    # Anchored at the middle the pull bends half the robot: the tip ends elsewhere by centimetres.
+    assert np.linalg.norm(tips["segments"][1] - tips["to the tip"][1]) > 0.01

@@ -25,7 +25,7 @@ def test_checked_in_model_files_match_the_generator(name):
 def test_the_zoo_index_lists_every_robot():
     assert (MODELS_DIR / "README.md").read_text() == index_text(), \
         "models/README.md is stale: run .venv/bin/python -m twin.sim.modelfiles"
-    assert {"endoscope", "three-tendon", "helical", "long", "endoscope-soft-g"} <= set(robot_names())
+    assert {"endoscope", "three-tendon", "two-segment", "helical", "long", "endoscope-soft-g"} <= set(robot_names())
     assert robot_names()[0] == "endoscope"
 
 

@@ -142,6 +142,9 @@ class Tendons:
     helix_turns: float = _f()
     tip_radius_m: float = _f(_nonnegative)
     pretension_n: float = _f(_nonnegative)
+    # The disc (1 … discs.count, counted from the base) each tendon is anchored at: a robot with
+    # tendons ending at several discs has that many segments. Empty: every tendon ends at the tip.
+    end_discs: tuple[float, ...] = _f(default=(), source="default: every tendon ends at the tip disc")
 
     @property
     def count(self) -> int:
@@ -273,6 +276,12 @@ class Params:
     sim: SimSettings
     solver: SolverSettings
     sources: Mapping[str, str] = dataclasses.field(default_factory=dict, compare=False)
+
+    def tendon_ends_m(self) -> tuple[float, ...]:
+        """Arc length (m) where each tendon is anchored: its ``tendons.end_discs`` disc, else the tip."""
+        b, t, d = self.backbone, self.tendons, self.discs
+        ends = t.end_discs or (d.count,) * t.count
+        return tuple(b.length_m * float(e) / d.count for e in ends)
 
     def source(self, key: str) -> str:
         """Where the value of ``"section.key"`` came from (thesis / assumption / fitted / override)."""
@@ -483,6 +492,13 @@ def _consistency_problems(p: Params) -> list[str]:
             problems.append(f"{key} = {list(p.get(key))!r}: must have one entry per tendon ({n})")
     if p.sim.elements < d.count:
         problems.append(f"sim.elements = {p.sim.elements!r}: must be >= discs.count = {d.count}")
+    if t.end_discs:
+        if len(t.end_discs) != n:
+            problems.append(f"tendons.end_discs = {list(t.end_discs)!r}: must have one entry per tendon ({n})")
+        bad = [e for e in t.end_discs if not (float(e).is_integer() and 1 <= e <= d.count)]
+        if bad:
+            problems.append(f"tendons.end_discs = {list(t.end_discs)!r}: {bad} beyond the discs: each must be a "
+                            f"disc number 1 … discs.count = {d.count} (the tip)")
     return problems
 
 

@@ -137,6 +137,9 @@ class TendonFrictionEffect(Effect):
 
     def step_hook(self, params: Params, model) -> TendonFriction | None:
         coeff = params.effects.tendon_friction_coeff
+        if coeff > 0 and min(params.tendon_ends_m()) < params.backbone.length_m:
+            raise ValueError("effects.tendon_friction_coeff > 0 with tendons.end_discs before the tip: the twin's "
+                             "friction runs every tendon to the tip; it is not modelled for multi-segment robots")
         return TendonFriction.in_model(model, coeff, params.tendons.count) if coeff > 0 else None
 
     def candidate(self, params: Params) -> Candidate:

@@ -98,14 +98,15 @@ class RodModel:
         disc_s = [b.length_m * (k + 1) / d.count for k in range(d.count)]
         disc_mass = body.disc_mass_kg
         routes = []
-        for angle in t.angles_deg:
+        for angle, end in zip(t.angles_deg, params.tendon_ends_m()):
             helix = 0.0
             tip_radius = None
             if t.routing == "helical":
                 helix = 2 * math.pi * t.helix_turns / b.length_m
             elif t.routing == "converging":
                 tip_radius = t.tip_radius_m
-            routes.append(TendonRoute(t.radius_m, angle, helix_rad_per_m=helix, tip_radius_m=tip_radius))
+            routes.append(TendonRoute(t.radius_m, angle, helix_rad_per_m=helix, tip_radius_m=tip_radius,
+                                      end_m=None if end >= b.length_m else end))
         return cls(
             length_m=b.length_m,
             shear_stiffness_n=b.shear_stiffness_n,

@@ -164,7 +164,9 @@ class Layout:
         site_body: (S,) index k (0 = clamp, 1..N) of the body carrying each site.
         routing: one of :data:`TENDON_SITES`.
         tendon_xy_m: (n, S + 1, 2) tendon offsets in the section at s = 0 and at each site.
-        rest_length_m: (n,) tendon length spool → tip in the straight pose: the tendon's length.
+        rest_length_m: (n,) tendon length spool → anchor in the straight pose: the tendon's length.
+        tendon_end_m: (n,) arc length where each tendon is anchored (:meth:`Params.tendon_ends_m`).
+        tendon_site_count: (n,) how many of the sites each tendon passes, up to its anchor.
     """
 
     elements: int
@@ -176,6 +178,8 @@ class Layout:
     rest_length_m: np.ndarray
     site_body: np.ndarray
     routing: str
+    tendon_end_m: np.ndarray
+    tendon_site_count: np.ndarray
 
     @classmethod
     def from_params(cls, params: Params, *, elements: int | None = None,
@@ -209,8 +213,12 @@ class Layout:
         s_all = np.concatenate([[0.0], site_s])
         xy = tendon_offsets_m(params, s_all)
         z = np.broadcast_to(s_all[None, :, None], (xy.shape[0], s_all.size, 1))
-        path = np.linalg.norm(np.diff(np.concatenate([xy, z], axis=2), axis=1), axis=2).sum(axis=1)
-        return cls(n, h, disc_s, disc_body, site_s, xy, SPOOL_OFFSET_M + path, site_body, routing)
+        ends = np.asarray(params.tendon_ends_m())
+        sites = np.count_nonzero(site_s[None, :] <= ends[:, None] + 1e-12, axis=1)
+        segments = np.linalg.norm(np.diff(np.concatenate([xy, z], axis=2), axis=1), axis=2)
+        # Each tendon's path up to its anchor; a tendon to the tip passes every site.
+        path = np.where(np.arange(site_s.size)[None, :] < sites[:, None], segments, 0.0).sum(axis=1)
+        return cls(n, h, disc_s, disc_body, site_s, xy, SPOOL_OFFSET_M + path, site_body, routing, ends, sites)
 
     def body_of(self, s_m: float) -> int:
         """Index k of the body whose span holds arc length ``s_m``: 0 (the clamp) before the
@@ -316,6 +324,9 @@ class TendonLength:
         present = slot >= 0
         grad = np.einsum("tek,teak->tea", t, columns) / lumped
         hess = np.einsum("teak,tekl,tebl->teab", columns, p, columns) / (lumped[:, :, None] * lumped[:, None, :] * h)
+        # A tendon anchored before the tip spans only the elements up to its anchor.
+        inside = (s_e[None, :] < layout.tendon_end_m[:, None]).astype(float)
+        grad, hess = grad * inside[:, :, None], hess * inside[:, :, None, None]
         gradient = np.zeros((count, len(joints)))
         hessian = np.zeros((count, len(joints), len(joints)))
         e_idx, a_idx = np.nonzero(present)
@@ -607,7 +618,7 @@ def _add_tendons_and_spools(spec, clamp, stations, params, layout) -> None:
             x, y = layout.tendon_xy_m[i, j + 1]
             name = f"t{i}_s{j + 1}"
             stations[k].add_site(name=name, pos=[x, y, s - layout.body_origin_s_m(k)], size=_SITE_SIZE)
-            if not fixed:
+            if not fixed and j < layout.tendon_site_count[i]:
                 tendon.wrap_site(name)
     # Grouped by mode so that each mode's controls are one contiguous block of ctrl.
     for add in (_add_motor, _add_tension_source, _add_position_servo):
