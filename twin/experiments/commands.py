@@ -406,7 +406,7 @@ def _picture(args, params, folder: Path, base_rotation) -> Path | None:
         plant.settle()
         path = folder / "figures" / "endoscope.png"
         path.parent.mkdir(parents=True, exist_ok=True)
-        render_png(plant, path)
+        render_png(plant, path, labelled=True, title="the twin at κ 17.5 1/m, φ 30°, no tip mass")
         return path
     except Exception as exc:  # rendering is a nicety: report why it is missing, keep the run
         print(f"twin validate: no picture of the endoscope ({exc})", file=sys.stderr)
