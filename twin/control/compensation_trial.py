@@ -55,7 +55,7 @@ __all__ = ["CompensationTrial", "run_compensation_trial", "tension_ceiling_n", "
 # A few (κ 1/m, φ deg) across curvature and bending direction (up, down, sideways), for --quick.
 QUICK_CONFIGS = ((8.7, 0.0), (13.0, 90.0), (17.5, 180.0), (26.2, 270.0), (4.5, 30.0), (17.5, 240.0))
 
-# Issue 6, item 3: the tip error under load drops by at least 80 % against the PCC setpoints.
+# The goal of model-based compensation: the tip error under load drops by at least 80 % against the PCC setpoints.
 GOAL_REDUCTION_PCT = 80.0
 
 # The three tip errors a row reports, and their labels in the summary and the plot.
