@@ -165,7 +165,7 @@ class DiscrepancyResult:
         if self.verdict == "none":
             return f"none: no structured disagreement beyond noise ({left})."
         if self.verdict == "effect":
-            return f"effect: {', '.join(self.named)} explain(s) the disagreement; {left}."
+            return f"effect: {_listed(self.named)} the disagreement; {left}."
         if self.verdict == "ambiguous":
             tie = ", ".join(f"{s.effect} {s.heldout_rms_m * 1e3:.3g} mm" for s in self.tied)
             spread = (max(s.heldout_rms_m for s in self.tied) - min(s.heldout_rms_m for s in self.tied)) * 1e3
@@ -179,11 +179,11 @@ class DiscrepancyResult:
         if self.tied:
             part = f"the best candidates tie ({', '.join(s.effect for s in self.tied)}) and none removes it; "
         elif self.named:
-            part = f"{', '.join(self.named)} explain(s) part; "
+            part = f"{_listed(self.named)} part of it; "
         else:
             part = "no candidate nor pair removes it; "
-        return (f"unexplained: {part}{left}, {w['structured_rms_m'] * 1e3:.3g} mm of it structured "
-                f"(p = {w['p_value']:.2g}); largest along {axis['axis']} ({axis['rms_mm']:.3g} mm RMS), in the "
+        return (f"unexplained: {part}{left}; over all rows {w['structured_rms_m'] * 1e3:.3g} mm of structure "
+                f"remains (p = {w['p_value']:.2g}), largest along {axis['axis']} ({axis['rms_mm']:.3g} mm RMS), in the "
                 f"plane φ = {plane['phi_cmd_deg']:g}° ({plane['rms_mm']:.3g} mm), at κ = {kappa['kappa_cmd_per_m']:g} "
                 f"1/m ({kappa['rms_mm']:.3g} mm); worst configurations "
                 f"{', '.join(str(c['config']) for c in w['worst'])}.")
@@ -214,6 +214,11 @@ class DiscrepancyResult:
             "signature": self.signatures(),
             "untestable": UNTESTABLE_EFFECTS,
         }
+
+
+def _listed(named) -> str:
+    """``a explains`` / ``a, b explain``."""
+    return f"{', '.join(named)} {'explains' if len(named) == 1 else 'explain'}"
 
 
 def run_discrepancy(dataset: Dataset, params: Params | None = None, *, holdout_fraction: float = 1 / 3,
