@@ -180,7 +180,8 @@ def wheel(tmp_path_factory) -> Path:
 def _install(wheel: Path, folder: Path, constraints: dict[str, str] | None = None) -> Path:
     """A fresh venv (no system site-packages) with the wheel and its dependencies; its bin/."""
     subprocess.run([sys.executable, "-m", "venv", str(folder)], check=True)
-    command = [str(folder / "bin" / "python"), "-m", "pip", "install", "-q", "--disable-pip-version-check", str(wheel)]
+    command = [str(folder / "bin" / "python"), "-m", "pip", "install", "-q", "--disable-pip-version-check",
+               "--no-compile", str(wheel)]
     if constraints:
         pins = folder / "constraints.txt"
         pins.write_text("".join(f"{name}=={version}\n" for name, version in constraints.items()))
