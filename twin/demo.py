@@ -52,19 +52,30 @@ def _plot(rows, out: Path) -> Path:
     import matplotlib.pyplot as plt
 
     out.mkdir(parents=True, exist_ok=True)
-    fig, axes = plt.subplots(1, 2, figsize=(10, 4.5))
+    from matplotlib.lines import Line2D
+
+    fig, axes = plt.subplots(1, 2, figsize=(10, 4.8), width_ratios=(3, 2))
+    # One colour per commanded shape (κ, φ), solid without and dashed with the tip mass.
+    shapes = sorted({(kappa, phi) for kappa, phi, _, _ in rows})
+    colours = {shape: plt.cm.tab10(i % 10) for i, shape in enumerate(shapes)}
     for kappa, phi, mass, sol in rows:
         p = sol.positions_m * 1e3
         style = "-" if mass == 0 else "--"
-        axes[0].plot(p[:, 0], p[:, 2], style, lw=1.2)
-        axes[1].plot(p[:, 1], p[:, 2], style, lw=1.2)
-    axes[0].set(xlabel="x (mm)", ylabel="z (mm)", title="side view (solid 0 g, dashed 10 g)")
+        label = f"κ {kappa:g} 1/m, φ {phi:g}°" if mass == 0 else None
+        axes[0].plot(p[:, 0], p[:, 2], style, lw=1.2, color=colours[kappa, phi], label=label)
+        axes[1].plot(p[:, 1], p[:, 2], style, lw=1.2, color=colours[kappa, phi])
+    masses = sorted({mass for _, _, mass, _ in rows})
+    axes[0].set(xlabel="x (mm)", ylabel="z (mm)", title="side view")
     axes[1].set(xlabel="y (mm)", ylabel="z (mm)", title="front view")
     for ax in axes:
         ax.set_aspect("equal")
         ax.grid(alpha=0.3)
+    handles, labels = axes[0].get_legend_handles_labels()
+    handles += [Line2D([], [], color="k", ls="-" if m == 0 else "--") for m in masses]
+    labels += [f"tip mass {m * 1e3:g} g" for m in masses]
+    fig.legend(handles, labels, loc="center right", fontsize=8, title="backbone (Cosserat)", title_fontsize=8)
     path = out / "shapes.png"
-    fig.tight_layout()
+    fig.tight_layout(rect=(0, 0, 0.78, 1))
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return path

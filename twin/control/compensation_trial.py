@@ -114,15 +114,24 @@ class CompensationTrial:
         import matplotlib.pyplot as plt
 
         path = Path(path)
+        # A page wide at most (13 in at 120 dpi): past ~40 rows the bars are thinner, and the
+        # configurations are named in the report's table instead of under each bar.
         labels = [f"κ{r['kappa_per_m']:g} φ{r['phi_deg']:g} {r['mass_g']:g}g" for r in self.rows]
         x = np.arange(len(self.rows))  # faulted rows are NaN: an empty slot, not a bar
-        fig, ax = plt.subplots(figsize=(max(6.0, 0.3 * len(x)), 4.0))
+        fig, ax = plt.subplots(figsize=(min(13.0, max(6.0, 0.3 * len(x))), 4.2))
         for k, (stage, label) in enumerate(_STAGES):
             ax.bar(x + 0.27 * (k - 1), [r[f"{stage}_mm"] for r in self.rows], 0.27, label=label)
-        ax.set_xticks(x, labels, rotation=90, fontsize=6)
+        if len(x) <= 40:
+            ax.set_xticks(x, labels, rotation=90, fontsize=6)
+            ax.set_xlabel("configuration (curvature κ 1/m, bending plane φ deg, tip mass)")
+        else:
+            ax.set_xlabel("configuration (row of the per-configuration table)")
         ax.set_xlim(-0.6, len(x) - 0.4)
         ax.set_ylabel("tip error under load (mm)")
-        ax.legend()
+        ax.set_title("tip error under load: uncompensated, feed-forward, corrected")
+        ax.grid(alpha=0.3, axis="y")
+        ax.set_ylim(0.0, 1.2 * ax.get_ylim()[1])  # room for the legend above the bars
+        ax.legend(loc="upper center", ncol=len(_STAGES), fontsize=8)
         fig.tight_layout()
         fig.savefig(path, dpi=120)
         plt.close(fig)
@@ -156,6 +165,8 @@ class CompensationTrial:
                      if out_of_reach else "")
         t = self.timing_s
         lines = ["# Load compensation over the validation grid", "",
+                 f"![tip error under load per configuration: uncompensated, feed-forward, corrected]({figure.name})",
+                 "",
                  f"Device `{self.device}`, endoscope horizontal. Target: the tip with 0 g under the PCC "
                  "tendon-length setpoints. **Uncompensated**: those lengths held in length mode while the "
                  "mass hangs. **Feed-forward**: the board switched to tension mode and ramped to the tensions "
@@ -178,7 +189,6 @@ class CompensationTrial:
                  f"corrected {s['corrected_rows_at_goal']} of {s['configurations']}.{shortfall}", "",
                  "## Summary", "",
                  markdown_table([{"tip mass": k, **v} for k, v in summary.items()]), "",
-                 f"![errors per configuration]({figure.name})", "",
                  "## Per configuration", "",
                  markdown_table([{k: v for k, v in r.items() if not k.endswith("tensions_n")} | {
                      "feedforward_tensions_n": " ".join(f"{t:.2f}" for t in r["feedforward_tensions_n"]),

@@ -40,7 +40,7 @@ def plot_before_after(result: DiscrepancyResult, path: Path) -> Path:
     plt = _pyplot()
     table = sorted(result.heldout_table(), key=lambda r: -r["error_before_mm"])
     x = np.arange(len(table))
-    fig, ax = plt.subplots(figsize=(max(6.0, 0.09 * len(table) + 3), 3.6))
+    fig, ax = plt.subplots(figsize=(min(15.0, max(6.0, 0.09 * len(table) + 3)), 3.6))
     ax.bar(x - 0.2, [r["error_before_mm"] for r in table], 0.4, label=f"before ({result.rms_before_m * 1e3:.2f} mm RMS)")
     ax.bar(x + 0.2, [r["error_after_mm"] for r in table], 0.4,
            label=f"after: {', '.join(result.named) or 'none'} ({result.rms_after_m * 1e3:.2f} mm RMS)")
@@ -82,16 +82,23 @@ def plot_signature(result: DiscrepancyResult, path: Path) -> Path:
 def plot_ranking(result: DiscrepancyResult, path: Path) -> Path:
     """Each round's scores (lower is better; below 0 beats the current model before the F-test)."""
     plt = _pyplot()
-    fig, axes = plt.subplots(1, len(result.rounds), figsize=(4.2 * len(result.rounds), 3.6), squeeze=False)
+    from matplotlib.patches import Patch
+
+    # Rounds side by side, a page wide at most.
+    fig, axes = plt.subplots(1, len(result.rounds), figsize=(min(4.2 * len(result.rounds), 15.0), 3.6 + 0.4),
+                             squeeze=False)
     for i, (ax, rnd) in enumerate(zip(axes[0], result.rounds)):
         scores = [s for s in rnd.scores if np.isfinite(s.score)]
         colours = ["tab:green" if s.beats_noise else "tab:grey" for s in scores]
         ax.barh([s.effect for s in scores], [s.score for s in scores], color=colours)
         ax.axvline(0, color="k", lw=0.8)
         ax.invert_yaxis()
-        ax.set(title=f"round {i + 1}: {rnd.winner.effect if rnd.winner else 'none'}", xlabel="score S (lower is better)")
+        ax.set(title=f"round {i + 1}: {rnd.winner.effect if rnd.winner else 'none'}", xlabel="score S (lower is better)",
+               ylabel="candidate effect")
         ax.grid(alpha=0.3, axis="x")
-    fig.tight_layout()
+    fig.legend([Patch(color="tab:green"), Patch(color="tab:grey")], ["beats noise", "does not beat noise"],
+               loc="lower center", ncol=2, fontsize=8)
+    fig.tight_layout(rect=(0, 0.08, 1, 1))
     fig.savefig(path, dpi=100)
     plt.close(fig)
     return path
@@ -116,6 +123,7 @@ def write_report(result: DiscrepancyResult, folder: str | Path) -> Path:
              f"{result.rms_before_m * 1e3:.3g} mm before, "
              f"{result.rms_after_m * 1e3:.3g} mm after ({int(result.test.sum())} held-out rows, "
              f"{int(result.train.sum())} training rows, split seed {result.seed}).", "",
+             f"![held-out tip error before and after]({paths['before_after'].relative_to(folder)})", "",
              "## Verdict", "", result.statement(), ""]
     if result.tied:
         lines += ["### Tied candidates", "", markdown_table([
@@ -169,7 +177,8 @@ def write_report(result: DiscrepancyResult, folder: str | Path) -> Path:
          "corr(e_y, -sin phi)": sig["after"]["corr_y_minus_sin_phi"],
          "e_y_sine_amplitude_mm": sig["after"]["y_sine_amplitude_m"] * 1e3}]), ""]
     for name, path in paths.items():
-        lines += [f"### {name.replace('_', ' ')}", "", f"![{name}]({path.relative_to(folder)})", ""]
+        if name != "before_after":  # it opens the report
+            lines += [f"### {name.replace('_', ' ')}", "", f"![{name}]({path.relative_to(folder)})", ""]
     lines += ["### Held-out configurations", "", markdown_table(result.heldout_table()), ""]
     path = folder / "report.md"
     path.write_text("\n".join(lines))

@@ -96,7 +96,9 @@ def plot_error_surface(result: StiffnessResult, path) -> None:
     e, g = np.meshgrid(result.youngs_grid_pa, result.shear_grid_pa)
     cs = ax.contourf(e, g, result.summed_error_m * 1e3, levels=20, cmap="viridis")
     fig.colorbar(cs, label="summed tip error (mm)")
-    ax.plot(result.youngs_modulus_pa, result.shear_modulus_pa, "o", mfc="none", mec="red", ms=12, mew=2)
+    ax.plot(result.youngs_modulus_pa, result.shear_modulus_pa, "o", mfc="none", mec="red", ms=12, mew=2,
+            label="fitted (E, G)")
+    ax.legend(loc="upper right", fontsize=8)
     ax.set(xscale="log", yscale="log", xlabel="Young's modulus E (Pa)", ylabel="shear modulus G (Pa)",
            title="stiffness fit: summed tip error")
     fig.tight_layout()
