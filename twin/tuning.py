@@ -42,7 +42,7 @@ from twin.control.gains import DEFAULT_TENSION_GAINS, TUNED_TENSION_GAINS
 from twin.params import Params, load_params
 from twin.rod import Predictor, RodModel, tip_jacobian
 from twin.rod.grid import GRAVITY_TIP_FORCE_N
-from twin.scaleout import map_ordered
+from twin.scaleout import connect, map_ordered
 
 __all__ = ["TipTrackingController", "TuningResult", "tension_cost", "tracking_cost", "tune_tension_gains", "tune_tracking_gains",
            "main", "register"]
@@ -284,6 +284,9 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace, params: Params | None = None) -> int:
     quick = args.quick
+    if args.cluster is not None:
+        # A cluster that is not there is said before the minutes of the PID stage, not after.
+        connect(args.cluster, args.workers)
     pid = tune_tension_gains(params=params, evaluations=12 if quick else 40)
     print(pid.line())
     tracking = tune_tracking_gains(params=params, tension_gains=pid.after, evaluations=12 if quick else 35,
