@@ -199,3 +199,20 @@ def test_discrepancy_figures_are_readable_and_the_report_opens_with_before_and_a
         check_readable(fig, path if path.exists() else path.with_name(f"residuals_{path.name}"))
     lines = [line for line in report.read_text().splitlines() if line.strip()]
     assert lines[2].startswith("![") and "before_after.png" in lines[2]  # after the title and the verdict line
+
+
+def test_the_crosscheck_report_opens_with_its_figure(tmp_path, saved):
+    from twin.sim.crosscheck import CrosscheckResult, write_report
+
+    rows = [(i, kappa, phi, mass) for i, (kappa, phi, mass) in enumerate(
+        (k, p, m) for k in (0.0, 13.0, 26.2) for p in (0.0, 90.0, 180.0, 270.0) for m in (0.0, 0.01))]
+    rng = np.random.default_rng(0)
+    twin_tip = rng.normal(0.0, 0.03, (len(rows), 3))
+    result = CrosscheckResult(rows=rows, twin_tip_m=twin_tip, rod_tip_m=twin_tip + rng.normal(0.0, 1e-4, twin_tip.shape),
+                              settled=np.ones(len(rows), bool), rod_converged=np.ones(len(rows), bool),
+                              length_m=PARAMS.backbone.length_m, elements=10, wall_s=1.0)
+    report = write_report(result, [], tmp_path, PARAMS)
+    ((fig, path),) = saved
+    check_readable(fig, path)
+    lines = [line for line in report.read_text().splitlines() if line.strip()]
+    assert lines[2].startswith("**Goal met") and lines[3] == f"![twin vs predictor tip difference per configuration]({path.name})"

@@ -297,9 +297,42 @@ def cause_studies(params: Params) -> list[tuple[str, bool, CrosscheckResult]]:
     return studies
 
 
+def plot_crosscheck(result: CrosscheckResult, path: str | Path) -> Path:
+    """The report's opening figure: twin-to-predictor tip difference (% of L) over the bending
+    plane, one line per curvature, one panel per tip mass, against the goal's median line."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    rows = np.array([r[1:] for r in result.rows], dtype=float).reshape(-1, 3)
+    pct = 100.0 * result.difference_m / result.length_m
+    masses = np.unique(rows[:, 2])
+    fig, axes = plt.subplots(1, len(masses), figsize=(min(4.2 * len(masses), 15.0), 3.8), sharey=True,
+                             squeeze=False)
+    for ax, mass in zip(axes[0], masses):
+        for kappa in np.unique(rows[:, 0]):
+            sel = (rows[:, 2] == mass) & (rows[:, 0] == kappa)
+            order = np.argsort(rows[sel, 1])
+            ax.plot(rows[sel, 1][order], pct[sel][order], "o-", ms=3, lw=1, label=f"κ={kappa:g}")
+        ax.axhline(GOAL_MEDIAN_PCT, color="k", ls="--", lw=0.8, label=f"goal: median ≤ {GOAL_MEDIAN_PCT:g}%")
+        ax.set(title=f"tip mass {mass * 1e3:g} g", xlabel="bending plane φ (deg)")
+        ax.grid(alpha=0.3)
+    top = np.nanmax(pct) if np.isfinite(pct).any() else GOAL_MEDIAN_PCT
+    axes[0][0].set_ylim(0.0, 1.1 * max(top, GOAL_MEDIAN_PCT))
+    axes[0][0].set_ylabel("twin − predictor tip (% of L)")
+    axes[0][-1].legend(fontsize=7, title=f"curvature (1/m); worst-case goal {GOAL_WORST_PCT:g}%", title_fontsize=7)
+    fig.tight_layout()
+    path = Path(path)
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return path
+
+
 def write_report(result: CrosscheckResult, studies, out_dir: str | Path, params: Params, *,
                  robot: str | None = None) -> Path:
-    """Write ``crosscheck.md`` and ``crosscheck.csv`` into ``out_dir``; returns the Markdown path.
+    """Write ``crosscheck.md``, ``crosscheck.csv`` and ``crosscheck.png`` (:func:`plot_crosscheck`,
+    which opens the report) into ``out_dir``; returns the Markdown path.
 
     Args:
         robot: the :data:`ROBOTS` name ``params`` stand for, if any (named in the title).
@@ -317,6 +350,8 @@ def write_report(result: CrosscheckResult, studies, out_dir: str | Path, params:
         "Written by `twin crosscheck` (`twin.sim.crosscheck`); per-configuration tips in `crosscheck.csv`.",
         "",
         f"**{'Goal met' if result.meets_goal else 'GOAL MISSED'}**: {result.verdict().split(': ', 1)[1]}.",
+        "",
+        f"![twin vs predictor tip difference per configuration]({plot_crosscheck(result, out / 'crosscheck.png').name})",
         "",
         f"L = {params.backbone.length_m * 1e3:g} mm, {params.tendons.count} tendons routed "
         f"{params.tendons.routing}, torsion {params.backbone.torsion}, G = {params.backbone.shear_modulus_pa:.4g} Pa. "
