@@ -1,9 +1,9 @@
 """A live 3D view of the endoscope in a web browser: measured and predicted backbone, tip, target
 and tensions, while a command or an env runs.
 
-The view is a `viser <https://viser.studio>`_ server (a three.js client bundled in the package,
-served over HTTP and a websocket): the machines the twin runs on often have no display, and any
-browser on the network (or an SSH tunnel) can watch. Callers hand it states with
+The view is a viser server (a three.js client bundled in the package, served over HTTP and a
+websocket): the machines the twin runs on often have no display, and any browser on the network
+(or an SSH tunnel) can watch. Callers hand it states with
 :meth:`LiveView.show`, which only stores the newest one and returns at once; a background thread
 draws at most ``rate_hz`` times a second and solves the Cosserat predictor (warm-started) for
 the shown tensions, so the caller's loop is never slowed by drawing or predicting.

@@ -40,7 +40,7 @@ from twin.sim.plant import Plant
 
 __all__ = ["CAUSES", "GOAL_MEDIAN_PCT", "GOAL_WORST_PCT", "QUICK_GRID", "ROBOTS", "CrosscheckResult",
            "CrosscheckStatus", "cause_studies", "crosscheck", "crosscheck_status", "robot_params",
-           "run_crosscheck", "run_zoo", "write_report"]
+           "plot_crosscheck", "run_crosscheck", "run_zoo", "write_report"]
 
 # The thesis's fitted shear modulus (Pa), §9.1; it needs shear slides at every station.
 THESIS_SHEAR_MODULUS_PA = 4.7586e4
