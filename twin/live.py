@@ -216,19 +216,25 @@ class LiveView:
             self._text.content = ("tensions (N; bars: share of the "
                                   f"{limit_n:g} N limit): " + ", ".join(f"T{i + 1} {v:.2f}" for i, v in enumerate(tensions)))
 
-    def _curve(self, name: str, points_m, thickness_m: float) -> None:
+    def _node(self, name: str, value, make):
+        """The scene node ``name``, made by ``make()`` on first use and shown; hidden (and None
+        returned) while ``value`` is None."""
         handle = self._handles.get(name)
-        if points_m is None:
+        if value is None:
             if handle is not None:
                 handle.visible = False
-            return
-        points = np.asarray(points_m, dtype=float)
+            return None
         if handle is None:
-            self._handles[name] = self._server.scene.add_spline_catmull_rom(
-                f"/{name}", points, thickness=thickness_m, color=COLORS[name], curve_type="chordal")
-        else:
+            handle = self._handles[name] = make()
+        handle.visible = True
+        return handle
+
+    def _curve(self, name: str, points_m, thickness_m: float) -> None:
+        points = None if points_m is None else np.asarray(points_m, dtype=float)
+        handle = self._node(name, points, lambda: self._server.scene.add_spline_catmull_rom(
+            f"/{name}", points, thickness=thickness_m, color=COLORS[name], curve_type="chordal"))
+        if handle is not None:
             handle.points = points
-            handle.visible = True
 
     def _dots(self, name: str, points_m, size_m: float) -> None:
         # Dots, not a second tube: where prediction and measurement agree the tube would hide it.
@@ -241,16 +247,10 @@ class LiveView:
                 point_shape="circle", precision="float32")
 
     def _point(self, name: str, position_m, radius_m: float) -> None:
-        handle = self._handles.get(name)
-        if position_m is None:
-            if handle is not None:
-                handle.visible = False
-            return
-        if handle is None:
-            handle = self._handles[name] = self._server.scene.add_icosphere(
-                f"/{name}", radius=radius_m, color=COLORS[name], subdivisions=2)
-        handle.position = tuple(np.asarray(position_m, dtype=float))
-        handle.visible = True
+        handle = self._node(name, position_m, lambda: self._server.scene.add_icosphere(
+            f"/{name}", radius=radius_m, color=COLORS[name], subdivisions=2))
+        if handle is not None:
+            handle.position = tuple(np.asarray(position_m, dtype=float))
 
 
 def show_twin(view: LiveView, twin, *, target_m=None, label: str = "") -> None:
