@@ -256,6 +256,19 @@ def _smoke(bin_dir: Path, work: Path) -> None:
     assert summary["rows"] == 24 and summary["failed_predictions"] == 0
     assert summary["worst_error_mm"] < 1.0
 
+    # The run's dataset as a ROS 2 bag, read back here.
+    result = _run(bin_dir, ["export-bag", str(run), "sweep.mcap"], work, env)
+    assert result.returncode == 0, result.stderr[-4000:]
+    from mcap.reader import make_reader
+    with open(work / "sweep.mcap", "rb") as stream:
+        counts = make_reader(stream).get_summary().statistics.channel_message_counts
+    assert sorted(counts.values()) == [24, 24]
+
+    # Another robot of the zoo ships too.
+    result = _run(bin_dir, ["predict", "--robot", "three-tendon", "--tensions", "2,1,1", "--json"], work, env)
+    assert result.returncode == 0, result.stderr[-4000:]
+    assert json.loads(result.stdout)["converged"]
+
     # Native parts went to the cache, nothing into the installed package.
     assert len(list((work / "cache" / "native").glob("libtwinloop-*/libtwinloop.so"))) == 1
     assert len(list((work / "cache" / "native").glob("libtwinfw-*/libtwinfw.so"))) == 1
