@@ -14,7 +14,8 @@ static measurement each, at its ``time_s``). Each row becomes one message on eac
 Stamps are the dataset's ``created`` time plus the row's ``time_s`` (rows without one follow
 the last stamped row at 1 s intervals). The file is written by ``mcap-ros2-support`` with the
 ``ros2`` profile and CDR-encoded messages, which is what ``ros2 bag record`` writes with its
-MCAP storage; ``ros2 bag play OUT.mcap`` and Foxglove open it as it is.
+MCAP storage; Foxglove opens it as it is, and ``ros2 bag play OUT.mcap`` replays it (older ROS 2
+releases may need ``-s mcap``).
 
 Example:
     >>> export_bag("runs/validate-20261201-120000", "sweep.mcap")
