@@ -13,8 +13,8 @@ the newest reading of each probe. What PLUS and NDI setups differ in is configur
 * the length unit of the translation (PLUS: mm);
 * the clock: message timestamps are the server's clock; the offset to ours is measured from the
   stream (or given), so a server whose clock is off does not make every frame stale;
-* validity: PLUS's version-2 metadata ``TransformStatus`` other than ``OK`` marks the probe
-  invalid (PLUS sends those only with ``SendValidTransformsOnly="FALSE"``).
+* validity: a transform whose OpenIGTLink 3 metadata ``TransformStatus`` is not ``OK`` marks the
+  probe invalid (PLUS sends invalid transforms only with ``SendValidTransformsOnly="FALSE"``).
 """
 
 from __future__ import annotations
