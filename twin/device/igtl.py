@@ -8,8 +8,8 @@ Every message is a 58-byte big-endian header followed by a body::
 Header version 1 (OpenIGTLink 1 and 2) has the content as the body. Version 2 (OpenIGTLink 3)
 wraps it: a 12-byte extended header (uint16 its size, uint16 metadata-header size, uint32
 metadata size, uint32 message id), the content, then the metadata (uint16 count, per entry
-uint16 key size, uint16 value encoding, uint32 value size; then the keys and values). The CRC is CRC-64/ECMA-182 (polynomial
-0x42F0E1EBA9EA3693, not reflected, initial value and final XOR 0).
+uint16 key size, uint16 value encoding, uint32 value size; then the keys and values). The CRC
+is CRC-64/ECMA-182 (polynomial 0x42F0E1EBA9EA3693, not reflected, initial value and final XOR 0).
 
 Contents handled here (all big-endian float32 unless noted, lengths in the sender's unit):
 

@@ -215,17 +215,20 @@ def register(subparsers) -> None:
 
     p = subparsers.add_parser(
         "igtl-serve",
-        help="stream the twin (tip pose, backbone, predicted backbone, tracker probes) over OpenIGTLink, e.g. to 3D Slicer",
+        help="stream the twin (tip pose, backbone, the predictor's backbone, tracker probes) over OpenIGTLink, "
+             "e.g. to 3D Slicer",
     )
     p.add_argument("--host", default="127.0.0.1", help="interface to listen on (default 127.0.0.1; 0.0.0.0 for all)")
     p.add_argument("--port", type=int, default=18944, help="TCP port (default 18944; 0 picks a free one)")
     p.add_argument("--rate-hz", type=positive, default=20.0, help="frames per second (default 20)")
     p.add_argument("--kappa", type=nonnegative, default=15.0, help="curvature of the bending sweep (1/m, default 15)")
     p.add_argument("--period-s", type=positive, default=10.0, help="one turn of the bending direction (s, default 10)")
-    p.add_argument("--duration-s", type=positive, default=None, help="stop after this long (s; default: until Ctrl-C or SIGTERM)")
+    p.add_argument("--duration-s", type=positive, default=None,
+                   help="stop after this long (s; default: until Ctrl-C or SIGTERM)")
     p.add_argument("--seed", type=int, default=0, help="sensor-noise seed of the twin")
     p.add_argument("--probes", default="Probe1ToTracker,Probe2ToTracker", help="device names of probes A and B")
-    p.add_argument("--header-version", type=int, choices=(1, 2), default=1, help="OpenIGTLink header version (default 1)")
+    p.add_argument("--header-version", type=int, choices=(1, 2), default=1,
+                   help="OpenIGTLink header version (default 1)")
     add_pose_args(p)
     add_param_args(p)
     p.set_defaults(func=run_serve)
