@@ -391,7 +391,8 @@ def our_server():
         yield server
 
 
-def test_pyigtl_reads_our_frames(our_server):
+@pytest.mark.parametrize("version", [1, 2])
+def test_pyigtl_reads_our_frames(our_server, version):
     client = pyigtl.OpenIGTLinkClient("127.0.0.1", our_server.port)
     try:
         wait_for(lambda: our_server.clients == 1, what="pyigtl connected")
@@ -402,7 +403,7 @@ def test_pyigtl_reads_our_frames(our_server):
         probes = (np.array([r.position_m for r in readings]), np.array([r.axis for r in readings]))
         stamp = time.time()
         messages = twin_messages(timestamp_s=stamp, tip_pose=tip, backbone_m=backbone, probes=probes,
-                                 predicted_tip_pose=model_tip, predicted_backbone_m=backbone[:4])
+                                 predicted_tip_pose=model_tip, predicted_backbone_m=backbone[:4], version=version)
         assert our_server.send(messages) == 1
         for name, (position_m, rotation) in (("TipToTracker", tip), ("ModelTipToTracker", model_tip)):
             message = client.wait_for_message(name, timeout=10)
