@@ -82,10 +82,16 @@ constexpr float kMaxLengthLeadM = 0.00025f;
 // at least this (µs).
 constexpr uint32_t kSpeedWindowUs = 1000;
 // A spool slower than this (m/s) is still. A motor that stops driving brakes (shorted: 300 N·s/m
-// at the tendon) until its spool stays still in the brake, and only then coasts: a spool still
-// winding in would wind on, and one let go under tension would fly out while the rod springs
-// back, and the tendon snap taut again. Still in the brake means a tension under 0.3 N.
+// at the tendon, but never resisting with more than the cap) until its spool stays still in the
+// brake, and only then coasts: a spool still winding in would wind on, and one let go under
+// tension would fly out while the rod springs back, and the tendon snap taut again. Still in
+// the brake means a tension under 0.3 N.
 constexpr float kStillSpeedMPerS = 0.001f;
+// ... in every window for this long (µs), twice the brake's time constant (2.7 kg of reflected
+// rotor over 300 N·s/m: 9 ms): a spool the brake turns round, from winding in to a tendon
+// pulling it out, is still for a few ms on the way, but not for this long unless the tendon
+// pulls it with less than 0.35 N.
+constexpr uint32_t kStillUs = 20000;
 
 // A motor that has pulled with kAtCapFraction of its cap or more against a still spool for
 // kAtCapUs trips the tension limit: its tendon then carries 0.9 of the limit, whatever the load

@@ -54,8 +54,9 @@ class Controller {
 
   // One control period: writes duty[kChannels] in [−limit, limit].
   void step(const Measurements& now, float dt_s, float duty[kChannels]);
-  // The same with motor i's duty, and its PID's integral, no lower than lowest[i] (≤ 0): what the
-  // motor can be given (Guard::lowest_duty), so that no integral winds up against it.
+  // The same with motor i's duty, and its PID's integral, no lower than lowest[i] (within the
+  // mode's output limit): what the motor can be given (Guard::lowest_duty), so that no integral
+  // winds up against it.
   void step(const Measurements& now, float dt_s, const float lowest[kChannels], float duty[kChannels]);
 
   // Per-motor target of the last setpoints or hold: m (length modes) or N (tension).

@@ -31,6 +31,11 @@ void Guard::observe(uint64_t now_us, const int32_t counts[kChannels], const floa
   }
   window_start_us_ = now_us;
   measured_ = true;
+  uint8_t still_braked = 0;
+  for (size_t i = 0; i < kChannels; ++i) {
+    if (braked_[i] && still(winding_speed_m_s_[i], kStillSpeedMPerS)) still_braked = static_cast<uint8_t>(still_braked | (1u << i));
+  }
+  still_in_brake_ = braked_still_.update(now_us, still_braked, kStillUs);
 }
 
 // A tendon that reads taut has no slack to be taken up with a blow: its spool may wind faster.
@@ -42,36 +47,62 @@ float Guard::winding_speed_limit(size_t i) const {
 // Lowest duty motor i may have now: the most negative, as winding in is negative. At rest the
 // cap; winding in at w, a pull falling linearly to what only balances the back-EMF damping at
 // the speed limit, so that the spool cannot accelerate past the limit and any tension slows it.
+// Paying out at w, the back-EMF brakes the spool with 300 N·s/m × w on top of the duty's pull:
+// that much less pull, down to paying out with the spool beyond cap / 300 N·s/m, so that a
+// motor never resists its tendon with more than the cap either, be it yielding to a load or
+// taking up a spool that flies out.
 float Guard::lowest_duty(size_t i) const {
   const float w = winding_speed_m_s_[i];
   const float limit = winding_speed_limit(i);
-  const float pull_n = cap_n_ * (1.0f - w / limit) + kMotorDampingNsPerM * limit;
-  return -clamp_range(pull_n, 0.0f, cap_n_) / kStallForceN;
+  const float pull_n = clamp_range(cap_n_ * (1.0f - w / limit) + kMotorDampingNsPerM * limit, 0.0f, cap_n_);
+  const float back_emf_n = w < 0.0f ? -kMotorDampingNsPerM * w : 0.0f;
+  const float lowest = (back_emf_n - pull_n) / kStallForceN;
+  return lowest < 1.0f ? lowest : 1.0f;
+}
+
+// What a still spool's motor pulls its tendon with (N) at `duty`: the duty's stall force, and
+// the back-EMF braking a spool that creeps out.
+float Guard::pull_n(size_t i, float duty) const {
+  const float w = winding_speed_m_s_[i];
+  return -duty * kStallForceN - (w < 0.0f ? kMotorDampingNsPerM * w : 0.0f);
 }
 
 void Guard::drive(const float command[kChannels], float duty[kChannels], Drive drive[kChannels]) {
   for (size_t i = 0; i < kChannels; ++i) {
-    duty[i] = clamp_range(command[i], lowest_duty(i), 1.0f);
+    const float lowest = lowest_duty(i);
+    const float d = clamp_range(command[i], lowest, 1.0f);
+    duty[i] = d < lowest ? lowest : d;  // NaN gives 0, which may brake harder than the cap
     drive[i] = Drive::kDrive;
     stopping_[i] = true;
   }
 }
 
+void Guard::brake(size_t i, float duty[kChannels], Drive drive[kChannels]) const {
+  const float lowest = lowest_duty(i);
+  duty[i] = lowest > 0.0f ? lowest : 0.0f;
+  drive[i] = lowest > 0.0f ? Drive::kDrive : Drive::kBrake;
+}
+
 void Guard::hold(float duty[kChannels], Drive drive[kChannels]) {
   for (size_t i = 0; i < kChannels; ++i) {
-    duty[i] = 0.0f;
-    drive[i] = Drive::kBrake;
+    brake(i, duty, drive);
     stopping_[i] = true;
   }
 }
 
 // A spool that stays still while braked has nothing left to give: no rotor energy, and no
-// tendon pulling it out through the brake (that would turn it at tension / 300 N·s/m).
+// tendon pulling it out through the brake (that would turn it at tension / 300 N·s/m). One
+// window is not enough: a spool the brake turns round, from winding in to being pulled out,
+// passes through still on the way.
 void Guard::release(float duty[kChannels], Drive drive[kChannels]) {
   for (size_t i = 0; i < kChannels; ++i) {
-    if (stopping_[i] && braked_[i] && still(winding_speed_m_s_[i], kStillSpeedMPerS)) stopping_[i] = false;
-    duty[i] = 0.0f;
-    drive[i] = stopping_[i] ? Drive::kBrake : Drive::kCoast;
+    if (stopping_[i] && (still_in_brake_ & (1u << i))) stopping_[i] = false;
+    if (stopping_[i]) {
+      brake(i, duty, drive);
+    } else {
+      duty[i] = 0.0f;
+      drive[i] = Drive::kCoast;
+    }
   }
 }
 
@@ -97,13 +128,12 @@ uint16_t Guard::faults(uint64_t now_us, const float duty[kChannels], const Drive
   for (size_t i = 0; i < kChannels; ++i) {
     if (drive[i] != Drive::kDrive || !still(winding_speed_m_s_[i], kStillSpeedMPerS)) continue;
     const uint8_t bit = static_cast<uint8_t>(1u << i);
-    // A still spool pulls its tendon with the motor's stall force at its duty.
-    const float pull_n = -duty[i] * kStallForceN;
+    const float pull = pull_n(i, duty[i]);
     const bool fresh = !(stale_mask_ & bit);
-    if (fresh && pull_n >= kPlausibleMinForceN && tensions_n_[i] < kPlausibleFraction * pull_n - kPlausibleMarginN) {
+    if (fresh && pull >= kPlausibleMinForceN && tensions_n_[i] < kPlausibleFraction * pull - kPlausibleMarginN) {
       low = static_cast<uint8_t>(low | bit);
     }
-    if (pull_n >= kAtCapFraction * cap_n_) at_cap = static_cast<uint8_t>(at_cap | bit);
+    if (pull >= kAtCapFraction * cap_n_) at_cap = static_cast<uint8_t>(at_cap | bit);
   }
   const uint8_t implausible = implausible_.update(now_us, low, kImplausibleUs);
   const uint8_t over = at_cap_.update(now_us, at_cap, kAtCapUs);

@@ -55,15 +55,18 @@ class Guard {
   // Spool speed (m/s, positive = winding in) over the last window.
   float winding_speed_m_s(size_t channel) const { return winding_speed_m_s_[channel]; }
 
-  // Lowest duty motor `channel` may have now (≤ 0; winding in is negative), from its spool's
-  // speed.
+  // Lowest duty motor `channel` may have now (winding in is negative), from its spool's speed:
+  // positive for a spool paying out so fast that the back-EMF alone would brake it with more
+  // than the cap.
   float lowest_duty(size_t channel) const;
-  // Motors driven with `command`, each clamped to [lowest_duty(i), 1] (NaN gives 0).
+  // Motors driven with `command`, each clamped to [lowest_duty(i), 1] (NaN gives 0, or
+  // lowest_duty(i) where that is positive).
   void drive(const float command[kChannels], float duty[kChannels], Drive drive[kChannels]);
-  // All motors brake, holding their spools.
+  // All motors brake, holding their spools: shorted, or where that would resist a spool flying
+  // out with more than the cap, driven at lowest_duty(i).
   void hold(float duty[kChannels], Drive drive[kChannels]);
-  // Motors let go: each brakes until its spool has stayed still (kStillSpeedMPerS) over a window
-  // in the brake, then coasts until it drives again.
+  // Motors let go: each brakes as hold() does until its spool has stayed still
+  // (kStillSpeedMPerS) in the brake for kStillUs, then coasts until it drives again.
   void release(float duty[kChannels], Drive drive[kChannels]);
 
   // The drives a tick gave the motors: what they have until the next tick.
@@ -76,6 +79,9 @@ class Guard {
   uint16_t faults(uint64_t now_us, const float duty[kChannels], const Drive drive[kChannels]);
 
  private:
+  float pull_n(size_t channel, float duty) const;
+  void brake(size_t channel, float duty[kChannels], Drive drive[kChannels]) const;
+
   float cap_n_ = 0.0f;           // largest pull of a motor on its tendon (N)
   float speed_limit_m_s_ = 0.0f;
   bool measured_ = false;
@@ -86,6 +92,8 @@ class Guard {
   uint8_t stale_mask_ = 0;
   bool stopping_[kChannels] = {};  // let go since driving: brakes until still in the brake
   bool braked_[kChannels] = {};    // the last tick gave the motor the brake
+  uint8_t still_in_brake_ = 0;     // channels whose spools have stayed still in the brake for kStillUs
+  Lasting braked_still_;
   Lasting implausible_;
   Lasting at_cap_;
 };

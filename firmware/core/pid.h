@@ -32,8 +32,8 @@ class Pid {
     return step(gains, setpoint, measurement, dt_s, -gains.output_limit, gains.output_limit);
   }
 
-  // One period with the output in [lowest, highest] (lowest ≤ 0 ≤ highest), the integral not
-  // growing past either; `feedforward` is added to the output before it is clamped.
+  // One period with the output in [lowest, highest] (lowest ≤ highest, within the output limit;
+  // a NaN output gives 0), the integral not growing past either; `feedforward` is added to the output before it is clamped.
   float step(const PidGains& gains, float setpoint, float measurement, float dt_s, float lowest, float highest,
              float feedforward = 0.0f);
 

@@ -84,29 +84,104 @@ void a_released_motor_brakes_until_its_spool_stands_still_in_the_brake() {
   float duty[kChannels];
   Drive drive[kChannels];
   int32_t counts[kChannels] = {};
-  g.observe(0, counts, kRelaxed, 0);
+  uint32_t now_us = 0;
+  g.observe(now_us, counts, kRelaxed, 0);
   g.drive(command, duty, drive);
   g.applied(drive);
   // Released while spool 0 winds in at 10 mm/s and the others stand still: all brake first
-  // (the brake has not acted yet), then the still ones coast and spool 0 brakes on.
+  // (the brake has not acted yet), then the still ones coast once they have stayed still in the
+  // brake for kStillUs, and spool 0 brakes on.
   g.release(duty, drive);
   for (Drive d : drive) CHECK(d == Drive::kBrake);
+  const int32_t moving = static_cast<int32_t>(0.01 * 0.005 / kTendonMPerCount);
+  for (int tick = 0; tick < 4; ++tick) {
+    g.applied(drive);
+    counts[0] -= moving;
+    now_us += 5000;
+    g.observe(now_us, counts, kRelaxed, 0);
+    g.release(duty, drive);
+    for (Drive d : drive) CHECK(d == Drive::kBrake);
+  }
   g.applied(drive);
-  counts[0] -= static_cast<int32_t>(0.01 * 0.005 / kTendonMPerCount);
-  g.observe(5000, counts, kRelaxed, 0);
+  counts[0] -= moving;
+  now_us += 5000;  // still in the brake since the first window: for kStillUs now
+  g.observe(now_us, counts, kRelaxed, 0);
   g.release(duty, drive);
   CHECK(drive[0] == Drive::kBrake && drive[1] == Drive::kCoast && drive[2] == Drive::kCoast);
-  g.applied(drive);
-  g.observe(10000, counts, kRelaxed, 0);
-  g.release(duty, drive);
+  for (int tick = 0; tick < 5; ++tick) {
+    g.applied(drive);
+    now_us += 5000;
+    g.observe(now_us, counts, kRelaxed, 0);
+    g.release(duty, drive);
+  }
   for (Drive d : drive) CHECK(d == Drive::kCoast);
   for (float d : duty) CHECK(d == 0.0f);
   // Coasting stays coasting until the motor drives again.
   counts[1] += 50;
   g.applied(drive);
-  g.observe(15000, counts, kRelaxed, 0);
+  now_us += 5000;
+  g.observe(now_us, counts, kRelaxed, 0);
   g.release(duty, drive);
   CHECK(drive[1] == Drive::kCoast);
+}
+
+void a_spool_the_brake_turns_round_is_not_taken_for_still() {
+  // Released while winding in, spool 0 is turned round by its tendon in the brake: one window
+  // through zero speed, then it is pulled out at 2 mm/s. It brakes on.
+  Guard g;
+  g.set_tension_limit(kLimitN);
+  const float command[kChannels] = {-0.01f, 0.0f, 0.0f, 0.0f};
+  float duty[kChannels];
+  Drive drive[kChannels];
+  int32_t counts[kChannels] = {};
+  g.observe(0, counts, kRelaxed, 0);
+  g.drive(command, duty, drive);
+  g.applied(drive);
+  g.release(duty, drive);
+  g.applied(drive);
+  g.observe(5000, counts, kRelaxed, 0);  // through zero
+  g.release(duty, drive);
+  CHECK(drive[0] == Drive::kBrake);
+  g.applied(drive);
+  uint32_t now_us = 5000;
+  for (int tick = 0; tick < 8; ++tick) {
+    counts[0] += static_cast<int32_t>(0.002 * 0.005 / kTendonMPerCount);
+    now_us += 5000;
+    g.observe(now_us, counts, kRelaxed, 0);
+    g.release(duty, drive);
+    g.applied(drive);
+    CHECK(drive[0] == Drive::kBrake);
+  }
+}
+
+void no_brake_resists_a_spool_flying_out_with_more_than_the_cap() {
+  // Spool 0 pays out at 50 mm/s, spool 1 at 10 mm/s: shorted, the back-EMF would resist them
+  // with 15 N and 3 N against a 5.4 N cap. Spool 0's motor drives along to leave the cap, spool
+  // 1's brakes, and neither may wind in.
+  const float speeds[kChannels] = {-0.05f, -0.01f, 0.0f, 0.0f};
+  Guard g = moving(speeds);
+  const double cap_n = 0.9 * kLimitN;
+  const double back_emf_n = kMotorDampingNsPerM * 0.05;
+  float duty[kChannels];
+  Drive drive[kChannels];
+  g.hold(duty, drive);
+  CHECK(drive[0] == Drive::kDrive);
+  // To the encoder quantum of the speed (0.19 mm/s: 0.06 N).
+  CHECK_NEAR(duty[0] * kStallForceN, back_emf_n - cap_n, 0.1);
+  CHECK(drive[1] == Drive::kBrake && duty[1] == 0.0f);
+  CHECK(drive[2] == Drive::kBrake && drive[3] == Drive::kBrake);
+  g.release(duty, drive);
+  CHECK(drive[0] == Drive::kDrive && duty[0] > 0.0f && drive[1] == Drive::kBrake);
+  const float pull[kChannels] = {-1.0f, -1.0f, -1.0f, NAN};
+  g.drive(pull, duty, drive);
+  CHECK_NEAR(duty[0] * kStallForceN, back_emf_n - cap_n, 0.1);
+  CHECK_NEAR(duty[1] * kStallForceN, kMotorDampingNsPerM * 0.01 - cap_n, 0.1);
+  CHECK_NEAR(duty[2] * kStallForceN, -cap_n, 1e-4);
+  CHECK(duty[3] == 0.0f);
+  // NaN on spool 0 gives the duty that leaves the cap, not the full brake of 0.
+  const float nan[kChannels] = {NAN, NAN, NAN, NAN};
+  g.drive(nan, duty, drive);
+  CHECK(duty[0] > 0.0f && duty[1] == 0.0f);
 }
 
 void a_motor_at_its_cap_against_a_still_spool_trips_the_tension_limit() {
@@ -156,6 +231,8 @@ void test_guard() {
   a_motor_winds_in_with_at_most_the_cap_and_nan_gives_zero();
   the_winding_speed_limit_takes_the_pull_away();
   a_released_motor_brakes_until_its_spool_stands_still_in_the_brake();
+  a_spool_the_brake_turns_round_is_not_taken_for_still();
+  no_brake_resists_a_spool_flying_out_with_more_than_the_cap();
   a_motor_at_its_cap_against_a_still_spool_trips_the_tension_limit();
   a_cell_reading_far_under_its_stalled_motors_pull_is_implausible();
   lasting_counts_unbroken_spans();

@@ -25,6 +25,7 @@ void watchdog_trips_latches_and_reenables() {
   b.run(0.02);
   CHECK(b.fw.state() == State::kFault);
   CHECK((b.fw.faults() & fault::kWatchdog) != 0);
+  b.run(kStillUs * 1e-6);  // the bench's spools stop at once: braked still for kStillUs
   CHECK(all_drive(b.out, Drive::kCoast));
   const float length_at_trip = b.length_m(0);
   b.send(msg::Ping{});  // the host is back: the fault stays latched
@@ -59,6 +60,7 @@ void tension_limit_faults_one_channel() {
   b.run(0.02);
   CHECK(b.fw.state() == State::kFault);
   CHECK(b.fw.faults() == (fault::kTensionLimit | fault::tension_channel(2)));
+  b.run(kStillUs * 1e-6);
   CHECK(all_drive(b.out, Drive::kCoast));
   b.extra_tension_n[2] = 0.0f;
   b.send(msg::Ping{});
@@ -108,11 +110,14 @@ void disable_brakes_a_moving_spool_then_coasts() {
   b.send(msg::SetSetpoints{0, {0.005f, 0.0f, 0.0f, 0.0f}});
   b.run(0.02);
   b.send(msg::Disable{});
-  // Each motor brakes until its spool has stood still for a tick in the brake: motor 1, paying
-  // out, would otherwise fly on. The bench's spools stop at once, so they coast from the second tick.
+  // Each motor brakes until its spool has stood still in the brake for kStillUs: motor 1, paying
+  // out, would otherwise fly on. The bench's spools stop at once: seen still in the brake from
+  // the second tick, they coast kStillUs later.
   b.run(0.001);
   CHECK(b.fw.state() == State::kDisabled && all_drive(b.out, Drive::kBrake));
-  b.run(0.001);
+  b.run(kStillUs * 1e-6);
+  CHECK(b.fw.state() == State::kDisabled && all_drive(b.out, Drive::kBrake));
+  b.run(0.002);
   CHECK(b.fw.state() == State::kDisabled && all_drive(b.out, Drive::kCoast));
 }
 
