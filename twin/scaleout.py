@@ -2,7 +2,7 @@
 
 Sweeps (the zoo cross-check, one job per robot) and controller tuning (one job per tracking
 episode) are many independent, CPU-bound jobs of seconds to minutes each. :func:`map_ordered`
-runs them:
+(or an :class:`Executor`, whose processes serve many lists of jobs) runs them:
 
 - ``workers=1`` and no cluster: one after the other in this process (no pickling, easiest to
   debug);
@@ -31,7 +31,7 @@ import logging
 import socket
 from typing import Any, Callable, Iterable, TypeVar
 
-__all__ = ["ClusterError", "connect", "disconnect", "map_ordered"]
+__all__ = ["ClusterError", "Executor", "connect", "disconnect", "map_ordered"]
 
 Job = TypeVar("Job")
 Result = TypeVar("Result")
@@ -47,16 +47,63 @@ class ClusterError(OSError):
     """``--cluster`` cannot be used: Ray is not installed, or no Ray head answers at the address."""
 
 
+class Executor:
+    """Runs lists of jobs, results in job order, on the same processes from one list to the next.
+
+    A fit that evaluates a cost of a few parallel jobs many times opens one (``with
+    Executor(...) as executor``) rather than starting processes for each evaluation.
+
+    Args:
+        workers: local processes (1: this process); with ``cluster="local"`` the CPUs of the
+            local Ray instance; ignored for a cluster address, whose CPUs decide.
+        cluster: a Ray head address (see the module), or None for local processes.
+
+    Raises:
+        ValueError: ``workers`` < 1.
+        ClusterError: ``cluster`` is given and Ray is not installed or the head does not answer.
+    """
+
+    def __init__(self, workers: int = 1, cluster: str | None = None):
+        if workers < 1:
+            raise ValueError(f"workers = {workers!r}: expected at least 1")
+        self.workers, self.cluster = workers, cluster
+        self._ray = connect(cluster, workers) if cluster is not None else None
+        self._pool: concurrent.futures.ProcessPoolExecutor | None = None
+
+    def map(self, fn: Callable[[Job], Result], jobs: Iterable[Job]) -> list[Result]:
+        """``[fn(job) for job in jobs]``; ``fn`` a module-level function (pickled by reference to the
+        processes and nodes), each job a picklable argument that carries its own seed."""
+        jobs = list(jobs)
+        if self._ray is not None:
+            remote = _remote(fn)
+            return self._ray.get([remote.remote(job) for job in jobs])
+        if self.workers == 1 or len(jobs) <= 1:
+            return [fn(job) for job in jobs]
+        if self._pool is None:
+            self._pool = concurrent.futures.ProcessPoolExecutor(min(self.workers, len(jobs)))
+        return list(self._pool.map(fn, jobs))
+
+    def close(self) -> None:
+        """Stop the local processes (a cluster stays joined: :func:`disconnect` leaves it)."""
+        if self._pool is not None:
+            self._pool.shutdown()
+            self._pool = None
+
+    def __enter__(self) -> "Executor":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
 def map_ordered(fn: Callable[[Job], Result], jobs: Iterable[Job], *, workers: int = 1,
                 cluster: str | None = None) -> list[Result]:
-    """``[fn(job) for job in jobs]``, run in parallel when asked.
+    """``[fn(job) for job in jobs]``, run in parallel when asked: one :meth:`Executor.map`.
 
     Args:
         fn: a module-level function (pickled by reference to the processes and nodes).
         jobs: the jobs, each a picklable argument of ``fn`` that carries its own seed.
-        workers: local processes (1: this process); with ``cluster="local"`` the CPUs of the
-            local Ray instance; ignored for a cluster address, whose CPUs decide.
-        cluster: a Ray head address (see the module), or None for local processes.
+        workers, cluster: as :class:`Executor` takes them.
 
     Returns:
         The results in the order of ``jobs``.
@@ -65,17 +112,8 @@ def map_ordered(fn: Callable[[Job], Result], jobs: Iterable[Job], *, workers: in
         ValueError: ``workers`` < 1.
         ClusterError: ``cluster`` is given and Ray is not installed or the head does not answer.
     """
-    if workers < 1:
-        raise ValueError(f"workers = {workers!r}: expected at least 1")
-    jobs = list(jobs)
-    if cluster is not None:
-        ray = connect(cluster, workers)
-        remote = _remote(fn)
-        return ray.get([remote.remote(job) for job in jobs])
-    if workers == 1 or len(jobs) <= 1:
-        return [fn(job) for job in jobs]
-    with concurrent.futures.ProcessPoolExecutor(min(workers, len(jobs))) as pool:
-        return list(pool.map(fn, jobs))
+    with Executor(workers, cluster) as executor:
+        return executor.map(fn, jobs)
 
 
 def disconnect() -> None:

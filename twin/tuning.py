@@ -42,7 +42,7 @@ from twin.control.gains import DEFAULT_TENSION_GAINS, TUNED_TENSION_GAINS
 from twin.params import Params, load_params
 from twin.rod import Predictor, RodModel, tip_jacobian
 from twin.rod.grid import GRAVITY_TIP_FORCE_N
-from twin.scaleout import connect, map_ordered
+from twin.scaleout import Executor, connect, map_ordered
 
 __all__ = ["TipTrackingController", "TuningResult", "tension_cost", "tracking_cost", "tune_tension_gains", "tune_tracking_gains",
            "main", "register"]
@@ -218,11 +218,13 @@ def _tracking_episode(args) -> float:
 
 def tracking_cost(gains: dict, *, params: Params | None = None, seeds: Sequence[int] = (0, 1, 2),
                   steps: int = TRACKING_STEPS, tension_gains: dict | None = None, workers: int = 1,
-                  cluster: str | None = None) -> float:
+                  cluster: str | None = None, executor: Executor | None = None) -> float:
     """Mean tip error (mm) over the second half of episodes with the :class:`TipTrackingController` gains
-    ``gains`` (``gain``, ``velocity_gain_s``), one episode per seed in ``seeds``, run by
-    :func:`twin.scaleout.map_ordered` (``workers`` local processes, or the Ray ``cluster``)."""
+    ``gains`` (``gain``, ``velocity_gain_s``), one episode per seed in ``seeds``, run by ``executor``
+    or else by :func:`twin.scaleout.map_ordered` (``workers`` local processes, or the Ray ``cluster``)."""
     jobs = [(gains, params, seed, steps, tension_gains or TUNED_TENSION_GAINS) for seed in seeds]
+    if executor is not None:
+        return float(np.mean(executor.map(_tracking_episode, jobs)))
     return float(np.mean(map_ordered(_tracking_episode, jobs, workers=workers, cluster=cluster)))
 
 
@@ -231,7 +233,8 @@ def tune_tracking_gains(*, params: Params | None = None, start: dict | None = No
     """Nelder–Mead on (log gain, log velocity_gain_s) of :class:`TipTrackingController` and the log of the
     tension PID's ``ki`` (the rest of ``tension_gains`` held), from ``start``; the baseline is
     feedforward alone (both tracker gains 0) on ``tension_gains``, and is returned as ``after``
-    when nothing found beats it. ``options`` go to :func:`tracking_cost`.
+    when nothing found beats it. ``options`` go to :func:`tracking_cost`; its ``workers`` and
+    ``cluster`` serve every evaluation from one :class:`twin.scaleout.Executor`.
 
     Returns:
         A :class:`TuningResult` whose parameters are ``gain``, ``velocity_gain_s`` and
@@ -241,18 +244,20 @@ def tune_tracking_gains(*, params: Params | None = None, start: dict | None = No
     start = {"gain": 0.01, "velocity_gain_s": 0.05, "tension_ki": tension_gains["ki"], **(start or {})}
     baseline = {"gain": 0.0, "velocity_gain_s": 0.0, "tension_ki": tension_gains["ki"]}
 
-    def cost(values: dict) -> float:
-        return tracking_cost({"gain": values["gain"], "velocity_gain_s": values["velocity_gain_s"]}, params=params,
-                             tension_gains=dict(tension_gains, ki=values["tension_ki"]), **options)
-
     def values_of(x):
         return {"gain": float(np.exp(x[0])), "velocity_gain_s": float(np.exp(x[1])), "tension_ki": float(np.exp(x[2]))}
 
-    cost_before = cost(baseline)
     x0 = np.log([start["gain"], start["velocity_gain_s"], start["tension_ki"]])
-    fit = minimize(lambda x: cost(values_of(x)), x0, method="Nelder-Mead",
-                   # Steps of e (×2.7) so that a few evaluations span the useful decade of each gain.
-                   options={"maxfev": evaluations, "initial_simplex": x0 + np.vstack([np.zeros(3), np.eye(3)])})
+    with Executor(options.pop("workers", 1), options.pop("cluster", None)) as executor:
+        def cost(values: dict) -> float:
+            return tracking_cost({"gain": values["gain"], "velocity_gain_s": values["velocity_gain_s"]},
+                                 params=params, tension_gains=dict(tension_gains, ki=values["tension_ki"]),
+                                 executor=executor, **options)
+
+        cost_before = cost(baseline)
+        fit = minimize(lambda x: cost(values_of(x)), x0, method="Nelder-Mead",
+                       # Steps of e (×2.7) so that a few evaluations span the useful decade of each gain.
+                       options={"maxfev": evaluations, "initial_simplex": x0 + np.vstack([np.zeros(3), np.eye(3)])})
     best = (values_of(fit.x), float(fit.fun)) if fit.fun < cost_before else (baseline, cost_before)
     return TuningResult("tip tracking (integral gain, swing damping, tension ki)", baseline, best[0], cost_before,
                         best[1], "mm", int(fit.nfev) + 1)
