@@ -211,9 +211,12 @@ def _smoke(bin_dir: Path, work: Path) -> None:
 
     work.mkdir()
     env = _env(work / "cache")
-    site = Path(subprocess.run([str(bin_dir / "python"), "-c", "import twin; print(twin.__file__)"], cwd=work,
-                               env=env, capture_output=True, text=True, check=True).stdout.strip()).parent
+    where = subprocess.run([str(bin_dir / "python"), "-c", "import twin, twin.resources as r; print(twin.__file__); "
+                            "print(r.resource_path('models')); print(r.resource_path('firmware'))"],
+                           cwd=work, env=env, capture_output=True, text=True, check=True).stdout.split("\n")
+    site = Path(where[0]).parent
     assert ROOT not in site.parents, f"the installed twin is imported from the checkout ({site})"
+    assert [Path(p) for p in where[1:3]] == [site / "_shipped" / "models", site / "_shipped" / "firmware"]
 
     result = _run(bin_dir, ["predict", "--tensions", TENSIONS, "--tip-force", "0,0,-0.049", "--pose", "horizontal",
                             "--json"], work, env)

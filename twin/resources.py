@@ -36,11 +36,13 @@ __all__ = [
 ]
 
 _PACKAGE = Path(__file__).resolve().parent
-# Directories shipped with the twin, and where each sits relative to the package in a checkout
-# and in a wheel. ``native`` is package data in both layouts.
+# Directories shipped with the twin, and where each sits relative to the package in a wheel and
+# in a checkout. The wheel's place comes first: beside an installed package is site-packages,
+# where another distribution may have put a top-level ``models``. ``native`` is package data in
+# both layouts.
 _RESOURCES = {
-    "models": (_PACKAGE.parent / "models", _PACKAGE / "_shipped" / "models"),
-    "firmware": (_PACKAGE.parent / "firmware", _PACKAGE / "_shipped" / "firmware"),
+    "models": (_PACKAGE / "_shipped" / "models", _PACKAGE.parent / "models"),
+    "firmware": (_PACKAGE / "_shipped" / "firmware", _PACKAGE.parent / "firmware"),
     "native": (_PACKAGE / "sim" / "native",),
 }
 
