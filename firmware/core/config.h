@@ -78,6 +78,12 @@ constexpr float kMotorDampingNsPerM = kStallForceN / kNoLoadSpeedMPerS;
 constexpr float kMaxLengthRateMPerS = 0.02f;
 // ... and no further than this (m) ahead of the tendon's length.
 constexpr float kMaxLengthLeadM = 0.00025f;
+// Tension references ramp towards their targets at this many times the tension limit per
+// second (a full-range step takes 0.1 s). A motor pulling against its antagonist raises the
+// antagonist's tension by what it adds; where that spool holds its tendon at the cap (a tip load
+// on it), it must yield, and its 2.7 kg of reflected rotor lags a pull that rises at once: on the
+// twin, a tension step at 2 N with an 18 g tip load put 1.23× the limit on the held tendon.
+constexpr float kTensionRatePerS = 10.0f;
 // Spool speeds are measured tick to tick (5 ms on the Teensy: 0.19 mm/s per encoder count), over
 // at least this (µs).
 constexpr uint32_t kSpeedWindowUs = 1000;

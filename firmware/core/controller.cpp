@@ -63,7 +63,7 @@ void Controller::restart(const Measurements& now) {
   for (size_t i = 0; i < kChannels; ++i) {
     pid_[i].reset(measured(now, i));
     last_duty_[i] = 0.0f;
-    references_[i] = mode_ == Mode::kTension ? targets_[i] : now.lengths_m[i];
+    references_[i] = mode_ == Mode::kTension ? now.tensions_n[i] : now.lengths_m[i];
   }
 }
 
@@ -81,13 +81,14 @@ void Controller::step(const Measurements& now, float dt_s, float duty[kChannels]
 void Controller::step(const Measurements& now, float dt_s, const float lowest[kChannels], float duty[kChannels]) {
   const PidGains& g = gains(mode_);
   const float ramp_m = length_rate_m_s_ * dt_s;
+  const float ramp_n = tension_rate_n_per_s_ * dt_s;
   for (size_t i = 0; i < kChannels; ++i) {
     float& reference = references_[i];
     // A ramping length is fed forward as the duty its speed takes an unloaded motor, so that the
     // integral holds only the load and has nothing to unwind when the ramp ends.
     float feedforward = 0.0f;
     if (mode_ == Mode::kTension) {
-      reference = targets_[i];
+      reference += clamp_range(targets_[i] - reference, -ramp_n, ramp_n);
     } else {
       // Nor does it run ahead of a tendon that cannot follow (a motor at its pull limit): the
       // error stays small, and so does the overshoot when the tendon catches up.

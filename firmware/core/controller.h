@@ -7,7 +7,9 @@
 // Positive duty pays tendon out: it lengthens the tendon and lowers its tension.
 // In the length modes each PID tracks a reference that moves towards its target at no more than
 // length_rate(), so a step is driven as a ramp, its speed fed forward: no spool is jerked, and
-// no tendon paid out so fast that it goes slack and snaps taut again when the rod moves.
+// no tendon paid out so fast that it goes slack and snaps taut again when the rod moves. In
+// tension mode the references move at no more than tension_rate(): a motor's pull rises no
+// faster than the spool of the tendon it pulls against, held at its cap, can yield.
 #pragma once
 
 #include <cstddef>
@@ -34,6 +36,9 @@ class Controller {
   // Fastest the length references move (m/s).
   float length_rate() const { return length_rate_m_s_; }
   void set_length_rate(float length_rate_m_s) { length_rate_m_s_ = length_rate_m_s; }
+  // Fastest the tension references move (N/s).
+  float tension_rate() const { return tension_rate_n_per_s_; }
+  void set_tension_rate(float tension_rate_n_per_s) { tension_rate_n_per_s_ = tension_rate_n_per_s; }
 
   // Switches mode and holds (see hold()), with each PID's integral starting at the duty of the
   // last step, so the motors keep pulling as they were instead of letting go: entering tension
@@ -45,8 +50,8 @@ class Controller {
   void hold(const Measurements& now, float tension_limit_n);
 
   // Restarts the PIDs from the current measurement and a stopped motor, keeping the setpoints
-  // (motion resumes after a pause without a derivative kick, the length references ramping
-  // from where the tendons are).
+  // (motion resumes after a pause without a derivative kick, the references ramping from where
+  // the tendons are).
   void restart(const Measurements& now);
 
   // Setpoints in the active mode's units (validated by the caller); pairs use values[0..1].
@@ -62,7 +67,7 @@ class Controller {
   // Per-motor target of the last setpoints or hold: m (length modes) or N (tension).
   const float* targets() const { return targets_; }
 
-  // What each PID tracks now: the ramped length (m), or the tension target (N).
+  // What each PID tracks now: the ramped length (m) or tension (N).
   const float* references() const { return references_; }
 
  private:
@@ -77,6 +82,7 @@ class Controller {
   float targets_[kChannels] = {};
   float references_[kChannels] = {};
   float length_rate_m_s_ = kMaxLengthRateMPerS;
+  float tension_rate_n_per_s_ = kTensionRatePerS * kDefaultTensionLimitN;
   float last_duty_[kChannels] = {};  // duty of the last step; 0 after restart()
 };
 

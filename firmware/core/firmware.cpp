@@ -95,11 +95,13 @@ uint16_t Firmware::guard_faults(uint8_t stale_mask) {
 }
 
 // Length references ramp at the winding speed limit, paying out too: a tendon paid out faster
-// than its antagonist winds in goes slack, and the rod snaps it taut.
+// than its antagonist winds in goes slack, and the rod snaps it taut. Tension references ramp
+// at kTensionRatePerS times the limit per second.
 void Firmware::set_tension_limit(float tension_limit_n) {
   guard_.set_tension_limit(tension_limit_n);
   const float rate = guard_.winding_speed_limit();
   controller_.set_length_rate(rate < kMaxLengthRateMPerS ? rate : kMaxLengthRateMPerS);
+  controller_.set_tension_rate(kTensionRatePerS * tension_limit_n);
 }
 
 // A HELLO starts a host's session: whatever the last host left driving stops (FAULT stays, so

@@ -78,6 +78,26 @@ void tension_mode_sign() {
   CHECK_NEAR(duty[2], 0.0, 1e-6);
 }
 
+void tension_references_ramp() {
+  // A tension step is driven as a ramp at tension_rate(): 20 N/s is 0.2 N per 10 ms period.
+  Controller c;
+  c.set_tension_rate(20.0f);
+  const Measurements now = at(0, 0, 0, 0, 1.0f);
+  c.set_mode(Mode::kTension, now, 2.0f);
+  const float sp[kChannels] = {2.0f, 0.5f, 1.0f, 1.1f};
+  c.set_setpoints(sp);
+  float duty[kChannels];
+  c.step(now, kControlPeriodS, duty);
+  CHECK_NEAR(c.references()[0], 1.2, 1e-6);
+  CHECK_NEAR(c.references()[1], 0.8, 1e-6);
+  CHECK_NEAR(c.references()[2], 1.0, 1e-6);
+  CHECK_NEAR(c.references()[3], 1.1, 1e-6);
+  for (int k = 0; k < 4; ++k) c.step(now, kControlPeriodS, duty);
+  CHECK_NEAR(c.references()[0], 2.0, 1e-6);
+  CHECK_NEAR(c.references()[1], 0.5, 1e-6);
+  CHECK_NEAR(c.targets()[0], 2.0, 0.0);  // the targets are the setpoints at once
+}
+
 void tension_hold_clamps_to_limit() {
   Controller c;
   Measurements now = at(0, 0, 0, 0, 0.0f);
@@ -130,6 +150,7 @@ void test_controller() {
   mode_switch_keeps_the_motors_pulling();
   antagonistic_pairs_couple();
   tension_mode_sign();
+  tension_references_ramp();
   tension_hold_clamps_to_limit();
   closed_loops_on_the_bench();
 }
