@@ -4,7 +4,7 @@ The firmware does not only trip at the tension limit, it bounds tension (firmwar
 "Tension bound"): a motor winds in with at most 0.9 of the limit as stall force and no faster
 than a blow of its tendon snapping taut allows, no motor resists its tendon with more than that
 cap (a spool pulled out by a load, one flying out, one braked), a motor that stops brakes until
-its spool has stood still in the brake, length targets ramp. So no sequence of commands the board accepts may drive a true tendon
+its spool has stood still in the brake, length and tension targets ramp. So no sequence of commands the board accepts may drive a true tendon
 tension (the twin's, at every physics step, between load-cell samples too) above 1.2× the limit,
 whatever the calibration within the bounds the board accepts.
 
