@@ -443,9 +443,12 @@ def read_metadata(folder: str | Path) -> dict:
         if key not in metadata:
             raise DatasetError(f"{meta_path}: missing {key!r}")
     params = metadata["params"]
-    if not isinstance(params, dict) or not all(isinstance(v, dict) for v in params.values()):
-        raise DatasetError(f"{meta_path}: params is a JSON {type(params).__name__}, expected an object of "
-                           "sections (as a parameter set's to_dict() writes it)")
+    if not isinstance(params, dict):
+        raise DatasetError(f"{meta_path}: params is a JSON {_json_type(params)}, expected an object of sections")
+    for section, entries in params.items():
+        if not isinstance(entries, dict):
+            raise DatasetError(f"{meta_path}: params section {section!r} is a JSON {_json_type(entries)}, "
+                               "expected an object of entries")
     try:
         rot = np.asarray(metadata["base_rotation"], dtype=float)
     except (TypeError, ValueError):
@@ -453,6 +456,12 @@ def read_metadata(folder: str | Path) -> dict:
     if rot.shape != (3, 3) or not np.allclose(rot @ rot.T, np.eye(3), atol=1e-6):
         raise DatasetError(f"{meta_path}: base_rotation {metadata['base_rotation']!r} is not a 3x3 rotation")
     return metadata
+
+
+def _json_type(value: Any) -> str:
+    """The JSON name of a parsed value's type (object, array, string, number, ...)."""
+    names = {dict: "object", list: "array", str: "string", bool: "boolean", int: "number", float: "number"}
+    return "null" if value is None else names.get(type(value), type(value).__name__)
 
 
 def read_dataset(folder: str | Path) -> Dataset:

@@ -20,7 +20,7 @@ from twin.data.prediction import predict_rows
 from twin.effects import FitParameter
 from twin.params import Params
 
-__all__ = ["FitParameter", "ParameterFit", "fit_parameters", "fit_determined", "apply_values"]
+__all__ = ["FitParameter", "ParameterFit", "fit_parameters", "fit_determined", "apply_values", "current_value"]
 
 # Penalty (m per axis) for a row whose prediction fails during a fit: large against any
 # plausible error, so the optimiser steers away from parameters the model cannot solve.
@@ -93,7 +93,7 @@ def apply_values(params: Params, parameters: Sequence[FitParameter], values, sou
             current[p.index] = float(v)
             changes[p.key] = current
         for key, slope in p.follows:
-            changes[key] = float(changes.get(key, params.get(key))) + slope * (float(v) - _current(params, p))
+            changes[key] = float(changes.get(key, params.get(key))) + slope * (float(v) - current_value(params, p))
     return params.replace(changes, source=source)
 
 
@@ -110,7 +110,8 @@ def _at_bound(p: FitParameter, value: float) -> bool:
     return any(math.isfinite(b) and abs(z - _to_z(p, b)) < _BOUND_TOLERANCE for b in p.bounds if not (p.log and b <= 0))
 
 
-def _current(params: Params, p: FitParameter) -> float:
+def current_value(params: Params, p: FitParameter) -> float:
+    """The value ``p`` has in ``params`` (a list key's entry at its index)."""
     value = params.get(p.key)
     return float(value if p.index is None else value[p.index])
 
@@ -168,7 +169,7 @@ def fit_parameters(dataset: Dataset, params: Params, parameters: Sequence[FitPar
     if not parameters:
         raise ValueError("fit_parameters: no parameters to fit")
     data = dataset if rows is None else dataset.subset(rows)
-    start = np.array([_current(params, p) for p in parameters] if x0 is None else x0, dtype=float)
+    start = np.array([current_value(params, p) for p in parameters] if x0 is None else x0, dtype=float)
     for p, v in zip(parameters, start):
         if p.log and v <= 0:
             raise ValueError(f"{p.label} = {v!r}: a log-fitted parameter must start > 0")
@@ -271,7 +272,7 @@ def fit_determined(dataset: Dataset, params: Params, parameters: Sequence[FitPar
         (parameter, value, standard error) when they were dropped).
     """
     parameters = list(parameters)
-    start = list(x0) if x0 is not None else [_current(params, p) for p in parameters]
+    start = list(x0) if x0 is not None else [current_value(params, p) for p in parameters]
     dropped: list[tuple[FitParameter, float, float]] = []
     while parameters:
         fit = fit_parameters(dataset, params, parameters, x0=start, **options)

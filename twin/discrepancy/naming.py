@@ -54,7 +54,7 @@ from twin.discrepancy.candidates import Candidate
 from twin.discrepancy.noise import configuration_keys
 from twin.data.dataset import Dataset
 from twin.data.prediction import predict_rows
-from twin.data.fitting import FitParameter, ParameterFit, fit_determined
+from twin.data.fitting import FitParameter, ParameterFit, current_value, fit_determined
 from twin.params import Params
 
 __all__ = ["NAME_ALPHA", "MIN_HELDOUT_GAIN", "TIE_Z", "PAIR_POOL", "CandidateScore", "Round", "split_rows",
@@ -226,7 +226,7 @@ class _Baseline:
         rss0, mse0 = float(np.sum(self.base_train**2)), float(np.mean(self.base_test**2))
         n_train, n_test = self.base_train.size, self.base_test.size
         parameters = list(named) + list(own)
-        start = [_value(self.params, p) for p in named] + list(x0)
+        start = [current_value(self.params, p) for p in named] + list(x0)
         source = f"{self.source}: {effect}"
         fit, dropped = None, []
         for fixed in variants or ({},):
@@ -296,11 +296,6 @@ def _worse_z(best_m: np.ndarray, other_m: np.ndarray) -> float:
     if se == 0:
         return math.inf if excess > 0 else 0.0
     return excess / se
-
-
-def _value(params: Params, parameter: FitParameter) -> float:
-    value = params.get(parameter.key)
-    return float(value if parameter.index is None else value[parameter.index])
 
 
 def _applicable(candidate: Candidate, dataset: Dataset, train: np.ndarray) -> bool:

@@ -97,10 +97,8 @@ class DiscrepancyResult:
 
     @property
     def effect(self) -> str:
-        """The first named effect; else ``none``, or the verdict when it is not a clean answer."""
-        if self.named:
-            return self.named[0]
-        return "none" if self.verdict in ("none", "effect") else self.verdict
+        """The first named effect, or ``none`` (:attr:`verdict` says whether that is the answer)."""
+        return self.named[0] if self.named else "none"
 
     @property
     def rms_before_m(self) -> float:
