@@ -293,12 +293,9 @@ class LiveDevice:
         self._tensions_n: np.ndarray | None = None
         self._tip_m: np.ndarray | None = None
         self._tracker = None if device.tracker is None else _LiveTracker(device.tracker, self)
-        from twin.device.errors import DeviceError
-
-        try:
-            self._twin = device.twin
-        except DeviceError:  # a rig: no ground truth, the tracked tip and tensions only
-            self._twin = None
+        # Only sim:// has a twin; a rig (serial://, a pseudo-terminal board's host) shows the
+        # tracked tip and the tensions only.
+        self._twin = device.twin if device.url.split(":", 1)[0] == "sim" else None
         self._next_s = 0.0
 
     def __getattr__(self, name: str):
