@@ -82,3 +82,16 @@ def test_twin_sim_takes_one_value_per_tendon_of_the_robot(capsys):
     assert tip[2] < -0.005  # tendon 1 at 0 deg bends the horizontal robot down
     assert _run(["sim", "--robot", "three-tendon", "--tensions", "2,1,1,1"]) == 2
     assert "--tensions has 4 values; the robot has 3 tendons" in capsys.readouterr().err
+
+
+def test_without_a_compiler_validate_says_so_in_one_line_and_leaves_no_folder(tmp_path):
+    import os
+    import subprocess
+    import sys
+
+    env = dict(os.environ, TWIN_CACHE_DIR=str(tmp_path / "cache"), CXX="no-such-compiler-g++")
+    done = subprocess.run([sys.executable, "-m", "twin.cli", "validate", "--quick", "--out", str(tmp_path / "runs")],
+                          env=env, capture_output=True, text=True, timeout=300)
+    assert done.returncode == 1, done.stderr
+    assert "Traceback" not in done.stderr and "no-such-compiler-g++" in done.stderr
+    assert not any((tmp_path / "runs").iterdir())

@@ -328,6 +328,7 @@ def _run(args, command: str, experiment: str, body) -> int:
     from twin.data.dataset import DatasetError
     from twin.device.errors import DeviceError
     from twin.experiments.protocols import ProtocolError
+    from twin.resources import NativeBuildError
     from twin.sim.plant import SimulationError
 
     params = params_from_args(args)
@@ -335,7 +336,8 @@ def _run(args, command: str, experiment: str, body) -> int:
         folder = _run_folder(args, command, experiment, params)
         try:
             return body(folder, params)
-        except RunRefused:
+        except (RunRefused, NativeBuildError):
+            # Refused, or no compiler for the twin: nothing was measured, so no folder stays.
             _discard_if_empty(args, folder)
             raise
         except (ProtocolError, DeviceError, SimulationError, DatasetError, OSError) as exc:
