@@ -14,9 +14,10 @@ The steps (the ranking rule is in :mod:`twin.discrepancy.naming`):
 The verdict (:data:`VERDICTS`):
 
 ``none``
-    no structured disagreement beyond noise: nothing to name.
+    no structured disagreement beyond noise, or none that matters (:func:`_material`) and
+    nothing named: nothing to name.
 ``effect``
-    the named effects leave residuals consistent with noise.
+    the named effects leave residuals consistent with noise (no material structure).
 ``ambiguous``
     two or more candidates explain the data equally well within their uncertainty (a tie,
     :data:`twin.discrepancy.naming.TIE_Z`), and the best of them leaves no structure beyond
@@ -36,12 +37,13 @@ Example:
 from __future__ import annotations
 
 import dataclasses
+import math
 
 import numpy as np
 
 from twin.discrepancy.candidates import UNTESTABLE_EFFECTS, candidate_library
-from twin.discrepancy.naming import (PAIR_POOL, CandidateScore, Round, rank_candidates, rank_pairs, row_errors,
-                                     split_rows)
+from twin.discrepancy.naming import (MIN_HELDOUT_GAIN, PAIR_POOL, CandidateScore, Round, rank_candidates,
+                                     rank_pairs, row_errors, split_rows)
 from twin.discrepancy.residuals import ResidualMap, find_discrepancy, thesis_signature
 from twin.data.dataset import Dataset
 from twin.data.fitting import ParameterFit
@@ -52,6 +54,8 @@ __all__ = ["VERDICTS", "DiscrepancyResult", "run_discrepancy"]
 VERDICTS = ("effect", "none", "ambiguous", "unexplained")
 # Configurations listed where a residual remains.
 _WORST_SHOWN = 5
+# Structured RMS, in noise RMS, that a tenth off the held-out RMS stands for (see _material).
+_MATERIAL = math.sqrt(1.0 / (1.0 - MIN_HELDOUT_GAIN) ** 2 - 1.0)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -214,6 +218,16 @@ class DiscrepancyResult:
         }
 
 
+def _material(found: ResidualMap) -> bool:
+    """Structure beyond noise that is large enough to matter: removing it would take a tenth off
+    the RMS of noise and structure together (the held-out gain that names an effect,
+    :data:`twin.discrepancy.naming.MIN_HELDOUT_GAIN`), i.e. a structured RMS of at least
+    √(1/(1 − g)² − 1) ≈ 0.48 times the noise. Smaller structure that the F-test still resolves
+    is the predictor's and the rig's model-form difference (``reports/crosscheck``), not an effect."""
+    s = found.structure
+    return s.beyond_noise and s.structured_rms_m >= _MATERIAL * found.noise.rms_3d_m
+
+
 def _listed(named) -> str:
     """``a explains`` / ``a, b explain``."""
     return f"{', '.join(named)} {'explains' if len(named) == 1 else 'explain'}"
@@ -283,14 +297,14 @@ def run_discrepancy(dataset: Dataset, params: Params | None = None, *, holdout_f
     errors_before, ok_before = row_errors(dataset, params, test, [solutions[i] for i in held])
     errors_after, ok_after = row_errors(dataset, current, test, [solutions[i] for i in held])
     after = find_discrepancy(dataset, current, noise=residuals.noise, guesses=list(solutions)) if named else residuals
-    if not residuals.structure.beyond_noise:
+    if not residuals.structure.beyond_noise or (not named and not tied and not _material(residuals)):
         verdict = "none"
     elif tied:
         # A tie is the answer only if the tied explanations explain: when even the best of them
-        # leaves structure beyond noise, what is missing is none of them alone.
+        # leaves material structure, what is missing is none of them alone.
         best = find_discrepancy(dataset, tied[0].fit.params, noise=residuals.noise, guesses=list(solutions))
-        verdict = "unexplained" if best.structure.beyond_noise else "ambiguous"
-    elif not named or after.structure.beyond_noise:
+        verdict = "unexplained" if _material(best) else "ambiguous"
+    elif not named or _material(after):
         verdict = "unexplained"
     else:
         verdict = "effect"
