@@ -190,3 +190,40 @@ def test_the_env_with_live_port_shows_its_episode_without_changing_it():
         finally:
             env.close()
     assert np.array_equal(runs[0], runs[1])  # watching adds no command, ping or tracker sample
+
+
+def test_without_live_the_commands_do_not_load_the_viewer():
+    import subprocess
+    import sys
+
+    code = ("import sys; from twin.cli import main; "
+            "code = main(['sim', '--tensions', '2,1.35,1.35,1.35', '--json']); "
+            "print('viser' in sys.modules, code)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300, check=True)
+    assert out.stdout.split()[-2:] == ["False", "0"], out.stdout
+
+
+@pytest.mark.parametrize("command", [["sim", "--tensions", "2.5,1.35,1.35,1.35"], ["emulate"]])
+def test_live_serves_the_page_and_prints_its_url(command):
+    import signal
+    import subprocess
+    import sys
+    import urllib.request
+
+    process = subprocess.Popen([sys.executable, "-m", "twin.cli", *command, "--live"], stdout=subprocess.PIPE,
+                               stderr=subprocess.PIPE, text=True)
+    try:
+        deadline = time.monotonic() + 120.0
+        url = None
+        while url is None and time.monotonic() < deadline:
+            line = process.stderr.readline()
+            assert line or process.poll() is None, "the command ended before serving"
+            if "live view at " in line:
+                url = line.split("live view at ")[1].strip()
+        assert url is not None and url.startswith("http://127.0.0.1:")
+        page = urllib.request.urlopen(url, timeout=30).read().decode()
+        assert "<html" in page.lower()
+    finally:
+        process.send_signal(signal.SIGINT if command[0] == "sim" else signal.SIGTERM)
+        process.communicate(timeout=60)
+    assert process.returncode == 0
