@@ -89,10 +89,11 @@ def _chromium() -> str:
     pytest.skip("no Chromium on PATH (scripts/test.sh installs Debian's chromium when it runs as root)")
 
 
-def _screenshot(url: str, folder, *, settle_s: float = 6.0) -> np.ndarray:
+def _screenshot(url: str, folder, *, shown: str, settle_s: float = 3.0) -> np.ndarray:
     """(H, W, 3) uint8 of the page at ``url`` in headless Chromium, ``settle_s`` of real time after
-    it loaded (the scene comes over the websocket after the load event). Driven over the DevTools
-    protocol: ``--screenshot`` shoots at the load event, and its virtual time starves the websocket."""
+    the text ``shown`` (a label the view was shown) is on the page: the scene comes over the
+    websocket after the load event, with the panel's text. Driven over the DevTools protocol:
+    ``--screenshot`` shoots at the load event, and its virtual time starves the websocket."""
     import base64
     import json
     import urllib.request
@@ -128,6 +129,11 @@ def _screenshot(url: str, folder, *, settle_s: float = 6.0) -> np.ndarray:
             call("Page.enable")
             call("Emulation.setDeviceMetricsOverride", width=1000, height=700, deviceScaleFactor=1, mobile=False)
             call("Page.navigate", url=url)
+            deadline = time.monotonic() + 120.0
+            probe = f"document.body !== null && document.body.innerText.includes({json.dumps(shown)})"
+            while not call("Runtime.evaluate", expression=probe)["result"].get("value"):
+                assert time.monotonic() < deadline, f"the page never showed {shown!r}"
+                time.sleep(0.5)
             time.sleep(settle_s)
             data = call("Page.captureScreenshot", format="png")["data"]
     finally:
@@ -154,8 +160,8 @@ def test_the_page_shows_the_bent_backbone_in_headless_chromium(bent_plant, tmp_p
         empty.show(tensions_n=tensions, label="same label")
         show_twin(bent, bent_plant, label="same label")
         assert empty.wait_drawn(1) and bent.wait_drawn(1)
-        without = _screenshot(empty.url, tmp_path / "without")
-        with_backbone = _screenshot(bent.url, tmp_path / "with")
+        without = _screenshot(empty.url, tmp_path / "without", shown="same label")
+        with_backbone = _screenshot(bent.url, tmp_path / "with", shown="same label")
     assert without.shape == with_backbone.shape == (700, 1000, 3)
     assert with_backbone.std() > 10  # not a blank page
     # The same page (legend, tension bars) but for the backbone: its colour appears where it is drawn.
