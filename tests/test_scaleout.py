@@ -66,6 +66,7 @@ def test_a_cluster_without_ray_installed_is_said_in_one_line(monkeypatch):
 
 
 def test_an_unreachable_cluster_ends_the_commands_in_one_line_before_any_work(tmp_path, capsys):
+    pytest.importorskip("ray", reason="ray is in the test extra: pip install -e '.[test]'")
     address = f"127.0.0.1:{_free_port()}"
     start = time.perf_counter()
     assert main(["crosscheck", "--robot", "all", "--quick", "--cluster", address, "--out", str(tmp_path / "x")]) == 1
