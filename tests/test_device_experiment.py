@@ -34,6 +34,7 @@ def short_experiment(device: Device, tip_position) -> dict:
         moved = device.latest()
         tip_after_m = tip_position()
         device.disable()
+        device.wait(1.0)  # each motor brakes until its spool has stood still for 20 ms: the rod unbends first
         disabled = device.wait_next()
         samples = device.drain()
     return dict(moved=moved, disabled=disabled, samples=samples, tip_before_m=tip_before_m,

@@ -61,9 +61,11 @@ float Guard::lowest_duty(size_t i) const {
 }
 
 // What a still spool's motor pulls its tendon with (N) at `duty`: the duty's stall force, and
-// the back-EMF braking a spool that creeps out.
+// the back-EMF braking a spool that creeps out at the speed the duty was bounded with (the
+// speed measured since differs by an encoder count or two, which at the cap is a few times
+// the at-cap margin).
 float Guard::pull_n(size_t i, float duty) const {
-  const float w = winding_speed_m_s_[i];
+  const float w = driven_speed_m_s_[i];
   return -duty * kStallForceN - (w < 0.0f ? kMotorDampingNsPerM * w : 0.0f);
 }
 
@@ -73,12 +75,14 @@ void Guard::drive(const float command[kChannels], float duty[kChannels], Drive d
     const float d = clamp_range(command[i], lowest, 1.0f);
     duty[i] = d < lowest ? lowest : d;  // NaN gives 0, which may brake harder than the cap
     drive[i] = Drive::kDrive;
+    driven_speed_m_s_[i] = winding_speed_m_s_[i];
     stopping_[i] = true;
   }
 }
 
-void Guard::brake(size_t i, float duty[kChannels], Drive drive[kChannels]) const {
+void Guard::brake(size_t i, float duty[kChannels], Drive drive[kChannels]) {
   const float lowest = lowest_duty(i);
+  driven_speed_m_s_[i] = winding_speed_m_s_[i];
   duty[i] = lowest > 0.0f ? lowest : 0.0f;
   drive[i] = lowest > 0.0f ? Drive::kDrive : Drive::kBrake;
 }

@@ -80,7 +80,7 @@ class Guard {
 
  private:
   float pull_n(size_t channel, float duty) const;
-  void brake(size_t channel, float duty[kChannels], Drive drive[kChannels]) const;
+  void brake(size_t channel, float duty[kChannels], Drive drive[kChannels]);
 
   float cap_n_ = 0.0f;           // largest pull of a motor on its tendon (N)
   float speed_limit_m_s_ = 0.0f;
@@ -88,6 +88,7 @@ class Guard {
   uint64_t window_start_us_ = 0;
   int32_t window_counts_[kChannels] = {};
   float winding_speed_m_s_[kChannels] = {};
+  float driven_speed_m_s_[kChannels] = {};  // the speed the last outputs were bounded with
   float tensions_n_[kChannels] = {};
   uint8_t stale_mask_ = 0;
   bool stopping_[kChannels] = {};  // let go since driving: brakes until still in the brake

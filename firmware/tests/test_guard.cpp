@@ -196,6 +196,31 @@ void a_motor_at_its_cap_against_a_still_spool_trips_the_tension_limit() {
   CHECK(g.faults(10000 + kAtCapUs, duty, drive) == (fault::kTensionLimit | fault::tension_channel(0)));
 }
 
+void a_motor_at_its_cap_against_a_spool_creeping_out_trips_too() {
+  // Spool 0 creeps out at 0.4 mm/s (still) under a tendon the motor holds at its cap: its duty
+  // leaves the back-EMF's share of the cap. The next windows read a count more or less; the
+  // motor is at its cap all the same and trips after kAtCapUs.
+  const float creep[kChannels] = {-0.0004f, 0.0f, 0.0f, 0.0f};
+  const float tensions[kChannels] = {5.4f, 1.0f, 1.0f, 1.0f};
+  Guard g = moving(creep, tensions);
+  const float pull[kChannels] = {-1.0f, 0.0f, 0.0f, 0.0f};
+  float duty[kChannels];
+  Drive drive[kChannels];
+  g.drive(pull, duty, drive);
+  CHECK(duty[0] > -0.9f * kLimitN / kStallForceN);
+  int32_t counts[kChannels] = {};
+  counts[0] = static_cast<int32_t>(std::lround(0.0004 * 0.005 / kTendonMPerCount));
+  uint32_t now_us = 5000;
+  for (int tick = 0; tick <= static_cast<int>(kAtCapUs / 5000); ++tick) {
+    now_us += 5000;
+    counts[0] += 1 + tick % 2;  // 0.19 or 0.38 mm/s
+    g.observe(now_us, counts, tensions, 0);
+    const uint16_t flags = g.faults(now_us, duty, drive);
+    if (tick < static_cast<int>(kAtCapUs / 5000)) CHECK(flags == 0);
+    if (tick == static_cast<int>(kAtCapUs / 5000)) CHECK(flags == (fault::kTensionLimit | fault::tension_channel(0)));
+  }
+}
+
 void a_cell_reading_far_under_its_stalled_motors_pull_is_implausible() {
   const float still[kChannels] = {};
   // Channel 1 reads a tenth of what its motor pulls at stall (3 N); channel 2 half of it.
@@ -234,6 +259,7 @@ void test_guard() {
   a_spool_the_brake_turns_round_is_not_taken_for_still();
   no_brake_resists_a_spool_flying_out_with_more_than_the_cap();
   a_motor_at_its_cap_against_a_still_spool_trips_the_tension_limit();
+  a_motor_at_its_cap_against_a_spool_creeping_out_trips_too();
   a_cell_reading_far_under_its_stalled_motors_pull_is_implausible();
   lasting_counts_unbroken_spans();
 }
