@@ -150,7 +150,7 @@ def run_crosscheck_command(args: argparse.Namespace) -> int:
     out = args.out or new_run_folder("runs", "crosscheck")
     if args.robot == "all":
         table, summaries = run_zoo(out, configs=configs, overrides=overrides, workers=args.workers,
-                                    cluster=args.cluster)
+                                    cluster=args.cluster, with_causes=not args.no_causes)
         print(f"report: {table}")
         for name, summary in summaries.items():
             _print_summary(name, summary)

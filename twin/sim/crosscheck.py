@@ -448,18 +448,20 @@ def _robot_crosscheck(job) -> tuple[CrosscheckResult, list]:
 
 
 def run_zoo(out_dir: str | Path = "reports/crosscheck", *, configs=None, overrides: dict | None = None,
-            robots: Sequence[str] | None = None, workers: int = 1,
-            cluster: str | None = None) -> tuple[Path, dict[str, dict]]:
+            robots: Sequence[str] | None = None, workers: int = 1, cluster: str | None = None,
+            with_causes: bool = True) -> tuple[Path, dict[str, dict]]:
     """Every robot of ``robots`` (default :data:`ROBOTS`) over the grid: each one's report in
     ``out_dir/<robot>/`` (the default robot's in ``out_dir`` itself, with the cause studies) and a
-    table of all in ``out_dir/zoo.md``. One job per robot, run by :func:`twin.scaleout.map_ordered`
+    table of all in ``out_dir/zoo.md``. The cause studies (``with_causes``) cover the whole grid, so
+    they run only when ``configs`` is the whole grid (None). One job per robot, run by :func:`twin.scaleout.map_ordered`
     (``workers`` local processes, or the Ray ``cluster``); the reports are written here.
     Returns (table path, {robot: summary})."""
     out = Path(out_dir)
     names = list(ROBOTS if robots is None else robots)
     default = next(iter(ROBOTS))
     params = {name: robot_params(name, overrides) for name in names}
-    outcomes = map_ordered(_robot_crosscheck, [(params[name], configs, name == default) for name in names],
+    causes = with_causes and configs is None
+    outcomes = map_ordered(_robot_crosscheck, [(params[name], configs, causes and name == default) for name in names],
                            workers=workers, cluster=cluster)
     summaries = {}
     for name, (result, studies) in zip(names, outcomes):
