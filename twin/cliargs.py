@@ -39,38 +39,29 @@ def values_as_arguments(argv: list[str]) -> list[str]:
 
 def positive(text: str) -> float:
     """An argparse type: a finite number > 0."""
-    value = _number(text)
-    if not value > 0:
-        raise argparse.ArgumentTypeError(f"{text!r}: must be > 0")
-    return value
+    return _at_least(text, float, 0.0, inclusive=False)
 
 
 def nonnegative(text: str) -> float:
     """An argparse type: a finite number >= 0."""
-    value = _number(text)
-    if not value >= 0:
-        raise argparse.ArgumentTypeError(f"{text!r}: must be >= 0")
-    return value
+    return _at_least(text, float, 0.0)
 
 
 def count(text: str) -> int:
     """An argparse type: a whole number >= 0 (seeds, counts)."""
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r}: expected a whole number") from None
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"{text!r}: must be >= 0")
-    return value
+    return _at_least(text, int, 0)
 
 
-def _number(text: str) -> float:
+def _at_least(text: str, kind: type, low: float, *, inclusive: bool = True):
+    """``text`` read as ``kind`` (float: finite), refused below ``low`` (or at it)."""
     try:
-        value = float(text)
+        value = kind(text)
     except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r}: expected a number") from None
+        raise argparse.ArgumentTypeError(f"{text!r}: expected {'a whole number' if kind is int else 'a number'}") from None
     if not np.isfinite(value):
         raise argparse.ArgumentTypeError(f"{text!r}: must be finite")
+    if value < low or (value == low and not inclusive):
+        raise argparse.ArgumentTypeError(f"{text!r}: must be {'>=' if inclusive else '>'} {low:g}")
     return value
 
 
