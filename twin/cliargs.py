@@ -3,9 +3,13 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 import datetime
 import re
+import signal
+import threading
 from pathlib import Path
+from typing import Iterator
 
 import numpy as np
 
@@ -14,7 +18,7 @@ from twin.robots import robot_path
 from twin.pose import base_rotation_from, matrix_to_quat
 
 __all__ = ["UsageError", "add_param_args", "add_pose_args", "count", "new_run_folder", "params_from_args", "pose_overrides",
-           "nonnegative", "positive", "values_as_arguments", "vector"]
+           "nonnegative", "positive", "sigterm_event", "values_as_arguments", "vector"]
 
 
 class UsageError(Exception):
@@ -65,6 +69,19 @@ def _at_least(text: str, kind: type, low: float, *, inclusive: bool = True):
     return value
 
 
+@contextlib.contextmanager
+def sigterm_event() -> Iterator[threading.Event]:
+    """An event that SIGTERM sets, for a command that serves until Ctrl-C or SIGTERM; the previous
+    handler is back on exit. SIGTERM is the way for scripts and services: a job a non-interactive
+    shell starts in the background, or a child of a process inside system(3), has SIGINT ignored."""
+    stop = threading.Event()
+    previous = signal.signal(signal.SIGTERM, lambda signum, frame: stop.set())
+    try:
+        yield stop
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+
+
 def new_run_folder(parent: str | Path, name: str) -> Path:
     """A fresh ``name-YYYYmmdd-HHMMSS`` folder under ``parent`` (``runs/`` by convention: commands
     never write into tracked folders by default); runs started in the same second get ``-2``,
@@ -86,15 +103,15 @@ def vector(n: int | None):
     """An argparse type: ``"a,b,c"`` → float array of length ``n`` (any length for None: one
     entry per tendon, checked by the command against the robot)."""
 
-    count = "one or more" if n is None else str(n)
+    wanted = "one or more" if n is None else str(n)
 
     def parse(text: str) -> np.ndarray:
         try:
             values = np.array([float(x) for x in text.split(",")])
         except ValueError:
-            raise argparse.ArgumentTypeError(f"{text!r}: expected {count} comma-separated numbers") from None
+            raise argparse.ArgumentTypeError(f"{text!r}: expected {wanted} comma-separated numbers") from None
         if (n is not None and values.size != n) or not np.all(np.isfinite(values)):
-            raise argparse.ArgumentTypeError(f"{text!r}: expected {count} finite comma-separated numbers")
+            raise argparse.ArgumentTypeError(f"{text!r}: expected {wanted} finite comma-separated numbers")
         return values
 
     parse.__name__ = f"vector{n or ''}"

@@ -4,11 +4,10 @@ from __future__ import annotations
 
 import argparse
 import os
-import signal
 import sys
 import threading
 
-from twin.cliargs import UsageError, add_param_args, add_pose_args, count, params_from_args
+from twin.cliargs import UsageError, add_param_args, add_pose_args, count, params_from_args, sigterm_event
 from twin.live import add_live_argument
 
 __all__ = ["open_device_arg", "register"]
@@ -40,11 +39,7 @@ def register(subparsers) -> None:
 
 
 def run_emulate(args: argparse.Namespace) -> int:
-    """Start the board, print its port and device URL, run in real time until Ctrl-C or SIGTERM.
-
-    SIGTERM is the way for scripts and services: a job a non-interactive shell starts in the
-    background, or a child of a process that is inside system(3), inherits SIGINT ignored.
-    """
+    """Start the board, print its port and device URL, run in real time until Ctrl-C or SIGTERM."""
     from twin.device.board import TICK_S
     from twin.device.pty_board import PtyBoard
 
@@ -53,9 +48,7 @@ def run_emulate(args: argparse.Namespace) -> int:
         print(f"twin emulate: --link {args.link}: already exists; not replacing it (remove it or choose "
               "another path)", file=sys.stderr)
         return 2
-    stop = threading.Event()
-    previous = signal.signal(signal.SIGTERM, lambda signum, frame: stop.set())
-    try:
+    with sigterm_event() as stop:
         params = params_from_args(args)
         board = PtyBoard(params, seed=args.seed, link_path=args.link)
         with board:
@@ -67,8 +60,6 @@ def run_emulate(args: argparse.Namespace) -> int:
                 pass
             print(f"stopped after {board.ticks} ticks ({board.ticks * TICK_S:.1f} s of board time), "
                   f"{board.overruns} overruns, {board.tx_dropped_bytes} bytes dropped", flush=True)
-    finally:
-        signal.signal(signal.SIGTERM, previous)
     return 0
 
 

@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import argparse
 import selectors
-import signal
 import socket
 import sys
 import threading
@@ -236,7 +235,7 @@ def register(subparsers) -> None:
 
 def run_serve(args: argparse.Namespace) -> int:
     """Run the twin in real time under a sweep of the bending direction and stream each frame."""
-    from twin.cliargs import params_from_args
+    from twin.cliargs import params_from_args, sigterm_event
     from twin.rod.grid import pcc_tensions_n
     from twin.rod.model import RodModel
     from twin.rod.solver import ConvergenceError, Predictor
@@ -254,40 +253,35 @@ def run_serve(args: argparse.Namespace) -> int:
     plant = Plant(params, seed=args.seed)
     predictor = Predictor(RodModel.from_params(params))
     g = params.environment.gravity_m_s2
-    stop = threading.Event()
-    previous = signal.signal(signal.SIGTERM, lambda signum, frame: stop.set())
-    try:
-        with OpenIGTLinkServer(args.host, args.port) as server:
-            print(f"serving OpenIGTLink on {server.host}:{server.port}", flush=True)
-            frame_s = 1.0 / args.rate_hz
-            start = time.monotonic()
-            frames = 0
-            try:
-                while not stop.is_set():
-                    elapsed_s = time.monotonic() - start
-                    if args.duration_s is not None and elapsed_s >= args.duration_s:
-                        break
-                    tensions = pcc_tensions_n(args.kappa, 360.0 * elapsed_s / args.period_s, params)
-                    plant.set_tensions(tensions)
-                    plant.step_until(elapsed_s)
-                    try:
-                        sol = predictor.solve(plant.true_tensions_n(), base_rotation=plant.base_rotation,
-                                              tip_force_n=(0.0, 0.0, -plant.tip_mass_kg * g))
-                    except ConvergenceError:
-                        sol = None
-                    frame = plant.tracker_probes()
-                    server.send(twin_messages(
-                        timestamp_s=time.time(), tip_pose=plant.tip_pose(), backbone_m=plant.backbone_positions_m(),
-                        probes=(frame.positions_m, frame.axes),
-                        predicted_tip_pose=None if sol is None else (sol.tip_position_m, sol.tip_rotation),
-                        predicted_backbone_m=None if sol is None else sol.positions_m,
-                        probe_names=names, version=args.header_version))
-                    frames += 1
-                    stop.wait(max(0.0, start + frames * frame_s - time.monotonic()))
-            except KeyboardInterrupt:
-                pass
-            print(f"stopped after {frames} frames ({time.monotonic() - start:.1f} s), "
-                  f"{server.sent_messages} messages sent", flush=True)
-    finally:
-        signal.signal(signal.SIGTERM, previous)
+    with sigterm_event() as stop, OpenIGTLinkServer(args.host, args.port) as server:
+        print(f"serving OpenIGTLink on {server.host}:{server.port}", flush=True)
+        frame_s = 1.0 / args.rate_hz
+        start = time.monotonic()
+        frames = 0
+        try:
+            while not stop.is_set():
+                elapsed_s = time.monotonic() - start
+                if args.duration_s is not None and elapsed_s >= args.duration_s:
+                    break
+                tensions = pcc_tensions_n(args.kappa, 360.0 * elapsed_s / args.period_s, params)
+                plant.set_tensions(tensions)
+                plant.step_until(elapsed_s)
+                try:
+                    sol = predictor.solve(plant.true_tensions_n(), base_rotation=plant.base_rotation,
+                                          tip_force_n=(0.0, 0.0, -plant.tip_mass_kg * g))
+                except ConvergenceError:
+                    sol = None
+                frame = plant.tracker_probes()
+                server.send(twin_messages(
+                    timestamp_s=time.time(), tip_pose=plant.tip_pose(), backbone_m=plant.backbone_positions_m(),
+                    probes=(frame.positions_m, frame.axes),
+                    predicted_tip_pose=None if sol is None else (sol.tip_position_m, sol.tip_rotation),
+                    predicted_backbone_m=None if sol is None else sol.positions_m,
+                    probe_names=names, version=args.header_version))
+                frames += 1
+                stop.wait(max(0.0, start + frames * frame_s - time.monotonic()))
+        except KeyboardInterrupt:
+            pass
+        print(f"stopped after {frames} frames ({time.monotonic() - start:.1f} s), "
+              f"{server.sent_messages} messages sent", flush=True)
     return 0

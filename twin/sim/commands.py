@@ -5,12 +5,11 @@ from __future__ import annotations
 import argparse
 import json
 import sys
-import time
 
 import numpy as np
 
-from twin.cliargs import (UsageError, add_param_args, count, add_pose_args, new_run_folder, nonnegative, params_from_args, pose_overrides,
-                          positive, vector)
+from twin.cliargs import (UsageError, add_param_args, add_pose_args, count, new_run_folder, nonnegative, params_from_args,
+                          pose_overrides, positive, sigterm_event, vector)
 from twin.live import add_live_argument
 
 __all__ = ["register"]
@@ -108,14 +107,15 @@ def run_sim(args: argparse.Namespace) -> int:
 
 
 def _serve_settled(view, plant) -> None:
-    """Show the settled twin (and the prediction for its tensions) until Ctrl-C."""
+    """Show the settled twin (and the prediction for its tensions) until Ctrl-C or SIGTERM."""
     from twin.live import show_twin
 
     show_twin(view, plant, label="settled")
     print("twin sim: serving the settled state; Ctrl-C to stop", file=sys.stderr, flush=True)
     try:
-        while True:
-            time.sleep(1.0)
+        with sigterm_event() as stop:
+            while not stop.wait(1.0):
+                pass
     except KeyboardInterrupt:
         pass
     finally:
@@ -140,13 +140,13 @@ def run_crosscheck_command(args: argparse.Namespace) -> int:
         print("twin crosscheck: --robot and --params: give one (a robot is its parameter file)", file=sys.stderr)
         return 2
     # Every robot's parameter set and the cluster are checked before a report folder is made.
-    for name in (ROBOTS if args.robot == "all" else [args.robot] if args.robot else []):
-        robot_params(name, overrides)
+    robots = {name: robot_params(name, overrides)
+              for name in (ROBOTS if args.robot == "all" else [args.robot] if args.robot else [])}
+    params = params_from_args(args).replace(overrides) if args.robot is None else robots.get(args.robot)
     if args.cluster is not None:
         from twin.scaleout import connect
 
         connect(args.cluster, args.workers)
-    params = params_from_args(args).replace(overrides) if args.robot is None else None
     out = args.out or new_run_folder("runs", "crosscheck")
     if args.robot == "all":
         table, summaries = run_zoo(out, configs=configs, overrides=overrides, workers=args.workers,
@@ -158,10 +158,8 @@ def run_crosscheck_command(args: argparse.Namespace) -> int:
         if missed:
             print(f"twin crosscheck: goal missed for {', '.join(missed)}", file=sys.stderr)
         return 1 if missed else 0
-    if args.robot is not None:
-        params = robot_params(args.robot, overrides)
     path, summary = run_crosscheck(params, out, configs=configs, robot=args.robot,
-                                   with_causes=not (args.no_causes or args.quick or args.robot not in (None, "endoscope")))
+                                   with_causes=not (args.no_causes or args.quick or args.robot not in (None, ROBOTS[0])))
     print(f"report: {path}")
     _print_summary(args.robot or "twin", summary)
     if not summary["meets_goal"]:
