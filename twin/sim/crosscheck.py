@@ -211,8 +211,9 @@ def crosscheck(params: Params | None = None, *, configs=None, elements: int | No
     params = params if params is not None else load_params()
     every = list(validation_grid() if configs is None else configs)
     # The straight rows (κ = 0) need no pull, whatever their plane.
-    rows = [row for row in every if row[1] == 0 or pcc_realisable(row[2], params)]
-    left_out = tuple(row for row in every if row not in rows)
+    bendable = [row[1] == 0 or pcc_realisable(row[2], params) for row in every]
+    rows = [row for row, ok in zip(every, bendable) if ok]
+    left_out = tuple(row for row, ok in zip(every, bendable) if not ok)
     plant = Plant(params, elements=elements, tendon_sites=tendon_sites)
     rod = RodModel.from_params(params)
     g = params.environment.gravity_m_s2
@@ -429,13 +430,10 @@ def _config(row) -> str:
 
 
 def run_crosscheck(params: Params | None = None, out_dir: str | Path = "reports/crosscheck",
-                   *, elements: int | None = None, with_causes: bool = True, configs=None,
-                   robot: str | None = None) -> tuple[Path, dict]:
+                   *, with_causes: bool = True, configs=None, robot: str | None = None) -> tuple[Path, dict]:
     """The full cross-check: grid (``configs``, default all 216), cause studies and report.
     Returns (report path, summary); ``summary["meets_goal"]`` is the verdict."""
     params = params if params is not None else load_params()
-    if elements is not None:
-        params = params.replace({"sim.elements": elements})
     result = crosscheck(params, configs=configs)
     studies = cause_studies(params) if with_causes else []
     return write_report(result, studies, out_dir, params, robot=robot), result.summary()
