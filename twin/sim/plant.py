@@ -183,7 +183,6 @@ class Plant:
             hook.reset()
         self._tip_mass_kg = 0.0
         self.model.body_mass[self._tip_load] = 0.0
-        self._tip_wrench = np.zeros(6)
         self.data.eq_active[self._holder] = False
         self.loop.reset()
         self.clear_peak_tensions()
@@ -257,14 +256,15 @@ class Plant:
                                  np.asarray(moment_nm, dtype=float).reshape(-1)])
         if wrench.shape != (6,) or not np.isfinite(wrench).all():
             raise ValueError(f"force_n = {force_n!r}, moment_nm = {moment_nm!r}: expected 3 finite numbers each")
-        self._tip_wrench = wrench
         self.loop.state.jump = 1
         self.data.xfrc_applied[self._tip_load] = wrench
 
     @property
     def tip_load(self) -> tuple[np.ndarray, np.ndarray]:
-        """The applied tip force (N) and moment (N·m), world frame (:meth:`set_tip_load`)."""
-        return self._tip_wrench[:3].copy(), self._tip_wrench[3:].copy()
+        """The applied tip force (N) and moment (N·m), world frame (:meth:`set_tip_load`; a reset
+        clears it with the rest of the state)."""
+        wrench = self.data.xfrc_applied[self._tip_load]
+        return wrench[:3].copy(), wrench[3:].copy()
 
     def engage_holder(self) -> None:
         """Clamp the reference holder around the discs: they are pulled back to and held in the
