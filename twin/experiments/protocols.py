@@ -167,7 +167,7 @@ def pretension(device, params: Params, *, mode: str = "lengths", tension_n: floa
 
 def run_validation(device, folder: str | Path, params: Params, *, grid: Sequence[tuple] | None = None,
                    pretension_n: float | None = None, progress: bool = True, settle_timeout_s: float = 4.0,
-                   base_rotation=None, calibration: dict | None = None) -> Path:
+                   calibration: dict | None = None) -> Path:
     """The thesis's validation sweep (§8.3) on ``device``, written to a dataset in ``folder``.
 
     For each (κ, φ): hold straight, pretension to 1.2–1.5 N, release, drive the PCC tendon-length
@@ -181,17 +181,17 @@ def run_validation(device, folder: str | Path, params: Params, *, grid: Sequence
         grid: (config, κ 1/m, φ deg, tip mass kg) rows (default the 216 of thesis §8.3).
         pretension_n: default ``tendons.pretension_n``.
         calibration: the load-cell calibration the device applies, recorded in the metadata.
-        base_rotation: the clamp orientation recorded (3×3); default the device's
-            (:attr:`twin.device.Device.base_rotation`), which is the pose it runs in.
+
+    The dataset records the device's pose (:attr:`twin.device.Device.base_rotation`), the one
+    the twin runs in or the rig is mounted in.
     """
-    base_rotation = device.base_rotation if base_rotation is None else base_rotation
     rows = list(grid or validation_grid())
     pre = params.tendons.pretension_n if pretension_n is None else pretension_n
     groups: dict[tuple[float, float], list[tuple[int, float]]] = {}
     for config, kappa, phi, mass in rows:
         groups.setdefault((kappa, phi), []).append((config, mass))
     with DatasetWriter(folder, experiment="validation", device=device.url, params=params,
-                       base_rotation=base_rotation,
+                       base_rotation=device.base_rotation,
                        calibration=calibration) as writer:
         done = writer.completed()
         todo = [(k, v) for k, v in groups.items() if not all(c in done for c, _ in v)]
@@ -231,13 +231,11 @@ def _row(config, kappa, phi, mass, m: Measurement, zero_lengths, repeat: int = 0
 
 
 def run_stiffness(device, folder: str | Path, params: Params, *, masses_kg=(0.0, 0.005, 0.010), repeats: int = 2,
-                  progress: bool = True, base_rotation=None) -> Path:
-    """Stiffness characterisation (thesis §8.2): tendons uncoupled (slack), tip masses each ``repeats`` times.
-
-    ``base_rotation`` (3×3) is the clamp orientation recorded, by default the device's."""
-    base_rotation = device.base_rotation if base_rotation is None else base_rotation
+                  progress: bool = True) -> Path:
+    """Stiffness characterisation (thesis §8.2): tendons uncoupled (slack), tip masses each ``repeats``
+    times; the dataset records the device's pose (:attr:`twin.device.Device.base_rotation`)."""
     with DatasetWriter(folder, experiment="stiffness", device=device.url, params=params,
-                       base_rotation=base_rotation) as writer:
+                       base_rotation=device.base_rotation) as writer:
         done = writer.completed()
         device.disable()  # motors coast: the tendons go slack, the endoscope hangs under its loads
         device.fixture.release_holder()
