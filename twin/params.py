@@ -83,7 +83,8 @@ def _at_least_one(x):
 
 
 def _nonzero_norm(x):
-    return None if math.isfinite(math.hypot(*x)) and math.hypot(*x) > 1e-9 else "must not be all zero"
+    norm = math.hypot(*x)
+    return None if math.isfinite(norm) and norm > 1e-9 else "must not be all zero"
 
 
 def _f(*checks, source: str | None = None, **kw):
@@ -395,12 +396,12 @@ def _coerce(key: str, value: Any, annotation: Any) -> Any:
     raise TypeError(annotation)
 
 
-def _effect_off(name: str, tendons: Tendons):
-    """The value of ``effects.<name>`` that leaves its effect off, sized for ``tendons``."""
+def _effect_off(name: str, tendons: int):
+    """The value of ``effects.<name>`` that leaves its effect off, sized for ``tendons`` tendons."""
     key = next(k for k in parameter_keys() if k.name == name)
     if key.size is None:
         return key.off
-    return (key.off,) * (tendons.count if key.size == PER_TENDON else key.size)
+    return (key.off,) * (tendons if key.size == PER_TENDON else key.size)
 
 
 def _from_dict(raw: Mapping[str, Any], origin: str) -> Params:
@@ -450,10 +451,10 @@ def _entry(origin: str, key: str, f: dataclasses.Field, table: Mapping, annotati
     """(value, source) of one key of ``table``, checked; a key a file leaves out gets its default."""
     if f.name not in table:
         if key.startswith("effects."):
-            if "tendons" not in sections:
-                raise ParameterError(f"{key}: cannot size its default without a valid [tendons]")
-            # An effect a parameter file does not mention is off on that robot.
-            return _effect_off(f.name, sections["tendons"]), "default: off"
+            # An effect a parameter file does not mention is off on that robot. Without a valid
+            # [tendons] (already a problem, so nothing is built) it is sized for none.
+            tendons = sections["tendons"].count if "tendons" in sections else 0
+            return _effect_off(f.name, tendons), "default: off"
         if f.default is dataclasses.MISSING:
             raise ParameterError(f"{origin}: missing key {key}")
         return f.default, f.metadata["default_source"]

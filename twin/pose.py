@@ -70,6 +70,7 @@ def matrix_to_quat(rot) -> np.ndarray:
 # The thesis's horizontal clamp as a quaternion (w, x, y, z): (cos 45°, 0, sin 45°, 0).
 HORIZONTAL_QUAT = tuple(float(v) for v in matrix_to_quat(HORIZONTAL))
 _NAMED = {"up": UP, "horizontal": HORIZONTAL}
+_NAMED_QUATS = [(matrix_to_quat(rotation), rotation) for rotation in _NAMED.values()]
 
 
 def rotation_of_quat(quat) -> np.ndarray:
@@ -79,8 +80,8 @@ def rotation_of_quat(quat) -> np.ndarray:
     q = np.asarray(quat, dtype=float)
     norm = np.linalg.norm(q)
     if q.shape == (4,) and np.isfinite(norm) and norm > 1e-12:
-        for rotation in _NAMED.values():
-            if np.allclose(q / norm, matrix_to_quat(rotation), rtol=0.0, atol=1e-12):
+        for named, rotation in _NAMED_QUATS:
+            if np.allclose(q / norm, named, rtol=0.0, atol=1e-12):
                 return rotation.copy()
     return quat_to_matrix(q)
 
