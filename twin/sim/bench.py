@@ -48,7 +48,8 @@ def bench_sim(params: Params | None = None, *, duration_s: float = 2.0, elements
         straight, to 1 µm), ``settled``; with ``scaling``, ``scaling``: one
         ``{"elements", "dofs", "realtime_factor", "steps_per_s"}`` per element count, and
         ``scaling_exponent``: d log(wall time per step) / d log(elements) from the first to the
-        last (1 is linear).
+        last (1 is linear), and ``scaling_realtime_ratio``: the real-time factor at the most
+        elements over that at the fewest.
     """
     params = params if params is not None else load_params()
     plant = Plant(params, elements=elements)
@@ -83,6 +84,7 @@ def bench_sim(params: Params | None = None, *, duration_s: float = 2.0, elements
         first, last = runs[0], runs[-1]
         figures["scaling_exponent"] = (math.log(first["realtime_factor"] / last["realtime_factor"])
                                        / math.log(last["elements"] / first["elements"]))
+        figures["scaling_realtime_ratio"] = last["realtime_factor"] / first["realtime_factor"]
     return figures
 
 
