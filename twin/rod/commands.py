@@ -45,7 +45,7 @@ def run_predict(args: argparse.Namespace) -> int:
     params = params_from_args(args)
     model = RodModel.from_params(params)
     if args.tensions.size != model.tendon_count:
-        print(f"twin predict: --tensions has {args.tensions.size} values; the endoscope has "
+        print(f"twin predict: --tensions has {args.tensions.size} values; the robot has "
               f"{model.tendon_count} tendons", file=sys.stderr)
         return 2
     try:
