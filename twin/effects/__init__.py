@@ -31,8 +31,8 @@ import pkgutil
 import numpy as np
 
 from twin.effects.base import (EFFECTS, PER_TENDON, BodySpec, Candidate, Effect, FitParameter, Key, Params,
-                               StepHook)
-from twin.effects.tendon_friction import friction_direction
+                               PlantDynamics, StepHook)
+from twin.effects.tendon_friction import SlidingState, friction_direction
 
 __all__ = [
     "PER_TENDON",
@@ -42,13 +42,17 @@ __all__ = [
     "EFFECTS",
     "FitParameter",
     "Key",
+    "PlantDynamics",
+    "SlidingState",
     "StepHook",
     "body_spec",
     "candidates",
     "clamp_rotation",
+    "dynamic_candidates",
     "friction_direction",
     "loadcell_response",
     "parameter_keys",
+    "plant_dynamics",
     "step_hooks",
     "tip_force_n",
     "tracked_point_m",
@@ -150,3 +154,18 @@ def candidates(params: Params) -> dict[str, Candidate]:
     layout); effects it cannot test (:attr:`Effect.untestable`) have none."""
     found = ((effect.name, effect.candidate(params)) for effect in EFFECTS.values())
     return {name: candidate for name, candidate in found if candidate is not None}
+
+
+def plant_dynamics(params: Params) -> PlantDynamics:
+    """The plant loop's dynamic imperfections with every effect (``PlantDynamics()`` without)."""
+    dynamics = PlantDynamics()
+    for effect in EFFECTS.values():
+        dynamics = effect.plant_dynamics(params, dynamics)
+    return dynamics
+
+
+def dynamic_candidates(params: Params) -> dict[str, FitParameter]:
+    """What the dynamic calibration (:mod:`twin.dynamics`) fits, by effect name: one scalar per
+    effect that shows in time series."""
+    found = ((effect.name, effect.dynamic_candidate(params)) for effect in EFFECTS.values())
+    return {name: parameter for name, parameter in found if parameter is not None}

@@ -16,8 +16,12 @@ hook                   what it changes                             who calls it 
                        (:class:`BodySpec`)
 ``step_hook``          forces applied before every physics step     twin plant
                        (:class:`StepHook`)
+``plant_dynamics``     the plant loop's dynamic imperfections       twin plant
+                       (:class:`PlantDynamics`)
 ``candidate``          what the discrepancy workflow fits           :mod:`twin.discrepancy`
                        (:class:`Candidate`)
+``dynamic_candidate``  what the dynamic calibration fits            :mod:`twin.dynamics`
+                       (:class:`FitParameter`)
 =====================  ==========================================  =================================
 
 This package sits below the parameter set (:mod:`twin.params` builds its ``[effects]`` section
@@ -33,13 +37,17 @@ from typing import Any, Callable, Protocol
 
 import numpy as np
 
-__all__ = ["PER_TENDON", "Key", "BodySpec", "StepHook", "FitParameter", "Candidate", "Effect", "EFFECTS"]
+__all__ = ["DYNAMIC_ONLY", "PER_TENDON", "Key", "BodySpec", "PlantDynamics", "StepHook", "FitParameter", "Candidate", "Effect",
+           "EFFECTS"]
 
 # The parameter set, twin.params.Params (not imported: twin.params imports this package).
 Params = Any
 
 # Key.size of a list with one entry per tendon (its length is checked against tendons.angles_deg).
 PER_TENDON = "per tendon"
+
+# Effect.untestable of an effect that shows only while the rig moves (its dynamic_candidate).
+DYNAMIC_ONLY = "acts only while the rig moves: twin dynamics calibrate tests it on time series"
 
 
 @dataclasses.dataclass(frozen=True)
@@ -94,6 +102,26 @@ class BodySpec:
         at each disc, inextensible frictionless tendons."""
         b = params.backbone
         return cls(line_mass_kg_per_m=b.mass_kg / b.length_m, disc_mass_kg=params.discs.lumped_mass_kg)
+
+
+@dataclasses.dataclass(frozen=True)
+class PlantDynamics:
+    """The rig's dynamic imperfections the twin's plant loop (``twin/sim/native/loop.cpp``) and
+    plant (:mod:`twin.sim.plant`) make happen; the defaults leave the twin as without them.
+
+    Attributes:
+        actuation_latency_s: delay from the firmware's motor outputs to the motors (s).
+        loadcell_lag_s: time constant of a first-order low-pass before each load cell (s).
+        spool_backlash_m: play between each spool and its motor encoder, as tendon travel (m).
+        motor_friction_n: Coulomb friction of each motor and gearbox, as force at the tendon (N).
+        damping_scale: factor on the backbone joints' damping (1: ``sim.damping_time_s`` as it is).
+    """
+
+    actuation_latency_s: float = 0.0
+    loadcell_lag_s: float = 0.0
+    spool_backlash_m: float = 0.0
+    motor_friction_n: float = 0.0
+    damping_scale: float = 1.0
 
 
 class StepHook(Protocol):
@@ -229,8 +257,17 @@ class Effect:
         effect does not act per step or is off."""
         return None
 
+    def plant_dynamics(self, params: Params, dynamics: PlantDynamics) -> PlantDynamics:
+        """The plant loop's dynamic imperfections with this effect."""
+        return dynamics
+
     def candidate(self, params: Params) -> Candidate | None:
         """What the discrepancy workflow fits to find the effect; None when it cannot test it."""
+        return None
+
+    def dynamic_candidate(self, params: Params) -> FitParameter | None:
+        """The one scalar the dynamic calibration (:mod:`twin.dynamics`) fits through twin replays
+        to find the effect in time series; None for an effect that only changes statics."""
         return None
 
 

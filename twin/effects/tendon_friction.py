@@ -11,6 +11,9 @@ unloading: hysteresis. :class:`TendonFriction` applies it before every physics s
 Prediction: the predictor takes μ with the body (:class:`twin.effects.BodySpec`) and each
 tendon's sliding direction from its encoder length (:func:`friction_direction`).
 
+Dynamic calibration (:mod:`twin.dynamics`): μ again, fitted on log scale between 0.001 and 1
+per radian through twin replays of time series, where the Dahl state sets the sliding direction.
+
 Discrepancy: μ (log; starts at 0.02 when off; between 0.001 and 1 per radian, a braided line
 in a printed hole being of order 0.1): one coefficient for all holes, fitted for both sliding
 directions at rest (pulled / backed off), the better kept.
@@ -24,7 +27,8 @@ import numpy as np
 
 from twin.effects.base import BodySpec, Candidate, Effect, FitParameter, Key, Params
 
-__all__ = ["EFFECT", "FRICTION_MAX_STEP_S", "PRESLIDING_M", "TendonFriction", "friction_direction"]
+__all__ = ["EFFECT", "FRICTION_MAX_STEP_S", "PRESLIDING_M", "SlidingState", "TendonFriction", "friction_direction",
+           "slide"]
 
 # Tendon travel over which the friction turns from one direction to the other (m): the
 # presliding (Dahl) displacement of a braided line in a printed hole, an assumption of a few
@@ -37,6 +41,49 @@ PRESLIDING_M = 2e-5
 FRICTION_MAX_STEP_S = 0.84e-3
 # Starting value of μ for a fit when it is off (0) in the parameter set: log(0) cannot start one.
 _FIT_START = 0.02
+
+
+def slide(state, pull_m) -> np.ndarray:
+    """The Dahl sliding state after each tendon was pulled in by ``pull_m`` (m; negative: paid
+    out): σ moves towards +1 while pulled and −1 while released, over :data:`PRESLIDING_M` of
+    travel, and holds while the tendon stands. The twin's friction and the host's record of a
+    rig's (:class:`SlidingState`) both advance it so."""
+    return np.clip(np.asarray(state, dtype=float) + np.asarray(pull_m, dtype=float) / PRESLIDING_M, -1.0, 1.0)
+
+
+class SlidingState:
+    """Each tendon's friction sliding state σ (−1 … +1), followed from its encoder the way the
+    twin's friction follows its spool: a static state remembers how it was reached, so a dataset
+    records σ with every measurement and the prediction uses it instead of guessing a direction.
+
+    Feed it every telemetry sample in order (:meth:`follow`); it starts at 0 (unknown), as the
+    twin's friction does, and the first move of more than twice :data:`PRESLIDING_M` sets it.
+
+    Example:
+        >>> state = SlidingState(device.info.tendon_m_per_count)
+        >>> state.follow(device.drain())
+        >>> state.state
+    """
+
+    def __init__(self, tendon_m_per_count: float):
+        """Args:
+            tendon_m_per_count: tendon length per encoder count (m; positive = paid out), the
+                handshake's :attr:`twin.device.DeviceInfo.tendon_m_per_count`.
+        """
+        self.tendon_m_per_count = float(tendon_m_per_count)
+        self.state: np.ndarray | None = None
+        self._counts: np.ndarray | None = None
+
+    def follow(self, samples) -> np.ndarray | None:
+        """Advance over telemetry samples (oldest first; each with ``encoder_counts``); returns σ."""
+        for sample in samples:
+            counts = np.asarray(sample.encoder_counts, dtype=float)
+            if self._counts is None:
+                self.state = np.zeros(counts.shape)
+            else:
+                self.state = slide(self.state, -(counts - self._counts) * self.tendon_m_per_count)
+            self._counts = counts
+        return self.state
 
 
 class TendonFriction:
@@ -94,7 +141,7 @@ class TendonFriction:
     def before_step(self, model, data, spool_tensions_n: np.ndarray) -> None:
         """Update the sliding state over the last step and set ``data.xfrc_applied``."""
         pull_speed = -data.qvel[self._spool_dofs]
-        self.state = np.clip(self.state + pull_speed * model.opt.timestep / PRESLIDING_M, -1.0, 1.0)
+        self.state = slide(self.state, pull_speed * model.opt.timestep)
         p = data.site_xpos[self._sites]                          # (n, S, 3)
         seg = np.diff(p, axis=1)
         u = seg / np.linalg.norm(seg, axis=2, keepdims=True)      # (n, S-1, 3)
@@ -116,11 +163,16 @@ class TendonFriction:
         np.add.at(data.xfrc_applied[:, 3:], bodies, torque)
 
 
-def friction_direction(relative_lengths_m, sense: float = 1.0) -> np.ndarray:
-    """Sliding direction per tendon for a static state reached from the pretensioned straight pose:
-    +1 (tension lost towards the tip) for a tendon pulled in (shortened) to get there, −1 for one
-    paid out — times ``sense`` (``effects.tendon_friction_direction``), −1 when a length controller
-    settled by backing off past the presliding travel, which flips every tendon's last motion."""
+def friction_direction(relative_lengths_m, sense: float = 1.0, sliding_state=None) -> np.ndarray:
+    """Sliding state per tendon (+1 tension lost towards the tip … −1 gained) of a static state.
+
+    With ``sliding_state`` (the σ a dataset recorded, :class:`SlidingState`) that one, times
+    ``sense``. Without (an older dataset), a guess for a state reached from the pretensioned
+    straight pose: +1 for a tendon pulled in (shortened) to get there, −1 for one paid out — times
+    ``sense`` (``effects.tendon_friction_direction``), −1 when a length controller settled by
+    backing off past the presliding travel, which flips every tendon's last motion."""
+    if sliding_state is not None and np.isfinite(sliding_state).all():
+        return sense * np.clip(np.asarray(sliding_state, dtype=float), -1.0, 1.0)
     lengths = np.asarray(relative_lengths_m, dtype=float)
     return sense * np.where(lengths > 0, -1.0, 1.0)
 
@@ -147,6 +199,9 @@ class TendonFrictionEffect(Effect):
         return Candidate(self.name, (coeff,), start={coeff.label: _FIT_START},
                          variants=({"effects.tendon_friction_direction": 1.0},
                                    {"effects.tendon_friction_direction": -1.0}))
+
+    def dynamic_candidate(self, params: Params) -> FitParameter:
+        return FitParameter("effects.tendon_friction_coeff", log=True, scale=0.05, bounds=(1e-3, 1.0))
 
 
 EFFECT = TendonFrictionEffect()

@@ -166,6 +166,7 @@ class Plant:
         s.group_pwm, s.group_tension, s.group_length = (ACTUATOR_GROUPS[mode] for mode in ("pwm", "tension", "length"))
         s.spool_qpos[:n] = [int(q) for q in self._spool_q]
         s.spool_dof[:n] = [int(m.jnt_dofadr[j]) for j in spool_joints]
+        self._set_dynamics(effects.plant_dynamics(p), spool_joints)
         m.opt.timestep = self._dt / base_substeps
         if self._hooks:
             self.loop.set_hook(self._before_step)
@@ -403,6 +404,20 @@ class Plant:
         if v.shape != (self.tendon_count,) or not np.isfinite(v).all():
             raise ValueError(f"{name} = {value!r}: expected {self.tendon_count} finite numbers")
         return v
+
+    def _set_dynamics(self, dynamics: effects.PlantDynamics, spool_joints) -> None:
+        """The rig's dynamic imperfections (:class:`twin.effects.PlantDynamics`): the loop's in its
+        state, friction and damping as the joints' own; each left untouched when off."""
+        m, s = self.model, self.loop.state
+        s.latency_s = dynamics.actuation_latency_s
+        s.loadcell_lag_s = dynamics.loadcell_lag_s
+        s.backlash_m = dynamics.spool_backlash_m
+        if dynamics.motor_friction_n > 0:
+            m.dof_frictionloss[m.jnt_dofadr[spool_joints]] = dynamics.motor_friction_n
+        if dynamics.damping_scale != 1.0:
+            backbone = [j for j in range(m.njnt) if m.joint(j).name.startswith("b")]
+            dofs = m.jnt_dofadr[backbone]
+            m.dof_damping[dofs] = m.dof_damping[dofs] * dynamics.damping_scale
 
     def _before_step(self) -> None:
         tensions = self.true_tensions_n()

@@ -20,11 +20,13 @@
 
 #include <mujoco/mujoco.h>
 
-#define BL_ABI_VERSION 7
+#define BL_ABI_VERSION 8
 // Tendons (spools, motors, load cells) a plant can have.
 #define BL_MAX_CHANNELS 12
 // The tracker's two probes: three position and three axis components each.
 #define BL_PROBE_VALUES 6
+// Board ticks of motor outputs the actuation latency keeps (the newest included).
+#define BL_DELAY_TICKS 40
 
 extern "C" {
 
@@ -81,6 +83,9 @@ enum { BL_DRIVE_COAST = 0, BL_DRIVE_ON = 1 };
   S(f64, tracker_noise_rad)     /* RMS per axis component (rad) */                                      \
   S(f64, tracker_rate_hz)                                                                               \
   S(f64, m_per_count)           /* tendon per encoder count (m) */                                      \
+  S(f64, latency_s)             /* actuation latency (s) (effects; 0: none) */                          \
+  S(f64, loadcell_lag_s)        /* load cells' first-order lag (s) (effects; 0: none) */                \
+  S(f64, backlash_m)            /* play between spool and encoder (m) (effects; 0: none) */             \
   A(f64, slack_length_m, BL_MAX_CHANNELS)       /* slack edge of each tendon's spring now (m) */       \
   A(f64, taut_length_m, BL_MAX_CHANNELS)        /* ... in the straight pose (m) */                     \
   A(f64, loadcell_offset_counts, BL_MAX_CHANNELS)                                                       \
@@ -102,6 +107,8 @@ enum { BL_DRIVE_COAST = 0, BL_DRIVE_ON = 1 };
   A(f64, tracker_axes, BL_PROBE_VALUES)         /* and unit axes */                                    \
   A(f64, pwm_v, BL_MAX_CHANNELS)                /* voltages last given to the motors (V) */            \
   A(f64, peak_tension_n, BL_MAX_CHANNELS)       /* ground truth: the largest tension since cleared */  \
+  A(f64, lagged_tension_n, BL_MAX_CHANNELS)     /* the load cells' low-passed tensions (N) */          \
+  A(f64, encoder_position_m, BL_MAX_CHANNELS)   /* where each encoder is behind the play (m) */        \
   S(f64, jump_accel_m_s2)       /* spool acceleration step since the last physics step */               \
   S(i32, channels)              /* tendons of the plant */                                              \
   S(i32, noise_size)            /* draws in the buffer */                                               \
@@ -133,10 +140,14 @@ enum { BL_DRIVE_COAST = 0, BL_DRIVE_ON = 1 };
   S(i32, have_applied)          /* 1 when applied_duty/applied_drive are what the plant has */          \
   S(i32, ticks)                 /* out: steps (bl_plant_run) or ticks (bl_board_run) in the call */     \
   S(i32, resume)                /* in: 1 to continue with the advance of a tick whose bytes went out */ \
+  S(i32, delay_head)            /* the latency's ring: the slot of the next tick's outputs */           \
+  S(i32, delay_filled)          /* ... and the ticks it holds */                                        \
   A(f32, applied_duty, BL_MAX_CHANNELS)                                                                 \
   A(f32, duty, BL_MAX_CHANNELS)                 /* the last tick's outputs */                          \
+  A(f32, delay_duty, BL_DELAY_TICKS * BL_MAX_CHANNELS)  /* the last ticks' outputs, by ring slot */     \
   A(u8, applied_drive, BL_MAX_CHANNELS)                                                                 \
-  A(u8, drive, BL_MAX_CHANNELS)
+  A(u8, drive, BL_MAX_CHANNELS)                                                                         \
+  A(u8, delay_drive, BL_DELAY_TICKS * BL_MAX_CHANNELS)
 
 typedef void* bl_ptr;
 typedef double* bl_f64p;
@@ -257,8 +268,12 @@ void bl_set_drive(mjModel* m, mjData* d, bl_state* s, int32_t mode, const double
 
 // The motor encoders' quadrature counts: a counter changes at each edge, so the count is the
 // floor of the tendon paid out over the tendon per edge.
+// With backlash the encoder is where the play operator left it, not at the spool.
 void bl_encoder_counts(const mjData* d, const bl_state* s, int32_t* counts) {
-  for (int i = 0; i < s->channels; ++i) counts[i] = (int32_t)floor(d->qpos[s->spool_qpos[i]] / s->m_per_count + 1e-9);
+  for (int i = 0; i < s->channels; ++i) {
+    double position_m = s->backlash_m > 0 ? s->encoder_position_m[i] : d->qpos[s->spool_qpos[i]];
+    counts[i] = (int32_t)floor(position_m / s->m_per_count + 1e-9);
+  }
 }
 
 // Load cells: HX711 codes of offset + gain · (loadcell_gain · T + loadcell_offset_n + noise),
@@ -267,7 +282,7 @@ static void sample_loadcells(const mjData* d, bl_state* s) {
   const double* z = s->loadcell_noise_n > 0 ? s->noise + s->noise_cursor : nullptr;
   if (z) s->noise_cursor += s->channels;
   for (int i = 0; i < s->channels; ++i) {
-    double tension = spring_tension_n(d, s, i);
+    double tension = s->loadcell_lag_s > 0 ? s->lagged_tension_n[i] : spring_tension_n(d, s, i);
     double sensed = s->loadcell_gain[i] * tension + s->loadcell_offset_n[i];
     if (z) sensed = sensed + s->loadcell_noise_n * z[i];
     double code = nearbyint(s->loadcell_offset_counts[i] + s->loadcell_gain_counts_per_n * sensed);
@@ -386,6 +401,36 @@ static bool engage_risk(const mjModel* m, const mjData* d, const bl_state* s, in
   return false;
 }
 
+// The effects' per-step state after a physics step: the load cells' low-pass (exact for a
+// tension held over the step) and the encoders' play operator (an encoder moves only once the
+// spool has taken up half the play on one side of it).
+static void dynamics_after_step(const mjModel* m, const mjData* d, bl_state* s) {
+  if (s->loadcell_lag_s > 0) {
+    double blend = 1.0 - exp(-m->opt.timestep / s->loadcell_lag_s);
+    for (int i = 0; i < s->channels; ++i) {
+      s->lagged_tension_n[i] += blend * (spring_tension_n(d, s, i) - s->lagged_tension_n[i]);
+    }
+  }
+  if (s->backlash_m > 0) {
+    double half = 0.5 * s->backlash_m;
+    for (int i = 0; i < s->channels; ++i) {
+      double q = d->qpos[s->spool_qpos[i]];
+      if (q - s->encoder_position_m[i] > half) s->encoder_position_m[i] = q - half;
+      if (q - s->encoder_position_m[i] < -half) s->encoder_position_m[i] = q + half;
+    }
+  }
+}
+
+// The effects' state at t = 0: filters at the tensions, encoders at the spools.
+static void dynamics_reset(const mjData* d, bl_state* s) {
+  for (int i = 0; i < s->channels; ++i) {
+    s->lagged_tension_n[i] = spring_tension_n(d, s, i);
+    s->encoder_position_m[i] = d->qpos[s->spool_qpos[i]];
+  }
+  s->delay_head = 0;
+  s->delay_filled = 0;
+}
+
 // ``chunk`` physics steps, cut into shorter ones where a tendon could engage, then the samples
 // that have come due. Returns 0, or BL_WARNING.
 static int plant_chunk(mjModel* m, mjData* d, bl_state* s, int chunk) {
@@ -403,10 +448,12 @@ static int plant_chunk(mjModel* m, mjData* d, bl_state* s, int chunk) {
     s->current_substeps = substeps;
   }
   bool geometry = s->stiffened_joints || s->coupled_pairs;
+  bool dynamics = s->loadcell_lag_s > 0 || s->backlash_m > 0;
   for (int k = 0; k < chunk * substeps; ++k) {
     if (geometry) tendon_geometry(m, d, s);
     if (hook) hook();
     step(m, d);
+    if (dynamics) dynamics_after_step(m, d, s);
     for (int i = 0; i < s->channels; ++i) {
       double tension = spring_tension_n(d, s, i);
       if (tension > s->peak_tension_n[i]) s->peak_tension_n[i] = tension;
@@ -454,6 +501,7 @@ int bl_plant_reset(mjModel* m, mjData* d, bl_state* s) {
   // Straight and slack after mj_resetData: each tendon's own slack edge, the joints' own stiffness.
   if (s->stiffened_joints || s->coupled_pairs) tendon_geometry(m, d, s);
   ((bl_mj_fn)s->forward_fn)(m, d);
+  dynamics_reset(d, s);
   if (s->noise_size - s->noise_cursor < noise_per_sample(s)) return BL_NOISE;
   s->loadcell_index = -1;
   s->tracker_index = -1;
@@ -465,15 +513,41 @@ int bl_plant_reset(mjModel* m, mjData* d, bl_state* s) {
 
 // ---------------------------------------------------------------------------------------- board
 
-static bool same_outputs(const bl_state* s) {
+static bool same_outputs(const bl_state* s, const float* duty, const uint8_t* drive) {
   if (!s->have_applied) return false;
   for (int i = 0; i < s->channels; ++i) {
     uint32_t a, b;
-    __builtin_memcpy(&a, &s->duty[i], 4);
+    __builtin_memcpy(&a, &duty[i], 4);
     __builtin_memcpy(&b, &s->applied_duty[i], 4);
-    if (a != b || s->drive[i] != s->applied_drive[i]) return false;
+    if (a != b || drive[i] != s->applied_drive[i]) return false;
   }
   return true;
+}
+
+// The actuation latency: keep this tick's outputs in the ring and give the ones of
+// latency_s ago, the duty interpolated between the two ticks around it and the drive of the
+// nearer one. Until the ring holds that many ticks, the oldest it holds stands in.
+static void delayed_outputs(bl_state* s, float* duty, uint8_t* drive) {
+  int n = s->channels;
+  int slot = s->delay_head;
+  for (int i = 0; i < n; ++i) {
+    s->delay_duty[slot * BL_MAX_CHANNELS + i] = s->duty[i];
+    s->delay_drive[slot * BL_MAX_CHANNELS + i] = s->drive[i];
+  }
+  s->delay_head = (slot + 1) % BL_DELAY_TICKS;
+  if (s->delay_filled < BL_DELAY_TICKS) s->delay_filled += 1;
+  double ticks = s->latency_s / (s->tick_steps * s->step_s);
+  int back = (int)floor(ticks);
+  double frac = ticks - back;
+  int oldest = s->delay_filled - 1;
+  int a = back < oldest ? back : oldest, b = back + 1 < oldest ? back + 1 : oldest;
+  const float* newer = s->delay_duty + ((slot - a + BL_DELAY_TICKS) % BL_DELAY_TICKS) * BL_MAX_CHANNELS;
+  const float* older = s->delay_duty + ((slot - b + BL_DELAY_TICKS) % BL_DELAY_TICKS) * BL_MAX_CHANNELS;
+  const uint8_t* nearer = s->delay_drive + ((slot - (frac < 0.5 ? a : b) + BL_DELAY_TICKS) % BL_DELAY_TICKS) * BL_MAX_CHANNELS;
+  for (int i = 0; i < n; ++i) {
+    duty[i] = (float)((1.0 - frac) * newer[i] + frac * older[i]);
+    drive[i] = nearer[i];
+  }
 }
 
 // The firmware's outputs into the plant. The control loop runs at 100 Hz and the board ticks at
@@ -481,16 +555,25 @@ static bool same_outputs(const bl_state* s) {
 // (H-bridge outputs shorted); all motors coasting opens the bridges. While the fixture holds the
 // tensions the outputs are ignored.
 static void apply_outputs(mjModel* m, mjData* d, bl_state* s) {
+  const float* out_duty = s->duty;
+  const uint8_t* out_drive = s->drive;
+  float late_duty[BL_MAX_CHANNELS];
+  uint8_t late_drive[BL_MAX_CHANNELS];
+  if (s->latency_s > 0) {
+    delayed_outputs(s, late_duty, late_drive);
+    out_duty = late_duty;
+    out_drive = late_drive;
+  }
   if (s->held) {
     s->have_applied = 0;
     return;
   }
-  if (same_outputs(s)) return;
+  if (same_outputs(s, out_duty, out_drive)) return;
   bool coast = true;
   double duty[BL_MAX_CHANNELS];
   for (int i = 0; i < s->channels; ++i) {
-    coast = coast && s->drive[i] == BL_DRIVE_COAST;
-    duty[i] = s->drive[i] == BL_DRIVE_ON ? (double)s->duty[i] : 0.0;
+    coast = coast && out_drive[i] == BL_DRIVE_COAST;
+    duty[i] = out_drive[i] == BL_DRIVE_ON ? (double)out_duty[i] : 0.0;
   }
   if (coast) {
     set_mode(m, d, s, BL_COAST);
@@ -498,8 +581,8 @@ static void apply_outputs(mjModel* m, mjData* d, bl_state* s) {
     drive_pwm(m, d, s, duty);
   }
   for (int i = 0; i < s->channels; ++i) {
-    s->applied_duty[i] = s->duty[i];
-    s->applied_drive[i] = s->drive[i];
+    s->applied_duty[i] = out_duty[i];
+    s->applied_drive[i] = out_drive[i];
   }
   s->have_applied = 1;
 }

@@ -1,0 +1,45 @@
+"""Actuation latency: ``effects.actuation_latency_s``, the delay (s) from the firmware's motor
+outputs to the motors (0 = off).
+
+Twin: the plant loop holds each board tick's duties and drives and applies the ones of
+``latency`` earlier (:class:`twin.effects.PlantDynamics`); between whole ticks the duty is
+interpolated linearly, so the delay is a continuous parameter. Its sources on a rig: the
+H-bridge driver's input filter, the motor's electrical time constant, a gearbox's wind-up.
+
+Statics: none (a settled loop has the same outputs at every tick), so the static workflow has
+no candidate for it.
+
+Dynamic calibration: the delay, fitted on log scale between 1 ms and 0.15 s (the loop keeps at
+most 40 ticks of 5 ms).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+from twin.effects.base import DYNAMIC_ONLY, Effect, FitParameter, Key, Params, PlantDynamics
+
+__all__ = ["EFFECT", "MAX_LATENCY_S"]
+
+# The longest delay the plant loop can hold (s): BL_DELAY_TICKS board ticks of 5 ms less one.
+MAX_LATENCY_S = 0.195
+
+
+class ActuationLatencyEffect(Effect):
+    name = "actuation_latency"
+    description = "the motors act on the firmware's outputs a fixed delay late"
+    parameters = (Key("actuation_latency_s", nonnegative=True),)
+    untestable = DYNAMIC_ONLY
+
+    def plant_dynamics(self, params: Params, dynamics: PlantDynamics) -> PlantDynamics:
+        latency_s = params.effects.actuation_latency_s
+        if latency_s > MAX_LATENCY_S:
+            raise ValueError(f"effects.actuation_latency_s = {latency_s!r}: the twin's plant loop delays the motors "
+                             f"by at most {MAX_LATENCY_S} s")
+        return dataclasses.replace(dynamics, actuation_latency_s=latency_s)
+
+    def dynamic_candidate(self, params: Params) -> FitParameter:
+        return FitParameter("effects.actuation_latency_s", log=True, scale=0.01, bounds=(1e-3, 0.15))
+
+
+EFFECT = ActuationLatencyEffect()

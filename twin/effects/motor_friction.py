@@ -1,0 +1,36 @@
+"""Motor Coulomb friction: ``effects.motor_friction_n``, the dry friction of each motor and its
+gearbox (N, as a force on the tendon at the spool; 0 = off).
+
+Twin: the spool joints' MuJoCo ``frictionloss`` (:class:`twin.effects.PlantDynamics`): a drive
+must exceed it before a spool moves, so small PID outputs are lost (a dead band) and a loop
+that reverses sticks first. Its sources on a rig: brushes, gearbox and bearing friction.
+
+Statics: the settled loops integrate through it (a length or tension loop with an integral
+term ends at its setpoint), so the static workflow has no candidate for it.
+
+Dynamic calibration: the friction force, fitted on log scale between 0.01 N and 3 N.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+from twin.effects.base import DYNAMIC_ONLY, Effect, FitParameter, Key, Params, PlantDynamics
+
+__all__ = ["EFFECT"]
+
+
+class MotorFrictionEffect(Effect):
+    name = "motor_friction"
+    description = "Coulomb friction in each motor and gearbox: a dead band of the drive"
+    parameters = (Key("motor_friction_n", nonnegative=True),)
+    untestable = DYNAMIC_ONLY
+
+    def plant_dynamics(self, params: Params, dynamics: PlantDynamics) -> PlantDynamics:
+        return dataclasses.replace(dynamics, motor_friction_n=params.effects.motor_friction_n)
+
+    def dynamic_candidate(self, params: Params) -> FitParameter:
+        return FitParameter("effects.motor_friction_n", log=True, scale=0.1, bounds=(0.01, 3.0))
+
+
+EFFECT = MotorFrictionEffect()
