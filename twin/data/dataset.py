@@ -1,6 +1,7 @@
 """The measurement dataset: one row per static measurement, plus a metadata file.
 
-Format ``twin-dataset`` version 1 — a folder with
+Format ``twin-dataset`` version 2, documented in ``docs/dataset.md`` (with the version history);
+in short, a folder with
 
 ``measurements.csv``
     One row per static measurement, each written as one complete line (CRLF-terminated,
@@ -8,7 +9,7 @@ Format ``twin-dataset`` version 1 — a folder with
     (and can be resumed: :meth:`DatasetWriter.completed`). A row is complete only with its line
     end: a last line without one is a write that was cut off (a full disk, a crash) and is
     dropped on reading and on resuming, with a :class:`DatasetWarning` naming file and row.
-    Columns (units in the names; empty cell = not measured):
+    Columns (units in the names; empty cell = not measured), for a robot of N tendons:
 
     ==========================  ====================================================================
     config                      configuration number (int), unique per (κ, φ, tip mass, repeat)
@@ -17,17 +18,23 @@ Format ``twin-dataset`` version 1 — a folder with
     kappa_cmd_per_m             commanded PCC curvature (1/m)
     phi_cmd_deg                 commanded bending plane (deg)
     tip_mass_kg                 nominal mass hung at the tip (kg)
-    tension_1_n … tension_4_n   calibrated tensions at the load cells (N)
-    length_1_m … length_4_m     relative tendon lengths from the encoders (m, + = paid out)
+    tension_1_n … tension_N_n   calibrated tensions at the load cells (N)
+    length_1_m … length_N_m     relative tendon lengths from the encoders (m, + = paid out)
     tip_x_m, tip_y_m, tip_z_m   tip position, base frame: origin at the base centre, world axes (m)
     tip_qw … tip_qz             tip orientation quaternion (w, x, y, z), world axes, when measured
     time_s                      device time of the measurement (s)
     ==========================  ====================================================================
 
+    The per-tendon columns are the groups of :data:`TENDON_GROUPS`, in its order.
+
 ``metadata.json``
-    ``format``, ``version``, ``experiment``, ``created``, ``device`` (URL), ``base_rotation``
-    (3×3, body → world), ``gravity_m_s2``, ``params`` (the full parameter set with sources),
-    ``calibration`` (the load-cell calibration applied, or null), ``notes``.
+    ``format``, ``version``, ``experiment``, ``created``, ``device`` (URL), ``robot`` (its name),
+    ``tendons`` (N), ``base_rotation`` (the base pose, body → world: a 3×3 rotation or a unit
+    quaternion w, x, y, z), ``gravity_m_s2``, ``params`` (the full parameter set with sources:
+    the robot's parts, from which :func:`recorded_params` rebuilds the predictor),
+    ``calibration`` (the load-cell calibration applied, or null), ``notes``, ``columns``.
+
+Version 1 (four tendons, no ``robot`` nor ``tendons`` entry) reads as it always did.
 
 Readers refuse files with missing, duplicated or malformed columns with a message naming the
 file, the row and the column — a tension below :data:`TENSION_FLOOR_N` is malformed, a tendon
@@ -41,10 +48,12 @@ from __future__ import annotations
 import csv
 import dataclasses
 import datetime
+import functools
 import io
 import json
 import math
 import os
+import re
 import warnings
 from pathlib import Path
 from typing import Any, Iterable, Mapping
@@ -52,10 +61,12 @@ from typing import Any, Iterable, Mapping
 import numpy as np
 
 from twin.params import Params, _from_dict, load_params
+from twin.pose import rotation_of_quat
 
 __all__ = [
     "FORMAT",
     "TENSION_FLOOR_N",
+    "TENDON_GROUPS",
     "VERSION",
     "COLUMNS",
     "REQUIRED_COLUMNS",
@@ -63,6 +74,8 @@ __all__ = [
     "DatasetWarning",
     "Dataset",
     "DatasetWriter",
+    "TendonGroup",
+    "columns",
     "read_dataset",
     "read_metadata",
     "recorded_params",
@@ -71,31 +84,97 @@ __all__ = [
 ]
 
 FORMAT = "twin-dataset"
-VERSION = 1
+VERSION = 2
+# The versions this reader reads (docs/dataset.md has what each changed).
+READABLE_VERSIONS = (1, 2)
+# The thesis endoscope's tendon count, the only one version 1 knows.
 TENDONS = 4
 MEASUREMENTS = "measurements.csv"
 METADATA = "metadata.json"
 # Where a ``twin validate`` run folder keeps its dataset.
 RUN_DATASET = "dataset"
 
+
+@dataclasses.dataclass(frozen=True)
+class TendonGroup:
+    """A group of per-tendon columns: ``pattern.format(i=i)`` for tendon i = 1 … N.
+
+    Attributes:
+        name: what :meth:`Dataset.per_tendon` calls the group.
+        pattern: the column name, with ``{i}`` for the tendon number and the unit at the end.
+        meaning: what a cell holds (with its unit), for the documentation.
+        required: every row has a finite number in every column; an optional group may be
+            missing from a file (older datasets) and its cells may be empty (not measured).
+    """
+
+    name: str
+    pattern: str
+    meaning: str
+    required: bool = True
+
+    def columns(self, tendons: int) -> tuple[str, ...]:
+        """The group's column names for ``tendons`` tendons, in order."""
+        return tuple(self.pattern.format(i=i) for i in range(1, tendons + 1))
+
+
+# The per-tendon columns, in file order: a new group is one more line (optional, so that the
+# datasets written before it keep reading).
+TENDON_GROUPS = (
+    TendonGroup("tensions", "tension_{i}_n", "calibrated tension at the load cell (N)"),
+    TendonGroup("lengths", "length_{i}_m", "relative tendon length from the encoder (m, + = paid out)"),
+)
+
 _INT_COLUMNS = ("config", "repeat")
 _STR_COLUMNS = ("experiment",)
-REQUIRED_COLUMNS = (
-    ("config", "kappa_cmd_per_m", "phi_cmd_deg", "tip_mass_kg")
-    + tuple(f"tension_{i}_n" for i in range(1, TENDONS + 1))
-    + tuple(f"length_{i}_m" for i in range(1, TENDONS + 1))
-    + ("tip_x_m", "tip_y_m", "tip_z_m")
-)
-OPTIONAL_COLUMNS = ("experiment", "repeat", "tip_qw", "tip_qx", "tip_qy", "tip_qz", "time_s")
-COLUMNS = REQUIRED_COLUMNS[:1] + ("experiment", "repeat") + REQUIRED_COLUMNS[1:] + (
-    "tip_qw", "tip_qx", "tip_qy", "tip_qz", "time_s")
-# Columns that may be empty (not measured).
+_LEADING_COLUMNS = ("config", "experiment", "repeat", "kappa_cmd_per_m", "phi_cmd_deg", "tip_mass_kg")
+_TRAILING_COLUMNS = ("tip_x_m", "tip_y_m", "tip_z_m", "tip_qw", "tip_qx", "tip_qy", "tip_qz", "time_s")
+# Columns that may be left out of a row (the writer fills in the experiment and repeat 0).
+_DEFAULTED = ("experiment", "repeat")
+# Columns that may be empty (not measured), besides the optional per-tendon groups.
 _NULLABLE = ("tip_qw", "tip_qx", "tip_qy", "tip_qz", "time_s")
-_TENSION_COLUMNS = tuple(f"tension_{i}_n" for i in range(1, TENDONS + 1))
 # Lowest tension (N) a row may report: a slack tendon reads its load cell's noise around zero
 # (millinewtons); a reading further below is a wiring, sign or calibration fault, which a
 # prediction must not quietly read as a slack tendon.
 TENSION_FLOOR_N = -0.5
+
+
+@dataclasses.dataclass(frozen=True)
+class _Layout:
+    """The columns of a dataset of ``tendons`` tendons and what each may hold."""
+
+    tendons: int
+    columns: tuple[str, ...]
+    required: tuple[str, ...]
+    nullable: frozenset[str]
+    tensions: frozenset[str]
+    # Matches a column of any per-tendon group, for any tendon number.
+    per_tendon: re.Pattern
+
+
+def _layout(tendons: int) -> _Layout:
+    return _layout_of(tendons, TENDON_GROUPS)
+
+
+@functools.cache
+def _layout_of(tendons: int, groups: tuple[TendonGroup, ...]) -> _Layout:
+    grouped = tuple(c for g in groups for c in g.columns(tendons))
+    optional = {c for g in groups if not g.required for c in g.columns(tendons)}
+    every = _LEADING_COLUMNS + grouped + _TRAILING_COLUMNS
+    nullable = frozenset(_NULLABLE) | optional
+    tensions = next(g for g in groups if g.name == "tensions").columns(tendons)
+    pattern = re.compile("|".join(re.escape(g.pattern).replace(re.escape("{i}"), "[0-9]+") for g in groups))
+    return _Layout(tendons, every, tuple(c for c in every if c not in nullable and c not in _DEFAULTED),
+                   nullable, frozenset(tensions), pattern)
+
+
+def columns(tendons: int = TENDONS) -> tuple[str, ...]:
+    """The columns of a dataset of ``tendons`` tendons, in file order."""
+    return _layout(tendons).columns
+
+
+# The columns of the thesis endoscope's datasets (four tendons).
+COLUMNS = columns(TENDONS)
+REQUIRED_COLUMNS = _layout(TENDONS).required
 
 
 # What csv.writer ends a row with; a row is complete only when its line end is on disk.
@@ -132,14 +211,38 @@ class Dataset:
         return self.columns[name]
 
     @property
+    def tendons(self) -> int:
+        """N, the robot's tendon count (4 in a version-1 dataset)."""
+        return int(self.metadata.get("tendons", TENDONS))
+
+    @property
+    def robot(self) -> str | None:
+        """The name of the robot the data were taken with (None when not recorded: version 1)."""
+        robot = self.metadata.get("robot")
+        return robot.get("name") if isinstance(robot, Mapping) else None
+
+    def per_tendon(self, group: str) -> np.ndarray:
+        """(rows, N) the columns of per-tendon group ``group`` (a name in :data:`TENDON_GROUPS`);
+        NaN where an optional group was not measured or is not in the file.
+
+        Raises:
+            KeyError: no such group.
+        """
+        found = [g for g in TENDON_GROUPS if g.name == group]
+        if not found:
+            raise KeyError(f"per-tendon group {group!r}: expected one of {', '.join(g.name for g in TENDON_GROUPS)}")
+        nan = np.full(len(self), np.nan)
+        return np.stack([self.columns.get(c, nan) for c in found[0].columns(self.tendons)], axis=1)
+
+    @property
     def tensions_n(self) -> np.ndarray:
-        """(rows, 4) calibrated tensions (N)."""
-        return np.stack([self.columns[f"tension_{i}_n"] for i in range(1, TENDONS + 1)], axis=1)
+        """(rows, N) calibrated tensions (N)."""
+        return self.per_tendon("tensions")
 
     @property
     def lengths_m(self) -> np.ndarray:
-        """(rows, 4) relative tendon lengths (m)."""
-        return np.stack([self.columns[f"length_{i}_m"] for i in range(1, TENDONS + 1)], axis=1)
+        """(rows, N) relative tendon lengths (m)."""
+        return self.per_tendon("lengths")
 
     @property
     def tip_positions_m(self) -> np.ndarray:
@@ -153,7 +256,8 @@ class Dataset:
 
     @property
     def base_rotation(self) -> np.ndarray:
-        return np.asarray(self.metadata["base_rotation"], dtype=float)
+        """The base pose the data were taken in, 3×3 (body → world), also when recorded as a quaternion."""
+        return _rotation(self.metadata["base_rotation"])
 
     @property
     def params(self) -> Params:
@@ -163,6 +267,21 @@ class Dataset:
         marked as such in their source.
         """
         return recorded_params(self.metadata, origin=f"{self.path or 'dataset'} metadata params")
+
+    def check_robot(self, params: Params, robot: str | None = None) -> None:
+        """Refuse to analyse the data with a robot of another tendon count.
+
+        Args:
+            params: the parameter set the data are to be analysed with.
+            robot: its robot's name, for the message (None: "the parameter set").
+
+        Raises:
+            DatasetError: one line, e.g. "dataset X has 3 tendons; robot 'endoscope' has 4".
+        """
+        if params.tendons.count != self.tendons:
+            who = f"robot {robot!r}" if robot else "the parameter set it is analysed with"
+            raise DatasetError(f"dataset {self.path or '(in memory)'} has {self.tendons} tendons; {who} has "
+                               f"{params.tendons.count}")
 
     def subset(self, mask: np.ndarray) -> "Dataset":
         """The rows where ``mask`` is true (same metadata)."""
@@ -233,21 +352,53 @@ def _line(cells: Iterable[str]) -> str:
     return buffer.getvalue()
 
 
+def _rotation(value) -> np.ndarray:
+    """The 3×3 rotation (body → world) of a recorded base pose: a 3×3 rotation matrix or a unit
+    quaternion (w, x, y, z).
+
+    Raises:
+        ValueError: anything else (a string, a reflection, a matrix that is not orthonormal, a
+            quaternion whose norm is not 1); the message says which.
+    """
+    raw = np.asarray(value) if isinstance(value, (list, tuple, np.ndarray)) else np.zeros(0, dtype=object)
+    if raw.dtype.kind not in "iuf":
+        raise ValueError("not an array of numbers")
+    rot = raw.astype(float)
+    if not np.all(np.isfinite(rot)):
+        raise ValueError("not finite")
+    if rot.shape == (4,):
+        if abs(np.linalg.norm(rot) - 1.0) > 1e-6:
+            raise ValueError(f"a quaternion of norm {np.linalg.norm(rot):.6g}, not 1")
+        return rotation_of_quat(rot)
+    if rot.shape != (3, 3):
+        raise ValueError(f"of shape {rot.shape}, neither 3x3 nor 4")
+    if not np.allclose(rot @ rot.T, np.eye(3), atol=1e-6) or np.linalg.det(rot) < 0:
+        raise ValueError("not orthonormal with determinant +1")
+    return rot
+
+
 def _metadata(*, experiment: str, device: str, params: Params, base_rotation, calibration=None,
-              notes: str = "") -> dict:
-    rot = np.asarray(base_rotation, dtype=float)
+              notes: str = "", robot: str | None = None) -> dict:
+    try:
+        _rotation(base_rotation)
+        pose = np.asarray(base_rotation, dtype=float)
+    except ValueError as exc:
+        raise DatasetError(f"base_rotation {base_rotation!r} is not a 3x3 rotation or a unit quaternion "
+                           f"(w, x, y, z): {exc}; nothing written") from None
     return {
         "format": FORMAT,
         "version": VERSION,
         "experiment": experiment,
         "created": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
         "device": device,
-        "base_rotation": rot.tolist(),
+        "robot": {"name": robot},
+        "tendons": params.tendons.count,
+        "base_rotation": pose.tolist(),
         "gravity_m_s2": params.environment.gravity_m_s2,
         "params": params.to_dict(),
         "calibration": calibration,
         "notes": notes,
-        "columns": list(COLUMNS),
+        "columns": list(columns(params.tendons.count)),
     }
 
 
@@ -267,18 +418,25 @@ class DatasetWriter:
         ...         w.write({"config": 7, ...})
 
     Args:
+        params: the parameter set the data are taken with: its tendon count N sets the columns,
+            and it is recorded whole (the robot's parts, for :func:`recorded_params`).
+        base_rotation: the device's base pose, 3×3 (body → world) or a unit quaternion (w, x, y, z).
+        robot: the robot's name (``--robot``), recorded in the metadata.
         sync: sync every row to disk (the default: a row is seconds of rig time); with False,
             rows are synced once, on :meth:`close` (bulk writes of synthetic data).
 
     Raises:
-        DatasetError: the folder holds another experiment, a damaged dataset, or is being
-            written by another writer.
+        DatasetError: the folder holds another experiment, a dataset of another tendon count,
+            a damaged dataset, or is being written by another writer; a base pose that is not
+            a rotation.
         OSError: the folder or its files cannot be created or written.
     """
 
     def __init__(self, folder: str | Path, *, experiment: str, device: str, params: Params, base_rotation,
-                 calibration: Mapping | None = None, notes: str = "", sync: bool = True):
+                 calibration: Mapping | None = None, notes: str = "", robot: str | None = None,
+                 sync: bool = True):
         self.folder = Path(folder)
+        self._layout = _layout(params.tendons.count)
         self.folder.mkdir(parents=True, exist_ok=True)
         self.experiment = experiment
         self.path = self.folder / MEASUREMENTS
@@ -289,13 +447,16 @@ class DatasetWriter:
             if existing.metadata.get("experiment") != experiment:
                 raise DatasetError(f"{self.folder}: holds a {existing.metadata.get('experiment')!r} dataset; "
                                    f"cannot resume it as {experiment!r}")
+            if existing.tendons != params.tendons.count:
+                raise DatasetError(f"{self.folder}: holds a dataset of {existing.tendons} tendons; cannot resume it "
+                                   f"with a robot of {params.tendons.count}")
             self._done = set(int(c) for c in existing["config"])
         else:
             meta = _metadata(experiment=experiment, device=device, params=params, base_rotation=base_rotation,
-                             calibration=calibration, notes=notes)
+                             calibration=calibration, notes=notes, robot=robot)
             write_atomic(self.folder / METADATA, json.dumps(meta, indent=1))
             try:
-                write_atomic(self.path, _line(COLUMNS))
+                write_atomic(self.path, _line(self._layout.columns))
             except OSError:
                 # No half-made dataset: without its header the folder is plainly not a dataset yet.
                 (self.folder / METADATA).unlink(missing_ok=True)
@@ -327,16 +488,18 @@ class DatasetWriter:
                 and the error names it.
         """
         config = row.get("config")
-        missing = [c for c in REQUIRED_COLUMNS if c not in row]
+        layout = self._layout
+        missing = [c for c in layout.required if c not in row]
         if missing:
             raise DatasetError(f"row for config {config!r} lacks column(s) {missing}")
-        unknown = set(row) - set(COLUMNS)
+        unknown = set(row) - set(layout.columns)
         if unknown:
-            raise DatasetError(f"row for config {config!r} has unknown column(s) {sorted(unknown)}")
+            raise DatasetError(f"row for config {config!r} has unknown column(s) {sorted(unknown)} (a dataset of "
+                               f"{layout.tendons} tendons)")
         values = dict(row)
         values.setdefault("experiment", self.experiment)
         values.setdefault("repeat", 0)
-        cells = [self._cell(c, values.get(c), config) for c in COLUMNS]
+        cells = [self._cell(c, values.get(c), config) for c in layout.columns]
         data = _line(cells).encode("utf-8")
         start = os.fstat(self._fd).st_size
         try:
@@ -366,7 +529,7 @@ class DatasetWriter:
                 raise refuse("holds a line break")
             return text
         if value is None or (isinstance(value, (float, np.floating)) and math.isnan(value)):
-            if name in _NULLABLE:
+            if name in self._layout.nullable:
                 return ""
             raise refuse("is not a number (a required column must be measured)")
         if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.integer, np.floating)):
@@ -377,7 +540,7 @@ class DatasetWriter:
             if value != int(value):
                 raise refuse("is not a whole number")
             return str(int(value))
-        if name in _TENSION_COLUMNS and value < TENSION_FLOOR_N:
+        if name in self._layout.tensions and value < TENSION_FLOOR_N:
             raise refuse(_NEGATIVE_TENSION)
         return repr(float(value))
 
@@ -437,9 +600,11 @@ def read_metadata(folder: str | Path) -> dict:
     if not isinstance(metadata, dict) or metadata.get("format") != FORMAT:
         found = metadata.get("format") if isinstance(metadata, dict) else type(metadata).__name__
         raise DatasetError(f"{meta_path}: format {found!r}, expected {FORMAT!r}")
-    if metadata.get("version") != VERSION:
-        raise DatasetError(f"{meta_path}: version {metadata.get('version')!r}; this reader reads version {VERSION}")
-    for key in ("base_rotation", "params"):
+    version = metadata.get("version")
+    if isinstance(version, bool) or version not in READABLE_VERSIONS:
+        raise DatasetError(f"{meta_path}: version {version!r}; this reader reads version "
+                           f"{' and '.join(str(v) for v in READABLE_VERSIONS)}")
+    for key in ("base_rotation", "params") + (("robot", "tendons") if version >= 2 else ()):
         if key not in metadata:
             raise DatasetError(f"{meta_path}: missing {key!r}")
     params = metadata["params"]
@@ -450,12 +615,36 @@ def read_metadata(folder: str | Path) -> dict:
             raise DatasetError(f"{meta_path}: params section {section!r} is a JSON {_json_type(entries)}, "
                                "expected an object of entries")
     try:
-        rot = np.asarray(metadata["base_rotation"], dtype=float)
-    except (TypeError, ValueError):
-        rot = np.zeros(0)
-    if rot.shape != (3, 3) or not np.allclose(rot @ rot.T, np.eye(3), atol=1e-6):
-        raise DatasetError(f"{meta_path}: base_rotation {metadata['base_rotation']!r} is not a 3x3 rotation")
+        _rotation(metadata["base_rotation"])
+    except ValueError as exc:
+        raise DatasetError(f"{meta_path}: base_rotation {metadata['base_rotation']!r} is not a 3x3 rotation or a "
+                           f"unit quaternion (w, x, y, z): {exc}") from None
+    if version >= 2:
+        _check_robot_entries(metadata, meta_path)
     return metadata
+
+
+def _check_robot_entries(metadata: Mapping[str, Any], meta_path: Path) -> None:
+    """Version 2's ``robot`` and ``tendons``: a name (or null), and a count that is the recorded
+    robot's (one tendon per entry of its ``tendons.angles_deg``).
+
+    Raises:
+        DatasetError: one line naming the file and the entry.
+    """
+    robot = metadata["robot"]
+    if not isinstance(robot, dict) or not isinstance(robot.get("name", ""), (str, type(None))):
+        raise DatasetError(f"{meta_path}: robot {robot!r} is not an object with a name (a string or null)")
+    tendons = metadata["tendons"]
+    if isinstance(tendons, bool) or not isinstance(tendons, int) or tendons < 1:
+        raise DatasetError(f"{meta_path}: tendons {tendons!r} is not a whole number >= 1")
+    angles = metadata["params"].get("tendons", {}).get("angles_deg")
+    angles = angles.get("value") if isinstance(angles, dict) else angles
+    if not isinstance(angles, list):
+        raise DatasetError(f"{meta_path}: params tendons.angles_deg {angles!r} is not a list of angles: the "
+                           "recorded robot has no tendon layout")
+    if len(angles) != tendons:
+        raise DatasetError(f"{meta_path}: tendons {tendons} but the recorded robot (params tendons.angles_deg) has "
+                           f"{len(angles)}")
 
 
 def _json_type(value: Any) -> str:
@@ -499,17 +688,22 @@ def _read(folder: str | Path) -> tuple[Dataset, int]:
         if name in seen:
             raise DatasetError(f"{csv_path}: row 1, column {name!r} appears twice (fields {seen[name]} and {i})")
         seen[name] = i
-    missing = [c for c in REQUIRED_COLUMNS if c not in header]
+    layout = _layout(int(metadata.get("tendons", TENDONS)))
+    missing = [c for c in layout.required if c not in header]
     if missing:
         raise DatasetError(f"{csv_path}: missing column(s) {missing}")
+    beyond = [name for name in header if name not in layout.columns and layout.per_tendon.fullmatch(name)]
+    if beyond:
+        raise DatasetError(f"{csv_path}: row 1, column {beyond[0]!r} is beyond the dataset's {layout.tendons} "
+                           f"tendons ({METADATA} tendons)")
     index = {name: i for i, name in enumerate(header)}
-    columns: dict[str, list] = {name: [] for name in header if name in COLUMNS}
+    columns: dict[str, list] = {name: [] for name in header if name in layout.columns}
     for r, line in enumerate(lines[1:], start=2):
         row = _fields(line, csv_path, r)
         if len(row) != len(header):
             raise DatasetError(f"{csv_path}: row {r} has {len(row)} fields, the header {len(header)}")
         for name in columns:
-            columns[name].append(_parse(row[index[name]].strip(), name, csv_path, r))
+            columns[name].append(_parse(row[index[name]].strip(), name, csv_path, r, layout))
     complete_bytes = len(data) - len(torn)
     if torn:
         warnings.warn(f"{csv_path}: row {len(lines) + 1} is incomplete (no line end: its write was cut off, "
@@ -526,7 +720,7 @@ def _read(folder: str | Path) -> tuple[Dataset, int]:
     n = len(lines) - 1
     out.setdefault("repeat", np.zeros(n, dtype=int))
     out.setdefault("experiment", np.array([metadata.get("experiment", "")] * n, dtype=str))
-    for name in _NULLABLE:
+    for name in layout.nullable:
         out.setdefault(name, np.full(n, np.nan))
     return Dataset(out, metadata, folder), complete_bytes
 
@@ -540,11 +734,11 @@ def _fields(line: bytes, path: Path, row: int) -> list[str]:
     return next(csv.reader([text.rstrip("\r")]), [])
 
 
-def _parse(text: str, name: str, path: Path, row: int):
+def _parse(text: str, name: str, path: Path, row: int, layout: _Layout):
     if name in _STR_COLUMNS:
         return text
     if text == "":
-        if name in _NULLABLE:
+        if name in layout.nullable:
             return math.nan
         raise DatasetError(f"{path}: row {row}, column {name!r} is empty")
     try:
@@ -553,7 +747,7 @@ def _parse(text: str, name: str, path: Path, row: int):
         raise DatasetError(f"{path}: row {row}, column {name!r}: {text!r} is not a number") from None
     if isinstance(value, float) and not math.isfinite(value):
         raise DatasetError(f"{path}: row {row}, column {name!r}: {text!r} is not finite")
-    if name in _TENSION_COLUMNS and value < TENSION_FLOOR_N:
+    if name in layout.tensions and value < TENSION_FLOOR_N:
         raise DatasetError(f"{path}: row {row}, column {name!r}: {text!r} {_NEGATIVE_TENSION}")
     return value
 

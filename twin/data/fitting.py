@@ -164,10 +164,12 @@ def fit_parameters(dataset: Dataset, params: Params, parameters: Sequence[FitPar
 
     Raises:
         ValueError: nothing to fit, or the starting point cannot be predicted at all.
+        DatasetError: ``params`` is of a robot with another tendon count than the data's.
     """
     parameters = tuple(parameters)
     if not parameters:
         raise ValueError("fit_parameters: no parameters to fit")
+    dataset.check_robot(params)
     data = dataset if rows is None else dataset.subset(rows)
     start = np.array([current_value(params, p) for p in parameters] if x0 is None else x0, dtype=float)
     for p, v in zip(parameters, start):

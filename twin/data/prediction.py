@@ -111,8 +111,13 @@ def predict_rows(params: Params, base_rotation, tensions_n, tip_mass_kg, lengths
 def predict_dataset(dataset: Dataset, params: Params | None = None, *, progress: bool = False,
                     guesses: list | None = None) -> Predictions:
     """Predict every row of ``dataset`` with ``params`` (default: the dataset's own parameter set);
-    ``guesses`` as for :func:`predict_rows`."""
+    ``guesses`` as for :func:`predict_rows`.
+
+    Raises:
+        DatasetError: ``params`` is of a robot with another tendon count than the data's.
+    """
     params = params or dataset.params
+    dataset.check_robot(params)
     tip, converged, residual, times = predict_rows(
         params, dataset.base_rotation, dataset.tensions_n, dataset["tip_mass_kg"], dataset.lengths_m,
         progress=progress, guesses=guesses)

@@ -4,8 +4,8 @@ The twin keeps no telemetry recording of its own: a dataset's rows are the time 
 static measurement each, at its ``time_s``). Each row becomes one message on each topic:
 
 ``/twin/tendons`` (``sensor_msgs/msg/JointState``)
-    ``name`` ``tendon_1`` … ``tendon_4``; ``position`` the relative tendon lengths (m, + = paid
-    out), ``effort`` the calibrated tensions (N), ``velocity`` empty.
+    ``name`` ``tendon_1`` … ``tendon_N`` (the dataset's N tendons); ``position`` the relative
+    tendon lengths (m, + = paid out), ``effort`` the calibrated tensions (N), ``velocity`` empty.
 ``/twin/tip_pose`` (``geometry_msgs/msg/PoseStamped``)
     the measured tip in frame ``base`` (origin at the base centre, world axes), position in m;
     orientation the measured quaternion, the identity where the row has none (the MCAP
@@ -32,7 +32,7 @@ from pathlib import Path
 
 import numpy as np
 
-from twin.data.dataset import TENDONS, read_dataset
+from twin.data.dataset import read_dataset
 
 __all__ = ["JOINT_STATE", "POSE_STAMPED", "TENDONS_TOPIC", "TIP_TOPIC", "ExportSummary", "export_bag", "register"]
 
@@ -118,7 +118,7 @@ def export_bag(source: str | Path, out: str | Path) -> ExportSummary:
     stamps = _stamps_ns(dataset.metadata.get("created"), times_s)
     lengths, tensions = dataset.lengths_m, dataset.tensions_n
     tips, quats = dataset.tip_positions_m, dataset.tip_quaternions
-    names = [f"tendon_{i}" for i in range(1, TENDONS + 1)]
+    names = [f"tendon_{i}" for i in range(1, dataset.tendons + 1)]
     unmeasured = 0
     tmp = out.with_name(f".{out.name}.tmp")
     try:
@@ -145,6 +145,7 @@ def export_bag(source: str | Path, out: str | Path) -> ExportSummary:
             writer.add_metadata("twin_dataset", {
                 "source": str(dataset.path or source), "experiment": str(meta.get("experiment", "")),
                 "device": str(meta.get("device", "")), "created": str(meta.get("created", "")),
+                "robot": str(dataset.robot or ""), "tendons": str(dataset.tendons),
                 "rows": str(len(dataset)), "orientation_unmeasured_rows": str(unmeasured),
                 "tip_frame": f"{TIP_FRAME}: origin at the base centre, world axes",
             })
