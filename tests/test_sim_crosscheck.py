@@ -137,3 +137,22 @@ def test_the_quick_zoo_cross_check_writes_every_robots_report(tmp_path, capsys):
     assert code == 0, capsys.readouterr().err
     assert all(f"| {name} |" in table for name in ROBOTS)
     assert all((tmp_path / name / "crosscheck.md").exists() for name in ROBOTS[1:])
+
+
+def test_with_tendon_friction_the_predictor_given_the_twins_sliding_state_agrees_with_the_twin():
+    # The twin's friction remembers how each tendon got where it is; the predictor, given that
+    # state, computes the same capstan loss. All tendons taken as pulled (the old guess) misses.
+    params = load_params().replace({"effects.tendon_friction_coeff": 0.15})
+    result = crosscheck(params, configs=QUICK_GRID)
+    assert result.meets_goal, result.verdict()
+    plant = Plant(params)
+    misses = []
+    for _, kappa, phi, mass in QUICK_GRID:
+        tensions = pcc_tensions_n(kappa, phi, params)
+        plant.set_tensions(tensions)
+        plant.set_tip_mass_kg(mass)
+        plant.settle(tol_m=1e-6)
+        sol = solve(RodModel.from_params(params), tensions, tip_force_n=(0.0, 0.0, -mass * params.environment.gravity_m_s2),
+                    base_rotation=plant.base_rotation, friction_direction=np.ones(params.tendons.count))
+        misses.append(np.linalg.norm(sol.tip_position_m - plant.tip_pose()[0]) / params.backbone.length_m * 100)
+    assert max(misses) > GOAL_WORST_PCT

@@ -80,8 +80,10 @@ _EYE3 = np.eye(3)
 class LoadCase:
     """What acts on the rod: tendon tensions at the base, tip loads, base pose (all SI, world frame).
 
-    ``friction_direction`` per tendon: +1 pulled (tension lost towards the tip), −1 released,
-    0 no friction; used only when the model has a friction coefficient.
+    ``friction_direction`` per tendon: the sliding state σ of the friction, +1 pulled (tension
+    lost towards the tip), −1 released, between them part of the way through a reversal (the
+    Dahl state :class:`twin.effects.SlidingState` records), 0 no friction; used only when the
+    model has a friction coefficient.
     """
 
     tensions_n: np.ndarray
@@ -110,7 +112,7 @@ class LoadCase:
             tip_moment_nm=np.zeros(3) if tip_moment_nm is None else _vector(tip_moment_nm, 3, "tip_moment_nm"),
             base_rotation=np.ascontiguousarray(rot),
             base_position_m=np.zeros(3) if base_position_m is None else _vector(base_position_m, 3, "base_position_m"),
-            friction_direction=np.sign(direction),
+            friction_direction=np.clip(direction, -1.0, 1.0),
         )
 
     def scaled(self, factor: float) -> "LoadCase":
@@ -263,7 +265,7 @@ def solve(model: RodModel, tensions_n, *, tip_force_n=None, tip_moment_nm=None, 
         tip_force_n, tip_moment_nm: external tip force (N) and moment (N·m), world frame.
         base_rotation: base orientation (3×3, body → world); default identity ("up").
         base_position_m: base position (m), world frame.
-        friction_direction: per tendon +1 pulled / −1 released (only with friction).
+        friction_direction: per tendon sliding state, +1 pulled … −1 released (only with friction).
         guess_nm: base moment m(0) to start from (warm start), e.g. a previous ``base_moment_nm``.
         guess_jacobian: with ``guess_nm``, that solution's ``shooting_jacobian``: Newton then
             starts with Broyden updates of it (one integration per iteration) instead of finite

@@ -230,7 +230,9 @@ def crosscheck(params: Params | None = None, *, configs=None, elements: int | No
         settled[k] = result.settled
         twin_tip[k] = plant.tip_pose()[0]
         try:
-            sol = solve(rod, tensions, tip_force_n=(0.0, 0.0, -mass * g), base_rotation=plant.base_rotation)
+            # With friction, the twin's state remembers how it got here; the predictor is given it.
+            sol = solve(rod, tensions, tip_force_n=(0.0, 0.0, -mass * g), base_rotation=plant.base_rotation,
+                        friction_direction=plant.sliding_state)
         except ConvergenceError:
             continue
         converged[k] = bool(sol.converged)

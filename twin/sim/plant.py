@@ -28,6 +28,7 @@ import mujoco
 import numpy as np
 
 from twin import effects
+from twin.effects.tendon_friction import TendonFriction
 from twin.params import Params, load_params
 from twin.sim.model import (ACTUATOR_GROUPS, SPOOL_TRAVEL_M, Layout, TendonLength, build_model,
                              tendon_stiffness_n_per_m)
@@ -266,6 +267,15 @@ class Plant:
         clears it with the rest of the state)."""
         wrench = self.data.xfrc_applied[self._tip_load]
         return wrench[:3].copy(), wrench[3:].copy()
+
+    @property
+    def sliding_state(self) -> np.ndarray | None:
+        """Ground truth: the tendon friction's sliding state σ per tendon (+1 pulled … −1
+        released, :class:`twin.effects.SlidingState`), or None when the twin has no friction."""
+        for hook in self._hooks:
+            if isinstance(hook, TendonFriction):
+                return hook.state.copy()
+        return None
 
     def engage_holder(self) -> None:
         """Clamp the reference holder around the discs: they are pulled back to and held in the
