@@ -6,9 +6,20 @@ step, on a pretensioned endoscope bent by one motor. Settling a static configura
 tensions, from straight) is timed as well, and the PWM run is repeated at twice and four times
 the element count, each figure beside its element count.
 
-The cost grows faster than the element count: MuJoCo's joint-space mass matrix of a serial
-chain is dense, so each step factors it (and M + hD + h²K) in Σ depth² ≈ nv³/6 multiply-adds,
-and multiplies and solves with it in nv²/2; the chain has at least two bend hinges per element.
+The cost grows as the cube of the element count, and no solver option changes that: the
+backbone is one serial chain in joint coordinates, whose joint-space mass matrix is dense (every
+dof is an ancestor of the dofs after it), and each MuJoCo step factors a matrix of that pattern
+twice, in Σ depth² ≈ nv³/6 multiply-adds each: M itself (``mj_factorM``, in the position stage)
+and the discrete integrator's backbone M + hD + h²K with the joints' stiffness and damping on
+its diagonal. The tendons' rank-1 terms join by preconditioned conjugate gradients, each
+iteration a solve with that factor (nv² multiply-adds). ``factor_s`` times one factorization:
+two of them at four times the elements already take longer than four steps at the default
+count. Cutting the chain into shorter trees joined by weld constraints does not help: the
+constraint solve then factors its Hessian, which the tendons' terms make dense over all dofs,
+and a weld's stiffness scales with the masses it joins, so the cut rod gives way at the cuts.
+A cost linear in the elements needs bodies that are not one chain, as MuJoCo's 1D flex rods
+(discrete elastic rods, each vertex its own 3-dof tree); their vertex frames do not turn with
+the rod, so the tendons' routing through the discs would have to be rebuilt on them.
 """
 
 from __future__ import annotations
@@ -16,6 +27,7 @@ from __future__ import annotations
 import math
 import time
 
+import mujoco
 import numpy as np
 
 from twin.params import Params, load_params
@@ -44,9 +56,11 @@ def bench_sim(params: Params | None = None, *, duration_s: float = 2.0, elements
         runs taken as shorter ones, :data:`twin.sim.plant.ENGAGE_MAX_STEP_S`),
         ``taut_realtime_factor`` (the same after settling a bend held by tension sources, every
         tendon taut), ``timestep_s``,
-        ``elements``, ``dofs``, ``settle_wall_s`` and ``settle_sim_s`` (a tension step from
-        straight, to 1 µm), ``settled``; with ``scaling``, ``scaling``: one
-        ``{"elements", "dofs", "realtime_factor", "steps_per_s"}`` per element count, and
+        ``elements``, ``dofs``, ``factor_s`` (wall time of one factorization of the mass matrix,
+        of which each step takes two; see the module docstring), ``settle_wall_s`` and
+        ``settle_sim_s`` (a tension step from straight, to 1 µm), ``settled``; with ``scaling``,
+        ``scaling``: one ``{"elements", "dofs", "realtime_factor", "steps_per_s", "factor_s"}``
+        per element count, and
         ``scaling_exponent``: d log(wall time per step) / d log(elements) from the first to the
         last (1 is linear), and ``scaling_realtime_ratio``: the real-time factor at the most
         elements over that at the fewest.
@@ -68,6 +82,7 @@ def bench_sim(params: Params | None = None, *, duration_s: float = 2.0, elements
         "timestep_s": plant.timestep_s,
         "elements": plant.layout.elements,
         "dofs": int(plant.model.nv),
+        "factor_s": _factor_s(plant),
         "taut_realtime_factor": taut,
         "settle_wall_s": settle.wall_time_s,
         "settle_sim_s": settle.sim_time_s,
@@ -79,7 +94,8 @@ def bench_sim(params: Params | None = None, *, duration_s: float = 2.0, elements
             scaled = Plant(params, elements=factor * plant.layout.elements)
             rtf = best if factor == 1 else _pwm_realtime_factor(scaled, duration_s)[0]
             runs.append({"elements": scaled.layout.elements, "dofs": int(scaled.model.nv), "realtime_factor": rtf,
-                         "steps_per_s": rtf / scaled.timestep_s})
+                         "steps_per_s": rtf / scaled.timestep_s,
+                         "factor_s": figures["factor_s"] if factor == 1 else _factor_s(scaled)})
         figures["scaling"] = runs
         first, last = runs[0], runs[-1]
         figures["scaling_exponent"] = (math.log(first["realtime_factor"] / last["realtime_factor"])
@@ -108,4 +124,17 @@ def _best_realtime_factor(plant: Plant, duration_s: float, runs: int = 5) -> flo
         start = time.perf_counter()
         plant.step(duration_s)
         best = max(best, duration_s / (time.perf_counter() - start))
+    return best
+
+
+def _factor_s(plant: Plant, repeats: int = 50, runs: int = 5) -> float:
+    """Wall time of one ``mj_factorM`` of the plant's mass matrix as it stands (s), the best of
+    ``runs`` averages over ``repeats``; the next step computes the factor afresh."""
+    model, data = plant.model, plant.data
+    best = math.inf
+    for _ in range(runs):
+        start = time.perf_counter()
+        for _ in range(repeats):
+            mujoco.mj_factorM(model, data)
+        best = min(best, (time.perf_counter() - start) / repeats)
     return best
