@@ -26,11 +26,12 @@ GRID_TIP_MASS_KG = (0.0, 0.005, 0.010)
 
 
 def tendon_length_changes_m(kappa_per_m: float, phi_deg: float, params: Params) -> np.ndarray:
-    """Relative tendon lengths Δℓ_i = −r κ L cos(φ − α_i) (m; positive = paid out); thesis §2.2.1."""
+    """Relative tendon lengths Δℓ_i = −r κ s_i cos(φ − α_i) (m; positive = paid out) that bend
+    the whole backbone to κ in plane φ, thesis §2.2.1: s_i is the arc length where tendon i is
+    anchored, L for a tendon that ends at the tip (:meth:`twin.params.Params.tendon_ends_m`)."""
     alpha = np.radians(np.asarray(params.tendons.angles_deg))
-    return -params.tendons.radius_m * kappa_per_m * params.backbone.length_m * np.cos(
-        np.radians(phi_deg) - alpha
-    )
+    anchored_m = np.asarray(params.tendon_ends_m()) if params.tendons.end_discs else params.backbone.length_m
+    return -params.tendons.radius_m * kappa_per_m * anchored_m * np.cos(np.radians(phi_deg) - alpha)
 
 
 def arc_tip_position_m(kappa_per_m: float, phi_deg: float, length_m: float) -> np.ndarray:

@@ -32,7 +32,8 @@ in short, a folder with
     ``tendons`` (N), ``base_rotation`` (the base pose, body → world: a 3×3 rotation or a unit
     quaternion w, x, y, z), ``gravity_m_s2``, ``params`` (the full parameter set with sources:
     the robot's parts, from which :func:`recorded_params` rebuilds the predictor),
-    ``calibration`` (the load-cell calibration applied, or null), ``notes``, ``columns``.
+    ``calibration`` (the load-cell calibration applied, or null), ``notes``, ``left_out`` (the
+    configurations of the grid not run, each with its ``config`` and ``reason``), ``columns``.
 
 Version 1 (four tendons, no ``robot`` nor ``tendons`` entry) reads as it always did.
 
@@ -122,6 +123,8 @@ class TendonGroup:
 TENDON_GROUPS = (
     TendonGroup("tensions", "tension_{i}_n", "calibrated tension at the load cell (N)"),
     TendonGroup("lengths", "length_{i}_m", "relative tendon length from the encoder (m, + = paid out)"),
+    TendonGroup("sliding_state", "slide_{i}", "the tendon friction's sliding state σ followed from the encoder "
+                "(+1 last pulled in … −1 last paid out, 1; twin.effects.SlidingState)", required=False),
 )
 
 _INT_COLUMNS = ("config", "repeat")
@@ -243,6 +246,12 @@ class Dataset:
     def lengths_m(self) -> np.ndarray:
         """(rows, N) relative tendon lengths (m)."""
         return self.per_tendon("lengths")
+
+    @property
+    def sliding_state(self) -> np.ndarray:
+        """(rows, N) the friction's sliding state recorded with each row (NaN where not recorded:
+        the prediction then guesses it from the lengths, :func:`twin.effects.friction_direction`)."""
+        return self.per_tendon("sliding_state")
 
     @property
     def tip_positions_m(self) -> np.ndarray:
@@ -378,7 +387,7 @@ def _rotation(value) -> np.ndarray:
 
 
 def _metadata(*, experiment: str, device: str, params: Params, base_rotation, calibration=None,
-              notes: str = "", robot: str | None = None) -> dict:
+              notes: str = "", robot: str | None = None, left_out: Iterable[Mapping[str, Any]] = ()) -> dict:
     try:
         _rotation(base_rotation)
         pose = np.asarray(base_rotation, dtype=float)
@@ -398,6 +407,7 @@ def _metadata(*, experiment: str, device: str, params: Params, base_rotation, ca
         "params": params.to_dict(),
         "calibration": calibration,
         "notes": notes,
+        "left_out": [dict(entry) for entry in left_out],
         "columns": list(columns(params.tendons.count)),
     }
 
@@ -422,6 +432,8 @@ class DatasetWriter:
             and it is recorded whole (the robot's parts, for :func:`recorded_params`).
         base_rotation: the device's base pose, 3×3 (body → world) or a unit quaternion (w, x, y, z).
         robot: the robot's name (``--robot``), recorded in the metadata.
+        left_out: the configurations of the experiment's grid it does not run, each a mapping
+            with its ``config`` and the ``reason`` (recorded as ``left_out``).
         sync: sync every row to disk (the default: a row is seconds of rig time); with False,
             rows are synced once, on :meth:`close` (bulk writes of synthetic data).
 
@@ -434,7 +446,7 @@ class DatasetWriter:
 
     def __init__(self, folder: str | Path, *, experiment: str, device: str, params: Params, base_rotation,
                  calibration: Mapping | None = None, notes: str = "", robot: str | None = None,
-                 sync: bool = True):
+                 left_out: Iterable[Mapping[str, Any]] = (), sync: bool = True):
         self.folder = Path(folder)
         self._layout = _layout(params.tendons.count)
         self.folder.mkdir(parents=True, exist_ok=True)
@@ -453,7 +465,7 @@ class DatasetWriter:
             self._done = set(int(c) for c in existing["config"])
         else:
             meta = _metadata(experiment=experiment, device=device, params=params, base_rotation=base_rotation,
-                             calibration=calibration, notes=notes, robot=robot)
+                             calibration=calibration, notes=notes, robot=robot, left_out=left_out)
             write_atomic(self.folder / METADATA, json.dumps(meta, indent=1))
             try:
                 write_atomic(self.path, _line(self._layout.columns))
@@ -621,6 +633,9 @@ def read_metadata(folder: str | Path) -> dict:
                            f"unit quaternion (w, x, y, z): {exc}") from None
     if version >= 2:
         _check_robot_entries(metadata, meta_path)
+    left_out = metadata.get("left_out", [])
+    if not isinstance(left_out, list) or not all(isinstance(e, dict) and "config" in e for e in left_out):
+        raise DatasetError(f"{meta_path}: left_out {left_out!r} is not a list of objects with a config")
     return metadata
 
 

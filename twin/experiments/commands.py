@@ -9,7 +9,7 @@ import sys
 import time
 from pathlib import Path
 
-from twin.cliargs import UsageError, add_param_args, count, new_run_folder, params_from_args
+from twin.cliargs import UsageError, add_param_args, add_pose_args, count, new_run_folder, params_from_args
 from twin.device.commands import open_device_arg
 from twin.live import add_live_argument
 from twin.params import parse_override
@@ -63,6 +63,7 @@ def _device_args(p: argparse.ArgumentParser) -> None:
                    help="sim:// only: change the simulated rig but not the model (a hidden effect), repeatable")
     p.add_argument("--seed", type=count, default=None, help="sim:// noise seed")
     add_param_args(p)
+    add_pose_args(p)
 
 
 # The invocation of a run, in its run folder (the hidden --twin-set stays in TWIN_TRUTH).
@@ -72,6 +73,16 @@ TWIN_TRUTH = "twin_truth.json"
 
 class RunRefused(Exception):
     """A run cannot start or resume as asked (the message says why, naming each difference)."""
+
+
+def _robot_name(args) -> str:
+    """The name of the robot a command runs with: ``--robot``, else the ``--params`` file's
+    name, else the default robot."""
+    from twin.robots import DEFAULT_ROBOT
+
+    if getattr(args, "robot", None):
+        return args.robot
+    return Path(args.params).stem if args.params else DEFAULT_ROBOT
 
 
 def _twin_params(args, params):
@@ -123,7 +134,8 @@ def _calibration(args, params, device) -> dict:
 def _invocation(args, command: str) -> dict:
     """What decides the conditions of a run's measurements, as recorded in ``run.json``."""
     return {"command": command, "device": args.device, "seed": args.seed, "quick": bool(getattr(args, "quick", False)),
-            "calibration": args.calibration, "params": args.params, "set": list(args.overrides)}
+            "calibration": args.calibration, "robot": getattr(args, "robot", None), "params": args.params,
+            "set": list(args.overrides)}
 
 
 def _resume_command(args, command: str, folder: Path) -> str:
@@ -135,8 +147,14 @@ def _resume_command(args, command: str, folder: Path) -> str:
         words.append("--quick")
     if args.calibration:
         words += ["--calibration", args.calibration]
+    if getattr(args, "robot", None):
+        words += ["--robot", args.robot]
     if args.params:
         words += ["--params", args.params]
+    if getattr(args, "pose", None):
+        words += ["--pose", args.pose]
+    if getattr(args, "base_quat", None) is not None:
+        words += ["--base-quat", ",".join(repr(float(q)) for q in args.base_quat)]
     for option, values in (("--set", args.overrides), ("--twin-set", args.twin_overrides)):
         for value in values:
             words += [option, value]
@@ -170,8 +188,8 @@ def _check_resume(args, command: str, experiment: str, params) -> Path:
     """
     import warnings
 
-    from twin.data.dataset import (METADATA, MEASUREMENTS, RUN_DATASET, DatasetError, DatasetWarning, read_dataset,
-                                   read_metadata, recorded_params)
+    from twin.data.dataset import (METADATA, MEASUREMENTS, RUN_DATASET, TENDONS, DatasetError, DatasetWarning,
+                                   read_dataset, read_metadata, recorded_params)
     from twin.params import ParameterError
 
     folder = Path(args.resume)
@@ -210,6 +228,10 @@ def _check_resume(args, command: str, experiment: str, params) -> Path:
             raise RunRefused(f"{where}: its dataset cannot be resumed: {exc}") from None
         if metadata.get("experiment") != experiment:
             raise RunRefused(f"{where}: holds a {metadata.get('experiment')!r} dataset, not {experiment!r}")
+        recorded_tendons = int(metadata.get("tendons", TENDONS))
+        if recorded_tendons != params.tendons.count:
+            raise RunRefused(f"{where}: dataset {dataset} has {recorded_tendons} tendons; robot "
+                             f"{_robot_name(args)!r} has {params.tendons.count}")
         if record is None:
             differ("--device", args.device, metadata.get("device"))
         try:
@@ -309,14 +331,26 @@ def _run_folder(args, command: str, experiment: str, params) -> Path:
         from twin.calibration import CalibrationFileError, load_calibration
 
         try:
-            load_calibration(args.calibration)
+            cal = load_calibration(args.calibration)
         except OSError as exc:
             raise RunRefused(f"--calibration {args.calibration}: cannot read it ({exc.strerror or exc})") from None
         except CalibrationFileError as exc:
             raise RunRefused(f"--calibration {args.calibration}: {exc}") from None
+        _check_channels(args, cal, params)
     if getattr(args, "resume", None):
         return _check_resume(args, command, experiment, params)
     return _start_run(args, command)
+
+
+def _check_channels(args, cal, params) -> None:
+    """Refuse a calibration file of another channel count than the robot's tendons.
+
+    Raises:
+        RunRefused: one line naming the file, its channels and the robot's tendons.
+    """
+    if len(cal.channels) != params.tendons.count:
+        raise RunRefused(f"--calibration {args.calibration}: {len(cal.channels)} channels; robot "
+                         f"{_robot_name(args)!r} has {params.tendons.count} tendons")
 
 
 def _run(args, command: str, experiment: str, body) -> int:
@@ -359,21 +393,27 @@ def run_validate(args: argparse.Namespace) -> int:
 def _validate(args, folder: Path, params) -> int:
     from twin.data.dataset import RUN_DATASET, read_dataset
     from twin.experiments.analysis import analyse_validation
-    from twin.experiments.protocols import run_validation
+    from twin.experiments.protocols import run_validation, unrealisable
     from twin.experiments.report import write_validation_report
     from twin.live import LiveDevice, live_view_from_args
 
     grid = validation_grid()
     if args.quick:
         grid = [g for g in grid if g[1] in (0.0, 13.0, 26.2) and g[2] in (0.0, 90.0, 180.0, 270.0) and g[3] != 0.005]
-    print(f"twin validate: {len(grid)} configurations on {args.device}, run folder {folder}", file=sys.stderr)
+    left_out = unrealisable(grid, params)
+    print(f"twin validate: {len(grid) - len(left_out)} configurations on {args.device}, run folder {folder}",
+          file=sys.stderr)
+    if left_out:
+        print(f"twin validate: {len(left_out)} of the grid's {len(grid)} configurations left out: robot "
+              f"{_robot_name(args)!r} cannot realise them ({left_out[0]['reason']}): "
+              f"{_configurations(left_out)}", file=sys.stderr)
     start = time.perf_counter()
     device = _open(args, params)
     view = live_view_from_args(args, params, base_rotation=device.base_rotation, command="validate")
     try:
         calibration = _calibration(args, params, device)
         run_validation(device if view is None else LiveDevice(device, view), folder / RUN_DATASET, params,
-                       grid=grid, calibration=calibration)
+                       grid=grid, calibration=calibration, robot=_robot_name(args))
         pose = device.base_rotation
     finally:
         device.close()
@@ -384,13 +424,29 @@ def _validate(args, folder: Path, params) -> int:
     result = analyse_validation(dataset, params, progress=True)
     picture = _picture(args, params, folder, pose)
     path = write_validation_report(result, folder, picture=picture, warnings=_twin_warnings(args, params),
-                                   facts={"sweep_wall_time_s": sweep_s, "device": args.device})
+                                   facts={"sweep_wall_time_s": sweep_s, "device": args.device,
+                                          "robot": _robot_name(args)})
     s = result.summary()
     print(f"sweep {sweep_s:.1f} s wall; {s['rows']} configurations, {s['failed_predictions']} failed predictions; "
           f"prediction error median {s['median_error_mm']:.3f} mm, RMS {s['rms_error_mm']:.3f} mm, "
           f"worst {s['worst_error_mm']:.3f} mm")
+    if left_out:
+        print(f"left out: {len(left_out)} configurations robot {_robot_name(args)!r} cannot realise (listed in the "
+              "report and the dataset's metadata)")
     print(f"report: {path}")
     return 0
+
+
+# Left-out configurations a command line names one by one (the report lists them all).
+_SHOWN_CONFIGURATIONS = 8
+
+
+def _configurations(entries) -> str:
+    """Grid configurations as a short list: ``config (κ, φ, mass)`` each, the first few."""
+    shown = ", ".join(f"{e['config']} (κ {e['kappa_cmd_per_m']:g} 1/m, φ {e['phi_cmd_deg']:g}°, "
+                      f"{e['tip_mass_kg'] * 1e3:g} g)" for e in entries[:_SHOWN_CONFIGURATIONS])
+    more = len(entries) - _SHOWN_CONFIGURATIONS
+    return shown + (f" and {more} more" if more > 0 else "")
 
 
 def _picture(args, params, folder: Path, base_rotation) -> Path | None:
@@ -428,7 +484,7 @@ def _stiffness(args, folder: Path, params) -> int:
     device = _open(args, params)
     try:
         _calibration(args, params, device)
-        run_stiffness(device, folder / RUN_DATASET, params)
+        run_stiffness(device, folder / RUN_DATASET, params, robot=_robot_name(args))
     finally:
         device.close()
     dataset = read_dataset(folder / RUN_DATASET)
@@ -486,10 +542,14 @@ def run_calibrate_cmd(args: argparse.Namespace) -> int:
     try:
         if args.check:
             cal = load_calibration(path)
+            if len(cal.channels) != params.tendons.count:
+                print(f"twin calibrate: --file {path}: {len(cal.channels)} channels; robot {_robot_name(args)!r} has "
+                      f"{params.tendons.count} tendons", file=sys.stderr)
+                return 2
             masses = (0.0, 50.0, 150.0, 250.0)
             raw = []
             for m in masses:
-                device.fixture.hang_calibration_mass(m, range(4))
+                device.fixture.hang_calibration_mass(m, range(params.tendons.count))
                 raw.append(sum(device.wait_next().raw_counts.astype(float) for _ in range(args.samples)) / args.samples)
             device.fixture.remove_calibration_masses()
             result = check(cal, raw, tensions_from_masses_n(masses, params.environment.gravity_m_s2))

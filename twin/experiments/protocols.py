@@ -19,9 +19,10 @@ from twin.data.dataset import DatasetWriter
 from twin.params import Params
 from twin.pcc import tendon_length_changes_m, validation_grid
 from twin.pose import matrix_to_quat
+from twin.rod.grid import pcc_realisable
 
 __all__ = ["ProtocolError", "Measurement", "measure", "wait_for_rest", "pretension", "run_validation",
-           "run_stiffness", "calibrate_device", "nominal_calibration"]
+           "run_stiffness", "calibrate_device", "nominal_calibration", "unrealisable"]
 
 
 class ProtocolError(RuntimeError):
@@ -33,8 +34,9 @@ class Measurement:
     """One static measurement: means over a short window.
 
     Attributes:
-        tensions_n, lengths_m: (4,) calibrated tensions (N) and relative lengths (m) from telemetry.
-        raw_counts: (4,) mean HX711 counts.
+        tensions_n, lengths_m: (N,) calibrated tensions (N) and relative lengths (m) from telemetry,
+            one per tendon.
+        raw_counts: (N,) mean HX711 counts.
         tip_position_m: (3,) fused tracker position, base frame (m).
         tip_quaternion: (4,) (w, x, y, z) of the mean tracker rotation.
         time_s: device time at the end of the window (s).
@@ -165,9 +167,23 @@ def pretension(device, params: Params, *, mode: str = "lengths", tension_n: floa
     device.fixture.remove_calibration_masses()
 
 
+# Why a configuration of the grid is left out: the wording of the report and the metadata.
+UNREALISABLE = "the tendon layout cannot bend towards its plane (no two neighbouring tendons less than 180° apart bracket it)"
+
+
+def unrealisable(grid: Sequence[tuple], params: Params) -> list[dict]:
+    """The configurations of ``grid`` the robot's tendon layout cannot realise, each as
+    ``{"config", "kappa_cmd_per_m", "phi_cmd_deg", "tip_mass_kg", "reason"}``: a bent one whose
+    plane no pair of neighbouring tendons can pull towards (:func:`twin.rod.grid.pcc_realisable`).
+    A straight one (κ = 0) needs no pull and is always realisable."""
+    return [{"config": int(config), "kappa_cmd_per_m": float(kappa), "phi_cmd_deg": float(phi),
+             "tip_mass_kg": float(mass), "reason": UNREALISABLE}
+            for config, kappa, phi, mass in grid if kappa != 0 and not pcc_realisable(phi, params)]
+
+
 def run_validation(device, folder: str | Path, params: Params, *, grid: Sequence[tuple] | None = None,
                    pretension_n: float | None = None, progress: bool = True, settle_timeout_s: float = 4.0,
-                   calibration: dict | None = None) -> Path:
+                   calibration: dict | None = None, robot: str | None = None) -> Path:
     """The thesis's validation sweep (§8.3) on ``device``, written to a dataset in ``folder``.
 
     For each (κ, φ): hold straight, pretension to 1.2–1.5 N, release, drive the PCC tendon-length
@@ -181,18 +197,25 @@ def run_validation(device, folder: str | Path, params: Params, *, grid: Sequence
         grid: (config, κ 1/m, φ deg, tip mass kg) rows (default the 216 of thesis §8.3).
         pretension_n: default ``tendons.pretension_n``.
         calibration: the load-cell calibration the device applies, recorded in the metadata.
+        robot: the robot's name, recorded in the metadata.
 
-    The dataset records the device's pose (:attr:`twin.device.Device.base_rotation`), the one
-    the twin runs in or the rig is mounted in.
+    The setpoints realise (κ, φ) for any tendon layout: each tendon shortens by r κ s cos(φ − α)
+    over its anchored length s (:func:`twin.pcc.tendon_length_changes_m`). The configurations
+    the layout cannot realise (:func:`unrealisable`) are not run: the metadata's ``left_out``
+    lists them with the reason. The dataset records the device's pose
+    (:attr:`twin.device.Device.base_rotation`), the one the twin runs in or the rig is mounted in.
     """
     rows = list(grid or validation_grid())
+    left_out = unrealisable(rows, params)
+    skipped = {entry["config"] for entry in left_out}
     pre = params.tendons.pretension_n if pretension_n is None else pretension_n
     groups: dict[tuple[float, float], list[tuple[int, float]]] = {}
     for config, kappa, phi, mass in rows:
-        groups.setdefault((kappa, phi), []).append((config, mass))
+        if config not in skipped:
+            groups.setdefault((kappa, phi), []).append((config, mass))
     with DatasetWriter(folder, experiment="validation", device=device.url, params=params,
-                       base_rotation=device.base_rotation,
-                       calibration=calibration) as writer:
+                       base_rotation=device.base_rotation, calibration=calibration, robot=robot,
+                       left_out=left_out) as writer:
         done = writer.completed()
         todo = [(k, v) for k, v in groups.items() if not all(c in done for c, _ in v)]
         # The bar closes (ends its line) also when a stop raises, so the reason prints below it.
@@ -224,18 +247,19 @@ def _row(config, kappa, phi, mass, m: Measurement, zero_lengths, repeat: int = 0
            "tip_x_m": m.tip_position_m[0], "tip_y_m": m.tip_position_m[1], "tip_z_m": m.tip_position_m[2],
            "tip_qw": m.tip_quaternion[0], "tip_qx": m.tip_quaternion[1], "tip_qy": m.tip_quaternion[2],
            "tip_qz": m.tip_quaternion[3], "time_s": m.time_s}
-    for i in range(4):
+    for i in range(len(m.tensions_n)):
         row[f"tension_{i + 1}_n"] = m.tensions_n[i]
         row[f"length_{i + 1}_m"] = m.lengths_m[i] - zero_lengths[i]
     return row
 
 
 def run_stiffness(device, folder: str | Path, params: Params, *, masses_kg=(0.0, 0.005, 0.010), repeats: int = 2,
-                  progress: bool = True) -> Path:
+                  progress: bool = True, robot: str | None = None) -> Path:
     """Stiffness characterisation (thesis §8.2): tendons uncoupled (slack), tip masses each ``repeats``
-    times; the dataset records the device's pose (:attr:`twin.device.Device.base_rotation`)."""
+    times; the dataset records the device's pose (:attr:`twin.device.Device.base_rotation`) and
+    ``robot``, the robot's name."""
     with DatasetWriter(folder, experiment="stiffness", device=device.url, params=params,
-                       base_rotation=device.base_rotation) as writer:
+                       base_rotation=device.base_rotation, robot=robot) as writer:
         done = writer.completed()
         device.disable()  # motors coast: the tendons go slack, the endoscope hangs under its loads
         device.fixture.release_holder()
@@ -251,15 +275,16 @@ def run_stiffness(device, folder: str | Path, params: Params, *, masses_kg=(0.0,
 
 
 def calibrate_device(device, params: Params, *, samples_per_mass: int = 10, progress: bool = True) -> Calibration:
-    """The thesis's load-cell calibration (§4.3) as a guided run: Table 2 masses over each pulley,
-    weighed with the parameter set's gravity."""
+    """The thesis's load-cell calibration (§4.3) as a guided run: Table 2 masses over the pulley of
+    each of the robot's load cells (one per tendon), weighed with the parameter set's gravity."""
     device.disable()
 
     def read_raw():
         return device.wait_next(timeout_s=1.0).raw_counts.astype(float)
 
     run = run_calibration(read_raw, device.fixture.hang_calibration_mass, samples_per_mass=samples_per_mass,
-                          gravity_m_s2=params.environment.gravity_m_s2, device=device.url)
+                          channels=params.tendons.count, gravity_m_s2=params.environment.gravity_m_s2,
+                          device=device.url)
     device.fixture.remove_calibration_masses()
     return run.calibration
 

@@ -37,8 +37,11 @@ def write_validation_report(result: ValidationResult, folder: str | Path, *, tit
     summary = result.summary()
     summary.update(facts or {})
     summary["warnings"] = list(warnings)
-    (folder / "summary.json").write_text(json.dumps(summary, indent=1))
     meta = result.dataset.metadata
+    # The grid's configurations the robot cannot realise (recorded by the run, not measured).
+    left_out = list(meta.get("left_out", []))
+    summary["left_out"] = len(left_out)
+    (folder / "summary.json").write_text(json.dumps(summary, indent=1))
     lines = [f"# {title}", ""]
     lines += [f"**{w}**" for w in warnings] + ([""] if warnings else [])
     # The figure that answers the question (how far off is the prediction) opens the report.
@@ -47,8 +50,13 @@ def write_validation_report(result: ValidationResult, folder: str | Path, *, tit
               f"**Prediction error |p̂ − p*|: median {summary['median_error_mm']:.3g} mm, RMS "
               f"{summary['rms_error_mm']:.3g} mm, worst {summary['worst_error_mm']:.3g} mm** over "
               f"{summary['rows']} configurations ({summary['failed_predictions']} failed predictions).", ""]
+    robot = (meta.get("robot") or {}).get("name")
     lines += [f"Device `{meta.get('device')}`, {summary['rows']} static measurements, experiment "
-              f"`{meta.get('experiment')}`, recorded {meta.get('created')}.", ""]
+              f"`{meta.get('experiment')}`, recorded {meta.get('created')}"
+              + (f", robot `{robot}` ({result.dataset.tendons} tendons)." if robot else "."), ""]
+    if left_out:
+        lines += [f"**{len(left_out)} configurations of the grid left out**: the robot cannot realise them "
+                  "(listed under *Configurations left out*).", ""]
     if picture is not None and Path(picture).exists():
         lines += [f"![the endoscope]({Path(picture).relative_to(folder)})", ""]
     lines += ["## Summary", "", markdown_table([{k: v for k, v in summary.items()}]), ""]
@@ -65,6 +73,9 @@ def write_validation_report(result: ValidationResult, folder: str | Path, *, tit
     worst = sorted(result.rows_table(), key=lambda r: -r["error_mm"] if r["converged"] else float("-inf"))[:15]
     lines += ["## Worst configurations", "", markdown_table(worst), ""]
     lines += ["## All configurations", "", markdown_table(result.rows_table()), ""]
+    if left_out:
+        lines += ["## Configurations left out", "", "The grid's configurations the robot cannot realise: not run, "
+                  "so neither measured nor predicted.", "", markdown_table(left_out), ""]
     path = folder / "report.md"
     path.write_text("\n".join(lines))
     return path
