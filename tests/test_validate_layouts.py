@@ -191,3 +191,32 @@ def test_a_calibration_file_of_another_channel_count_is_refused_before_a_run_fol
     assert capsys.readouterr().err.strip() == (f"twin validate: --calibration {path}: 4 channels; robot "
                                                "'three-tendon' has 3 tendons")
     assert not (tmp_path / "runs").exists() or not any((tmp_path / "runs").iterdir())
+
+
+def test_the_cocontraction_study_refuses_a_robot_without_the_antagonistic_pair_before_touching_the_device():
+    from twin.control.cocontraction import run_cocontraction_study
+
+    for robot in ("three-tendon", "two-segment"):
+        with pytest.raises(ValueError, match=r"tendons.angles_deg = .*tendons 1 and 3 to be an antagonistic pair"):
+            run_cocontraction_study(None, load_robot(robot))
+
+
+def test_an_n_tendon_dataset_exports_one_joint_per_tendon(tmp_path):
+    from mcap.reader import make_reader
+    from mcap_ros2.decoder import DecoderFactory
+
+    from twin.data.rosbag import TENDONS_TOPIC, export_bag
+
+    params = load_robot("two-segment")
+    run_validation(IdealRig(params), tmp_path / "data", params, grid=GRID[:6], progress=False, robot="two-segment")
+    export_bag(tmp_path / "data", tmp_path / "out.mcap")
+    with open(tmp_path / "out.mcap", "rb") as stream:
+        reader = make_reader(stream, decoder_factories=[DecoderFactory()])
+        joints = [m for _, c, _, m in reader.iter_decoded_messages() if c.topic == TENDONS_TOPIC]
+        stream.seek(0)
+        meta = {m.name: m.metadata for m in make_reader(stream).iter_metadata()}["twin_dataset"]
+    d = read_dataset(tmp_path / "data")
+    assert [list(j.name) for j in joints] == [[f"tendon_{i}" for i in range(1, 7)]] * len(d)
+    assert np.allclose([j.effort for j in joints], d.tensions_n) and np.allclose([j.position for j in joints],
+                                                                                   d.lengths_m)
+    assert meta["tendons"] == "6" and meta["robot"] == "two-segment"

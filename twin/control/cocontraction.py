@@ -110,7 +110,17 @@ def _pair_row(mode: str, m, **keys) -> dict:
 def run_cocontraction_study(device, params: Params, *, kappas_per_m=(4.5, 8.7, 13.0, 17.5, 26.2),
                             offsets_counts=(0, 5, 10, 20, 40), floor_n: float = 1.0,
                             settle_timeout_s: float = 6.0) -> CocontractionStudy:
-    """Run both parts of the study on a connected device with a fixture and a tracker."""
+    """Run both parts of the study on a connected device with a fixture and a tracker.
+
+    Raises:
+        ValueError: the robot's tendons 1 and 3 are not an antagonistic pair (180° apart, both
+            anchored at the tip), so the study's bending plane φ = 0° has no pair to compare.
+    """
+    angles, ends = params.tendons.angles_deg, params.tendon_ends_m()
+    if len(angles) < 3 or abs((angles[2] - angles[0]) % 360.0 - 180.0) > 1e-9 or ends[0] != ends[2] or \
+            ends[0] != params.backbone.length_m:
+        raise ValueError(f"tendons.angles_deg = {list(angles)!r}: the co-contraction study needs tendons 1 and 3 "
+                         "to be an antagonistic pair, 180 deg apart and both anchored at the tip")
     model = RodModel.from_params(params)
     count_m = device.info.tendon_m_per_count
     device.disable()
@@ -131,7 +141,8 @@ def run_cocontraction_study(device, params: Params, *, kappas_per_m=(4.5, 8.7, 1
     kappa = 13.0
     pcc = zero + tendon_length_changes_m(kappa, 0.0, params)
     for counts in offsets_counts:
-        shift = np.array([1.0, 0.0, 1.0, 0.0]) * counts * count_m
+        shift = np.zeros(len(angles))
+        shift[[0, 2]] = counts * count_m
         device.set_lengths(pcc - shift)
         wait_for_rest(device, timeout_s=settle_timeout_s, tension_tolerance_n=HUNTING_TOLERANCE_N)
         mismatch.append(_pair_row("lengths", measure(device), offset_counts=counts, offset_um=counts * count_m * 1e6))

@@ -35,8 +35,8 @@ def pretension_straight(device, params: Params, *, mode: str, tension_n: float |
         limit_n: the board's tension limit (N); default ``rig.tension_limit_n``.
 
     Returns:
-        (4,) relative tendon lengths (m) of the pretensioned straight endoscope: the origin of
-        length setpoints.
+        (N,) relative tendon lengths (m) of the pretensioned straight endoscope, one per tendon:
+        the origin of length setpoints.
 
     Raises:
         ValueError: ``tension_n`` is not in (0, limit).
