@@ -6,20 +6,22 @@ step, on a pretensioned endoscope bent by one motor. Settling a static configura
 tensions, from straight) is timed as well, and the PWM run is repeated at twice and four times
 the element count, each figure beside its element count.
 
-The cost grows as the cube of the element count, and no solver option changes that: the
-backbone is one serial chain in joint coordinates, whose joint-space mass matrix is dense (every
-dof is an ancestor of the dofs after it), and each MuJoCo step factors a matrix of that pattern
-twice, in Σ depth² ≈ nv³/6 multiply-adds each: M itself (``mj_factorM``, in the position stage)
-and the discrete integrator's backbone M + hD + h²K with the joints' stiffness and damping on
-its diagonal. The tendons' rank-1 terms join by preconditioned conjugate gradients, each
-iteration a solve with that factor (nv² multiply-adds). ``factor_s`` times one factorization:
-two of them at four times the elements already take longer than four steps at the default
-count. Cutting the chain into shorter trees joined by weld constraints does not help: the
-constraint solve then factors its Hessian, which the tendons' terms make dense over all dofs,
-and a weld's stiffness scales with the masses it joins, so the cut rod gives way at the cuts.
-A cost linear in the elements needs bodies that are not one chain, as MuJoCo's 1D flex rods
-(discrete elastic rods, each vertex its own 3-dof tree); their vertex frames do not turn with
-the rod, so the tendons' routing through the discs would have to be rebuilt on them.
+The cost grows much faster than the element count (towards its cube), and no solver option
+changes that: the backbone is one serial chain in joint coordinates, whose joint-space mass
+matrix is dense (every dof is an ancestor of the dofs after it), and each MuJoCo step factors
+a matrix of that pattern twice, in Σ depth² ≈ nv³/6 multiply-adds each: M itself
+(``mj_factorM``, in the position stage) and the discrete integrator's backbone M + hD + h²K
+with the joints' stiffness and damping on its diagonal. The tendons' rank-1 terms join by
+preconditioned conjugate gradients, each iteration a solve with that factor (nv² multiply-adds).
+``factor_s`` times one factorization: two of them at four times the elements already take longer
+than four steps at the default count. Cutting the chain into shorter trees joined by weld
+constraints does not help: the constraint solve then factors its Hessian, which the tendons'
+terms make dense over all dofs, and a weld's stiffness scales with the masses it joins, so the
+cut rod gives way at the cuts.
+Nor do MuJoCo's 1D flex rods (discrete elastic rods, each vertex its own 3-dof tree): alone
+they step in time linear in the elements, but stiff tendons along them leave the metric's
+block preconditioner short (at 40 elements its solve no longer converges), and their vertex
+frames do not turn with the rod, so the routing through the discs would have to be rebuilt.
 """
 
 from __future__ import annotations
