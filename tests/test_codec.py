@@ -117,10 +117,19 @@ def test_cobs_rejects_invalid_input(bad, code):
 
 
 def _random_message(cls: type[c.Message], rng: np.random.Generator) -> c.Message:
-    ranges = {"B": (0, 2**8), "H": (0, 2**16), "I": (0, 2**32), "Q": (0, 2**64), "i": (-(2**31), 2**31)}
+    """A message of ``cls`` with random fields; one sized by the channel count gets a random count."""
+    channels = int(rng.integers(1, c.MAX_CHANNELS + 1))
+    ranges = {"B": (0, 2**8), "H": (0, 2**16), "I": (0, 2**32), "Q": (0, 2**64), "i": (-(2**31), 2**31),
+              "m": (0, 2**channels)}
     fields = {}
     for name, code in cls.LAYOUT:
-        count, kind = (int(code[:-1]), code[-1]) if code[0].isdigit() else (None, code)
+        if code[0] == "*":
+            count, kind = channels, code[1:]
+        else:
+            count, kind = (int(code[:-1]), code[-1]) if code[0].isdigit() else (None, code)
+        if name == "channels" and cls.TYPE != c.MsgType.HELLO_REPLY:
+            fields[name] = channels
+            continue
         def one():
             if kind == "f":
                 return _f32(float(rng.normal(0.0, 10.0)))

@@ -110,7 +110,8 @@ def test_a_board_of_another_protocol_version_is_refused():
     try:
         thread = board.answer_hello(c.HelloReply(protocol_version=c.PROTOCOL_VERSION + 1))
         device = open_device(board.url)
-        with pytest.raises(ProtocolVersionError, match=r"protocol version 2, this host speaks 1; sent it DISABLE") as info:
+        with pytest.raises(ProtocolVersionError, match=rf"protocol version {c.PROTOCOL_VERSION + 1}, this host speaks "
+                                                       rf"{c.PROTOCOL_VERSION}; sent it DISABLE") as info:
             device.connect(timeout_s=1.0)
         assert info.value.board_version == c.PROTOCOL_VERSION + 1
         assert not device.connected

@@ -62,7 +62,8 @@ INJECTED_SEQ = 10**9
 BAD_FRAMES: list[tuple[str, Callable[[c.TelemetryMessage], bytes], str]] = [
     ("unknown state", lambda m: c.encode_frame(dataclasses.replace(m, state=7), 1), "state = 7"),
     ("unknown mode", lambda m: c.encode_frame(dataclasses.replace(m, mode=9), 1), "mode = 9"),
-    ("motor drive 3", lambda m: c.encode_frame(dataclasses.replace(m, drive_modes=0xC0), 1), "drive_modes = 0xc0"),
+    ("motor drive 3", lambda m: c.encode_frame(dataclasses.replace(m, drive_modes=(0, 0, 0, 3)), 1),
+     "drive_modes = (0, 0, 0, 3)"),
     ("stale bits beyond 4 cells", lambda m: c.encode_frame(dataclasses.replace(m, stale_mask=0x30), 1),
      "stale_mask = 0x30"),
     ("NaN length", lambda m: c.encode_frame(dataclasses.replace(m, lengths_m=(math.nan, 0.0, 0.0, 0.0)), 1),
@@ -70,8 +71,8 @@ BAD_FRAMES: list[tuple[str, Callable[[c.TelemetryMessage], bytes], str]] = [
     ("infinite tension", lambda m: c.encode_frame(dataclasses.replace(m, tensions_n=(0.0, math.inf, 0.0, 0.0)), 1),
      "tensions_n"),
     ("duty beyond 1", lambda m: c.encode_frame(dataclasses.replace(m, duty=(1.5, 0.0, 0.0, 0.0)), 1), "duty"),
-    ("short payload", lambda m: raw_frame(c.MsgType.TELEMETRY, 1, c.encode_payload(m)[:-1]), "121 bytes, expected 122"),
-    ("long payload", lambda m: raw_frame(c.MsgType.TELEMETRY, 1, c.encode_payload(m) + b"\x01"), "123 bytes"),
+    ("short payload", lambda m: raw_frame(c.MsgType.TELEMETRY, 1, c.encode_payload(m)[:-1]), "127 bytes, expected 128"),
+    ("long payload", lambda m: raw_frame(c.MsgType.TELEMETRY, 1, c.encode_payload(m) + b"\x01"), "129 bytes"),
     ("unknown type", lambda m: raw_frame(0x99, 1, c.encode_payload(m)), "unknown message type 0x99"),
     ("host message echoed", lambda m: c.encode_frame(c.Enable(), 1), "host → board message"),
 ]
@@ -112,7 +113,10 @@ def test_no_bytes_make_the_inbox_raise():
     for _ in range(3000):
         msg_type = int(rng.choice([*c.MESSAGE_TYPES, 0x00, 0x7F, 0xFF]))
         size = len(template) if rng.random() < 0.7 and msg_type == c.MsgType.TELEMETRY else int(rng.integers(0, 40))
-        inbox.feed(raw_frame(msg_type, int(rng.integers(0, 1 << 16)), rng.integers(0, 256, size, dtype=np.uint8).tobytes()))
+        payload = rng.integers(0, 256, size, dtype=np.uint8)
+        if size == len(template):
+            payload[0] = template[0]  # the channel count its length is right for
+        inbox.feed(raw_frame(msg_type, int(rng.integers(0, 1 << 16)), payload.tobytes()))
     inbox.feed(rng.integers(0, 256, 50_000, dtype=np.uint8).tobytes())
     assert inbox.error is None
     for sample in inbox.drain():

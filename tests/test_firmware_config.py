@@ -42,7 +42,7 @@ def constant(name: str) -> float:
     ("kLoadcellPeriodUs", 1e6 / PARAMS.rig.loadcell_rate_hz),
     ("kDefaultTensionLimitN", PARAMS.rig.tension_limit_n),
     ("kDefaultGainNPerCount", 1.0 / PARAMS.sensors.loadcell_gain_counts_per_n),
-    ("kChannels", PARAMS.tendons.count),
+    ("kDefaultChannels", PARAMS.tendons.count),
     ("kMotorStallTorqueNm", PARAMS.rig.motor_stall_torque_nm),
     ("kMotorNoLoadSpeedRpm", PARAMS.rig.motor_no_load_speed_rpm),
     # The calibration bounds: 25 % either way of the parameter set's nominal gain.

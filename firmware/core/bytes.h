@@ -8,6 +8,38 @@
 
 namespace twinfw {
 
+// The first `count` entries of an array of `capacity`: a per-channel field, as many entries as
+// the message's channel count (read before it). A count beyond the capacity fails the read or
+// write.
+template <class T>
+struct Span {
+  T* data;
+  size_t count;
+  size_t capacity;
+};
+template <class T, size_t N>
+Span<T> first(T (&values)[N], size_t count) {
+  return Span<T>{values, count, N};
+}
+template <class T, size_t N>
+Span<const T> first(const T (&values)[N], size_t count) {
+  return Span<const T>{values, count, N};
+}
+
+// A bit per channel in ceil(channels / 8) bytes, channel 0 in bit 0 of the first byte; more
+// channels than `capacity` fail the read or write.
+template <class T>
+struct Bits {
+  T* bits;
+  size_t channels;
+  size_t capacity;
+};
+template <class T>
+Bits<T> bits_of(T& bits, size_t channels, size_t capacity) {
+  return Bits<T>{&bits, channels, capacity};
+}
+constexpr size_t mask_bytes(size_t channels) { return (channels + 7) / 8; }
+
 class ByteWriter {
  public:
   ByteWriter(uint8_t* buf, size_t capacity) : buf_(buf), capacity_(capacity) {}
@@ -25,6 +57,24 @@ class ByteWriter {
   template <class T, size_t N>
   void operator()(const T (&values)[N]) {
     for (const T& v : values) (*this)(v);
+  }
+  template <class T>
+  void operator()(const Span<T>& values) {
+    if (values.count > values.capacity) {
+      ok_ = false;
+      return;
+    }
+    for (size_t i = 0; i < values.count; ++i) (*this)(values.data[i]);
+  }
+  template <class T>
+  void operator()(const Bits<T>& mask) {
+    const size_t n = mask_bytes(mask.channels);
+    if (mask.channels > mask.capacity || n > sizeof(T) ||
+        (n < sizeof(T) && (static_cast<uint64_t>(*mask.bits) >> (8 * n)) != 0)) {
+      ok_ = false;
+      return;
+    }
+    put(*mask.bits, n);
   }
 
   size_t size() const { return size_; }
@@ -61,6 +111,23 @@ class ByteReader {
   template <class T, size_t N>
   void operator()(T (&values)[N]) {
     for (T& v : values) (*this)(v);
+  }
+  template <class T>
+  void operator()(const Span<T>& values) {
+    if (values.count > values.capacity) {
+      ok_ = false;
+      return;
+    }
+    for (size_t i = 0; i < values.count; ++i) (*this)(values.data[i]);
+  }
+  template <class T>
+  void operator()(const Bits<T>& mask) {
+    const size_t n = mask_bytes(mask.channels);
+    if (mask.channels > mask.capacity || n > sizeof(T)) {
+      ok_ = false;
+      return;
+    }
+    *mask.bits = static_cast<T>(get(n));
   }
 
   // True when every field was present and no byte is left over.

@@ -44,6 +44,10 @@ bool valid_calibration(float gain_n_per_count, float offset_counts) {
 
 }  // namespace
 
+// A message sized for another channel count than this board's has another layout: refused
+// as BAD_LENGTH, as a payload of the wrong size is.
+bool Firmware::sized_for_board(uint8_t channels) const { return channels == channels_; }
+
 void Firmware::handle(const RawFrame& frame) {
   uint8_t result;
   switch (static_cast<MsgType>(frame.type)) {
@@ -85,7 +89,7 @@ uint8_t Firmware::on_hello(const msg::Hello& m) {
   handshake_ok_ = m.protocol_version == kProtocolVersion;
   send(msg::HelloReply{kProtocolVersion,
                        {kFirmwareVersionMajor, kFirmwareVersionMinor, kFirmwareVersionPatch},
-                       static_cast<uint8_t>(kChannels),
+                       static_cast<uint8_t>(channels_),
                        kControlPeriodUs,
                        kTelemetryPeriodUs,
                        kTendonMPerCount});
@@ -111,17 +115,17 @@ uint8_t Firmware::on_disable(const msg::Disable&) {
 }
 
 uint8_t Firmware::on_tare(const msg::Tare& m) {
+  if (!sized_for_board(m.channels)) return nack(NackError::kBadLength);
   if (safety_.state() == State::kEnabled) return nack(NackError::kNotWhileEnabled);
-  const uint8_t all = (1u << kChannels) - 1;
-  if ((m.loadcell_mask | m.length_mask) & ~all) return nack(NackError::kBadValue);
+  if ((m.loadcell_mask | m.length_mask) & ~all_channels()) return nack(NackError::kBadValue);
   if (m.loadcell_mask & stale_mask()) return nack(NackError::kBadValue);
-  for (size_t i = 0; i < kChannels; ++i) {
+  for (size_t i = 0; i < channels_; ++i) {
     const bool tared = (m.loadcell_mask & (1u << i)) != 0;
     if (tared && !within(static_cast<float>(raw_counts_[i]), -kMaxOffsetCounts, kMaxOffsetCounts)) {
       return nack(NackError::kBadValue);
     }
   }
-  for (size_t i = 0; i < kChannels; ++i) {
+  for (size_t i = 0; i < channels_; ++i) {
     if (m.loadcell_mask & (1u << i)) offset_counts_[i] = static_cast<float>(raw_counts_[i]);
     if (m.length_mask & (1u << i)) origin_counts_[i] = counts_[i];
   }
@@ -131,21 +135,23 @@ uint8_t Firmware::on_tare(const msg::Tare& m) {
 uint8_t Firmware::on_set_mode(const msg::SetMode& m) {
   if (!valid_mode(m.mode)) return nack(NackError::kBadValue);
   const Mode mode = static_cast<Mode>(m.mode);
+  if (mode == Mode::kPairs && !pairs_possible(channels_)) return nack(NackError::kBadValue);
   if (mode == Mode::kTension && !calibrated_) return nack(NackError::kNotCalibrated);
   controller_.set_mode(mode, measure(), safety_.tension_limit_n());
   return kAck;
 }
 
 uint8_t Firmware::on_set_setpoints(const msg::SetSetpoints& m) {
+  if (!sized_for_board(m.channels)) return nack(NackError::kBadLength);
   if (safety_.state() != State::kEnabled) return nack(NackError::kNotEnabled);
   if (m.mode != static_cast<uint8_t>(controller_.mode())) return nack(NackError::kWrongMode);
-  if (!all_finite(m.values, kChannels)) return nack(NackError::kBadValue);
-  for (size_t i = 0; i < kChannels; ++i) {
+  if (!all_finite(m.values, channels_)) return nack(NackError::kBadValue);
+  for (size_t i = 0; i < channels_; ++i) {
     const float v = m.values[i];
     bool ok = false;
     switch (controller_.mode()) {
       case Mode::kLengths: ok = std::fabs(v) <= kMaxLengthSetpointM; break;
-      case Mode::kPairs: ok = i < kChannels / 2 ? std::fabs(v) <= kMaxLengthSetpointM : v == 0.0f; break;
+      case Mode::kPairs: ok = i < channels_ / 2 ? std::fabs(v) <= kMaxLengthSetpointM : v == 0.0f; break;
       case Mode::kTension: ok = v >= 0.0f && v <= safety_.tension_limit_n(); break;
     }
     if (!ok) return nack(NackError::kBadValue);
@@ -162,14 +168,15 @@ uint8_t Firmware::on_set_gains(const msg::SetGains& m) {
 }
 
 uint8_t Firmware::on_set_calibration(const msg::SetCalibration& m) {
+  if (!sized_for_board(m.channels)) return nack(NackError::kBadLength);
   if (safety_.state() == State::kEnabled) return nack(NackError::kNotWhileEnabled);
-  if (!all_finite(m.gain_n_per_count, kChannels) || !all_finite(m.offset_counts, kChannels)) {
+  if (!all_finite(m.gain_n_per_count, channels_) || !all_finite(m.offset_counts, channels_)) {
     return nack(NackError::kBadValue);
   }
-  for (size_t i = 0; i < kChannels; ++i) {
+  for (size_t i = 0; i < channels_; ++i) {
     if (!valid_calibration(m.gain_n_per_count[i], m.offset_counts[i])) return nack(NackError::kBadValue);
   }
-  for (size_t i = 0; i < kChannels; ++i) {
+  for (size_t i = 0; i < channels_; ++i) {
     gain_n_per_count_[i] = m.gain_n_per_count[i];
     offset_counts_[i] = m.offset_counts[i];
   }

@@ -7,12 +7,22 @@
 
 namespace twinfw {
 
-constexpr size_t kChannels = 4;
+// Motors (tendons, load cells) a board may drive: the plant loop's BL_MAX_CHANNELS, and the most
+// the TELEMETRY fault flags have channel bits for (12 per fault kind). The count a board drives
+// is given at construction: the rig's sketch fixes it (teensy/twin_rig/pins.h), the emulated
+// board takes its robot's tendon count.
+constexpr size_t kMaxChannels = 12;
+// The thesis endoscope's four tendons (models/endoscope/endoscope.toml, tendons.count): the
+// count of a board built without one.
+constexpr size_t kDefaultChannels = 4;
+// A set of channels, bit i for channel i.
+using ChannelMask = uint16_t;
+static_assert(kMaxChannels <= 8 * sizeof(ChannelMask), "a ChannelMask holds a bit per channel");
 
 // Protocol version: bumped on any change of a byte layout in firmware/PROTOCOL.md.
-constexpr uint16_t kProtocolVersion = 1;
+constexpr uint16_t kProtocolVersion = 2;
 constexpr uint8_t kFirmwareVersionMajor = 0;
-constexpr uint8_t kFirmwareVersionMinor = 1;
+constexpr uint8_t kFirmwareVersionMinor = 2;
 constexpr uint8_t kFirmwareVersionPatch = 0;
 
 // Encoder → tendon: 4 × 1024 quadrature counts per motor revolution, 5.3:1 gearbox, spool

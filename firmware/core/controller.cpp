@@ -4,9 +4,6 @@ namespace twinfw {
 
 namespace {
 
-// Pair k couples motor k with motor k + 2: tendons 1 and 3, 2 and 4 sit opposite each other.
-constexpr size_t kPairs = kChannels / 2;
-
 // Defaults, to be tuned on the rig. Lengths: the motor makes the plant an integrator of
 // ~0.5 m/s of tendon per unit duty (1321 rpm is the gearbox output speed, on a 3.25 mm spool);
 // kp = 60 /m (1 mm of error gives 0.06 duty) and ki = 100 /(m s) track a 2 mm step to ~20 um
@@ -21,15 +18,16 @@ constexpr PidGains kDefaultTensionGains{0.003f, 0.3f, 0.0f, 0.2f};
 
 }  // namespace
 
-Controller::Controller()
-    : gains_{kDefaultLengthGains, kDefaultLengthGains, kDefaultTensionGains} {}
+Controller::Controller(size_t channels)
+    : channels_(channels < 1 ? 1 : (channels > kMaxChannels ? kMaxChannels : channels)),
+      gains_{kDefaultLengthGains, kDefaultLengthGains, kDefaultTensionGains} {}
 
 void Controller::set_mode(Mode mode, const Measurements& now, float tension_limit_n) {
-  float duty[kChannels];
-  for (size_t i = 0; i < kChannels; ++i) duty[i] = last_duty_[i];
+  float duty[kMaxChannels];
+  for (size_t i = 0; i < channels_; ++i) duty[i] = last_duty_[i];
   mode_ = mode;
   hold(now, tension_limit_n);
-  for (size_t i = 0; i < kChannels; ++i) {
+  for (size_t i = 0; i < channels_; ++i) {
     pid_[i].reset(measured(now, i), duty[i]);
     last_duty_[i] = duty[i];
   }
@@ -38,19 +36,22 @@ void Controller::set_mode(Mode mode, const Measurements& now, float tension_limi
 void Controller::hold(const Measurements& now, float tension_limit_n) {
   switch (mode_) {
     case Mode::kLengths:
-      for (size_t i = 0; i < kChannels; ++i) setpoints_[i] = now.lengths_m[i];
+      for (size_t i = 0; i < channels_; ++i) setpoints_[i] = now.lengths_m[i];
       break;
     case Mode::kPairs:
-      for (size_t k = 0; k < kPairs; ++k) {
+      // Pair k couples motor k with motor k + channels / 2, the tendon opposite it: tendons 1
+      // and 3, 2 and 4 of four. An odd count has no pairs (SET_MODE refuses the mode).
+      for (size_t k = 0; k < channels_ / 2; ++k) {
+        const size_t opposite = k + channels_ / 2;
         const float a = now.lengths_m[k];
-        const float b = now.lengths_m[k + kPairs];
+        const float b = now.lengths_m[opposite];
         pair_centres_m_[k] = 0.5f * (a + b);
         setpoints_[k] = 0.5f * (a - b);
-        setpoints_[k + kPairs] = 0.0f;
+        setpoints_[opposite] = 0.0f;
       }
       break;
     case Mode::kTension:
-      for (size_t i = 0; i < kChannels; ++i) {
+      for (size_t i = 0; i < channels_; ++i) {
         setpoints_[i] = clamp_range(now.tensions_n[i], 0.0f, tension_limit_n);
       }
       break;
@@ -60,29 +61,30 @@ void Controller::hold(const Measurements& now, float tension_limit_n) {
 }
 
 void Controller::restart(const Measurements& now) {
-  for (size_t i = 0; i < kChannels; ++i) {
+  for (size_t i = 0; i < channels_; ++i) {
     pid_[i].reset(measured(now, i));
     last_duty_[i] = 0.0f;
     references_[i] = mode_ == Mode::kTension ? now.tensions_n[i] : now.lengths_m[i];
   }
 }
 
-void Controller::set_setpoints(const float values[kChannels]) {
-  for (size_t i = 0; i < kChannels; ++i) setpoints_[i] = values[i];
+void Controller::set_setpoints(const float* values) {
+  for (size_t i = 0; i < channels_; ++i) setpoints_[i] = values[i];
   update_targets();
 }
 
-void Controller::step(const Measurements& now, float dt_s, float duty[kChannels]) {
+void Controller::step(const Measurements& now, float dt_s, float* duty) {
   const float limit = gains(mode_).output_limit;
-  const float lowest[kChannels] = {-limit, -limit, -limit, -limit};
+  float lowest[kMaxChannels];
+  for (float& l : lowest) l = -limit;
   step(now, dt_s, lowest, duty);
 }
 
-void Controller::step(const Measurements& now, float dt_s, const float lowest[kChannels], float duty[kChannels]) {
+void Controller::step(const Measurements& now, float dt_s, const float* lowest, float* duty) {
   const PidGains& g = gains(mode_);
   const float ramp_m = length_rate_m_s_ * dt_s;
   const float ramp_n = tension_rate_n_per_s_ * dt_s;
-  for (size_t i = 0; i < kChannels; ++i) {
+  for (size_t i = 0; i < channels_; ++i) {
     float& reference = references_[i];
     // A ramping length is fed forward as the duty its speed takes an unloaded motor, so that the
     // integral holds only the load and has nothing to unwind when the ramp ends.
@@ -113,13 +115,13 @@ float Controller::measured(const Measurements& now, size_t channel) const {
 
 void Controller::update_targets() {
   if (mode_ == Mode::kPairs) {
-    for (size_t k = 0; k < kPairs; ++k) {
+    for (size_t k = 0; k < channels_ / 2; ++k) {
       targets_[k] = pair_centres_m_[k] + setpoints_[k];
-      targets_[k + kPairs] = pair_centres_m_[k] - setpoints_[k];
+      targets_[k + channels_ / 2] = pair_centres_m_[k] - setpoints_[k];
     }
     return;
   }
-  for (size_t i = 0; i < kChannels; ++i) targets_[i] = setpoints_[i];
+  for (size_t i = 0; i < channels_; ++i) targets_[i] = setpoints_[i];
 }
 
 }  // namespace twinfw

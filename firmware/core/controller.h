@@ -1,8 +1,9 @@
-// The three control modes over four motor PIDs (thesis §4, §10.2):
+// The three control modes over one PID per motor (thesis §4, §10.2):
 //   lengths — each motor tracks its own tendon length setpoint (m);
-//   pairs   — antagonistic pairs (1,3) and (2,4): a pair setpoint d (m) drives the first
-//             tendon to c + d and the second to c − d, so one shortens by what the other pays
-//             out; c is the pair's mean length when the mode was entered;
+//   pairs   — antagonistic pairs (k, k + N/2) of an even count N, (1,3) and (2,4) on four
+//             tendons: a pair setpoint d (m) drives the first tendon to c + d and the second to
+//             c − d, so one shortens by what the other pays out; c is the pair's mean length
+//             when the mode was entered;
 //   tension — each motor tracks a tension setpoint (N) on its calibrated load cell.
 // Positive duty pays tendon out: it lengthens the tendon and lowers its tension.
 // In the length modes each PID tracks a reference that moves towards its target at no more than
@@ -21,13 +22,19 @@
 namespace twinfw {
 
 struct Measurements {
-  float lengths_m[kChannels];
-  float tensions_n[kChannels];
+  float lengths_m[kMaxChannels];
+  float tensions_n[kMaxChannels];
 };
+
+// Whether `channels` tendons form antagonistic pairs (k, k + channels / 2): an even count.
+constexpr bool pairs_possible(size_t channels) { return channels >= 2 && channels % 2 == 0; }
 
 class Controller {
  public:
-  Controller();
+  // PIDs for `channels` motors (1..kMaxChannels).
+  explicit Controller(size_t channels = kDefaultChannels);
+
+  size_t channels() const { return channels_; }
 
   Mode mode() const { return mode_; }
   const PidGains& gains(Mode mode) const { return gains_[static_cast<size_t>(mode)]; }
@@ -54,15 +61,16 @@ class Controller {
   // the tendons are).
   void restart(const Measurements& now);
 
-  // Setpoints in the active mode's units (validated by the caller); pairs use values[0..1].
-  void set_setpoints(const float values[kChannels]);
+  // Setpoints in the active mode's units (validated by the caller), one per channel; pairs use
+  // the first channels() / 2.
+  void set_setpoints(const float* values);
 
-  // One control period: writes duty[kChannels] in [−limit, limit].
-  void step(const Measurements& now, float dt_s, float duty[kChannels]);
+  // One control period: writes duty[channels()] in [−limit, limit].
+  void step(const Measurements& now, float dt_s, float* duty);
   // The same with motor i's duty, and its PID's integral, no lower than lowest[i] (within the
   // mode's output limit): what the motor can be given (Guard::lowest_duty), so that no integral
   // winds up against it.
-  void step(const Measurements& now, float dt_s, const float lowest[kChannels], float duty[kChannels]);
+  void step(const Measurements& now, float dt_s, const float* lowest, float* duty);
 
   // Per-motor target of the last setpoints or hold: m (length modes) or N (tension).
   const float* targets() const { return targets_; }
@@ -74,16 +82,17 @@ class Controller {
   float measured(const Measurements& now, size_t channel) const;
   void update_targets();
 
+  size_t channels_;
   Mode mode_ = Mode::kLengths;
   PidGains gains_[kModes];
-  Pid pid_[kChannels];
-  float setpoints_[kChannels] = {};
-  float pair_centres_m_[kChannels / 2] = {};
-  float targets_[kChannels] = {};
-  float references_[kChannels] = {};
+  Pid pid_[kMaxChannels];
+  float setpoints_[kMaxChannels] = {};
+  float pair_centres_m_[kMaxChannels / 2] = {};
+  float targets_[kMaxChannels] = {};
+  float references_[kMaxChannels] = {};
   float length_rate_m_s_ = kMaxLengthRateMPerS;
   float tension_rate_n_per_s_ = kTensionRatePerS * kDefaultTensionLimitN;
-  float last_duty_[kChannels] = {};  // duty of the last step; 0 after restart()
+  float last_duty_[kMaxChannels] = {};  // duty of the last step; 0 after restart()
 };
 
 }  // namespace twinfw

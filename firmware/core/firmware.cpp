@@ -4,7 +4,11 @@
 
 namespace twinfw {
 
-Firmware::Firmware() {
+Firmware::Firmware(size_t channels)
+    : channels_(channels < 1 ? 1 : (channels > kMaxChannels ? kMaxChannels : channels)),
+      controller_(channels_),
+      safety_(channels_),
+      guard_(channels_) {
   for (float& g : gain_n_per_count_) g = kDefaultGainNPerCount;
   set_tension_limit(kDefaultTensionLimitN);
 }
@@ -17,20 +21,20 @@ void Firmware::receive(const uint8_t* data, size_t size) {
 
 const Outputs& Firmware::tick(uint32_t now_us, const Inputs& inputs) {
   advance_clock(now_us);
-  for (size_t i = 0; i < kChannels; ++i) {
+  for (size_t i = 0; i < channels_; ++i) {
     counts_[i] = inputs.encoder_counts[i];
     if (inputs.new_sample_mask & (1u << i)) {
       raw_counts_[i] = inputs.raw_counts[i];
       last_sample_us_[i] = time_us_;
-      sampled_mask_ = static_cast<uint8_t>(sampled_mask_ | (1u << i));
+      sampled_mask_ = static_cast<ChannelMask>(sampled_mask_ | (1u << i));
     }
   }
   const Measurements now = measure();
-  const uint8_t stale = stale_mask();
+  const ChannelMask stale = stale_mask();
   guard_.observe(time_us_, counts_, now.tensions_n, stale);
   bool may_move = safety_.update(time_us_, now.tensions_n, stale);
   if (may_move) {
-    const uint16_t faults = guard_faults(stale);
+    const uint32_t faults = guard_faults(stale);
     if (faults != 0) {
       safety_.trip(faults);
       may_move = false;
@@ -40,8 +44,8 @@ const Outputs& Firmware::tick(uint32_t now_us, const Inputs& inputs) {
     if (motion_held_) controller_.restart(now);
     motion_held_ = false;
     // The PIDs ask only for what the guard will give: no integral winds up against it.
-    float lowest[kChannels];
-    for (size_t i = 0; i < kChannels; ++i) lowest[i] = guard_.lowest_duty(i);
+    float lowest[kMaxChannels];
+    for (size_t i = 0; i < channels_; ++i) lowest[i] = guard_.lowest_duty(i);
     controller_.step(now, kControlPeriodS, lowest, command_);
   }
   set_outputs(may_move);
@@ -83,12 +87,12 @@ void Firmware::set_outputs(bool may_move) {
 
 // Fault flags of what the guard sees (Guard::faults) and of fresh load-cell readings at either
 // end of the HX711's range (saturated: the tension could be anything).
-uint16_t Firmware::guard_faults(uint8_t stale_mask) {
-  uint16_t flags = guard_.faults(time_us_, outputs_.duty, outputs_.drive);
-  for (size_t i = 0; i < kChannels; ++i) {
+uint32_t Firmware::guard_faults(ChannelMask stale_mask) {
+  uint32_t flags = guard_.faults(time_us_, outputs_.duty, outputs_.drive);
+  for (size_t i = 0; i < channels_; ++i) {
     const bool fresh = (stale_mask & (1u << i)) == 0;
     if (fresh && (raw_counts_[i] >= kLoadcellMaxCounts || raw_counts_[i] <= kLoadcellMinCounts)) {
-      flags = static_cast<uint16_t>(flags | fault::kLoadcellImplausible | fault::implausible_channel(i));
+      flags |= fault::kLoadcellImplausible | fault::implausible_channel(i);
     }
   }
   return flags;
@@ -115,41 +119,40 @@ void Firmware::end_session() {
 
 Measurements Firmware::measure() const {
   Measurements m{};
-  for (size_t i = 0; i < kChannels; ++i) {
+  for (size_t i = 0; i < channels_; ++i) {
     m.lengths_m[i] = counts_to_length_m(counts_[i], origin_counts_[i]);
     m.tensions_n[i] = raw_to_tension_n(raw_counts_[i], gain_n_per_count_[i], offset_counts_[i]);
   }
   return m;
 }
 
-uint8_t Firmware::stale_mask() const {
-  uint8_t mask = 0;
-  for (size_t i = 0; i < kChannels; ++i) {
+ChannelMask Firmware::stale_mask() const {
+  ChannelMask mask = 0;
+  for (size_t i = 0; i < channels_; ++i) {
     const bool never = (sampled_mask_ & (1u << i)) == 0;
-    if (never || time_us_ - last_sample_us_[i] > kLoadcellStaleUs) mask = static_cast<uint8_t>(mask | (1u << i));
+    if (never || time_us_ - last_sample_us_[i] > kLoadcellStaleUs) mask = static_cast<ChannelMask>(mask | (1u << i));
   }
   return mask;
 }
 
-void Firmware::send_telemetry(const Measurements& now, uint8_t stale_mask) {
+void Firmware::send_telemetry(const Measurements& now, ChannelMask stale_mask) {
   msg::TelemetryMessage t{};
+  t.channels = static_cast<uint8_t>(channels_);
   t.time_us = time_us_;
   t.sample_seq = telemetry_seq_++;
-  uint8_t drive_modes = 0;
-  for (size_t i = 0; i < kChannels; ++i) {
+  for (size_t i = 0; i < channels_; ++i) {
     t.encoder_counts[i] = counts_[i];
     t.lengths_m[i] = now.lengths_m[i];
     t.raw_counts[i] = raw_counts_[i];
     t.tensions_n[i] = now.tensions_n[i];
     t.targets[i] = controller_.targets()[i];
     t.duty[i] = outputs_.duty[i];
-    drive_modes = static_cast<uint8_t>(drive_modes | (static_cast<uint8_t>(outputs_.drive[i]) << (2 * i)));
+    t.drive_modes[i] = static_cast<uint8_t>(outputs_.drive[i]);
   }
   t.state = static_cast<uint8_t>(safety_.state());
   t.mode = static_cast<uint8_t>(controller_.mode());
   t.fault_flags = safety_.faults();
   t.stale_mask = stale_mask;
-  t.drive_modes = drive_modes;
   t.rx_bad_frames = rx_.bad_frames();
   t.tx_dropped_frames = tx_.dropped();
   send(t);

@@ -18,22 +18,28 @@
 
 namespace twinfw {
 
+// Arrays hold kMaxChannels; the firmware reads and writes its channels() first entries.
 struct Inputs {
-  int32_t encoder_counts[kChannels];
-  int32_t raw_counts[kChannels];  // HX711 readings; only channels set in new_sample_mask are read
-  uint8_t new_sample_mask;        // bit i: raw_counts[i] is a sample taken since the last tick
+  int32_t encoder_counts[kMaxChannels];
+  int32_t raw_counts[kMaxChannels];  // HX711 readings; only channels set in new_sample_mask are read
+  ChannelMask new_sample_mask;       // bit i: raw_counts[i] is a sample taken since the last tick
 };
 
 struct Outputs {
-  float duty[kChannels];  // in [-1, 1]; positive pays tendon out. 0 unless drive is kDrive
-  Drive drive[kChannels];
+  float duty[kMaxChannels];  // in [-1, 1]; positive pays tendon out. 0 unless drive is kDrive
+  Drive drive[kMaxChannels];
 };
 
 class Firmware {
  public:
   static constexpr size_t kTxQueueBytes = 1024;
 
-  Firmware();
+  // A board of `channels` motors and load cells (1..kMaxChannels; clamped into that range),
+  // as after power-up. HELLO_REPLY reports the count, and every message sized by it must
+  // carry it.
+  explicit Firmware(size_t channels = kDefaultChannels);
+
+  size_t channels() const { return channels_; }
 
   // Host bytes in any chunking; each complete valid command is acted on and answered.
   void receive(const uint8_t* data, size_t size);
@@ -46,11 +52,12 @@ class Firmware {
   size_t tx_pending() const { return tx_.size(); }
 
   State state() const { return safety_.state(); }
-  uint16_t faults() const { return safety_.faults(); }
+  uint32_t faults() const { return safety_.faults(); }
   uint32_t rx_bad_frames() const { return rx_.bad_frames(); }
 
  private:
   void handle(const RawFrame& frame);
+  bool sized_for_board(uint8_t channels) const;
   template <class T>
   uint8_t dispatch(const RawFrame& frame, uint8_t (Firmware::*handler)(const T&));
   uint8_t on_hello(const msg::Hello& m);
@@ -66,23 +73,25 @@ class Firmware {
 
   template <class T>
   void send(const T& message);
-  void send_telemetry(const Measurements& now, uint8_t stale_mask);
+  void send_telemetry(const Measurements& now, ChannelMask stale_mask);
 
   void advance_clock(uint32_t now_us);
   bool due(uint64_t& deadline_us, uint32_t period_us) const;
   Measurements measure() const;
-  uint8_t stale_mask() const;
-  uint16_t guard_faults(uint8_t stale_mask);
+  ChannelMask stale_mask() const;
+  ChannelMask all_channels() const { return static_cast<ChannelMask>((1u << channels_) - 1u); }
+  uint32_t guard_faults(ChannelMask stale_mask);
   void set_outputs(bool may_move);
   void set_tension_limit(float tension_limit_n);
   void end_session();
 
+  size_t channels_;
   FrameDecoder rx_;
   TxQueue<kTxQueueBytes> tx_;
   Controller controller_;
   Safety safety_;
   Guard guard_;
-  float command_[kChannels] = {};  // the PIDs' duties of the last control period
+  float command_[kMaxChannels] = {};  // the PIDs' duties of the last control period
   Outputs outputs_{};
 
   bool started_ = false;
@@ -91,13 +100,13 @@ class Firmware {
   uint64_t next_control_us_ = 0;
   uint64_t next_telemetry_us_ = 0;
 
-  int32_t counts_[kChannels] = {};
-  int32_t origin_counts_[kChannels] = {};
-  int32_t raw_counts_[kChannels] = {};
-  uint64_t last_sample_us_[kChannels] = {};
-  uint8_t sampled_mask_ = 0;
-  float gain_n_per_count_[kChannels];
-  float offset_counts_[kChannels] = {};
+  int32_t counts_[kMaxChannels] = {};
+  int32_t origin_counts_[kMaxChannels] = {};
+  int32_t raw_counts_[kMaxChannels] = {};
+  uint64_t last_sample_us_[kMaxChannels] = {};
+  ChannelMask sampled_mask_ = 0;
+  float gain_n_per_count_[kMaxChannels];
+  float offset_counts_[kMaxChannels] = {};
   bool calibrated_ = false;
 
   bool handshake_ok_ = false;

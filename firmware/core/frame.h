@@ -12,7 +12,8 @@ namespace twinfw {
 
 constexpr size_t kFrameHeaderBytes = 3;
 constexpr size_t kFrameCrcBytes = 2;
-constexpr size_t kMaxPayloadBytes = 160;
+// The longest payload: TELEMETRY of kMaxChannels channels, 27 + 25 per channel + the stale mask.
+constexpr size_t kMaxPayloadBytes = 27 + 25 * kMaxChannels + mask_bytes(kMaxChannels);
 constexpr size_t kMaxRawFrameBytes = kFrameHeaderBytes + kMaxPayloadBytes + kFrameCrcBytes;
 // Encoded frame including its 0x00 delimiter.
 constexpr size_t kMaxEncodedFrameBytes = cobs_max_encoded_size(kMaxRawFrameBytes) + 1;

@@ -8,7 +8,9 @@ namespace {
 bool still(float speed_m_s, float threshold_m_s) { return speed_m_s <= threshold_m_s && speed_m_s >= -threshold_m_s; }
 }  // namespace
 
-Guard::Guard() { set_tension_limit(kDefaultTensionLimitN); }
+Guard::Guard(size_t channels) : channels_(channels < 1 ? 1 : (channels > kMaxChannels ? kMaxChannels : channels)) {
+  set_tension_limit(kDefaultTensionLimitN);
+}
 
 void Guard::set_tension_limit(float tension_limit_n) {
   cap_n_ = kPullForceFraction * tension_limit_n;
@@ -17,13 +19,12 @@ void Guard::set_tension_limit(float tension_limit_n) {
   speed_limit_m_s_ = (kBlowBoundFraction - kPullForceFraction) * tension_limit_n / kBlowImpedanceNsPerM;
 }
 
-void Guard::observe(uint64_t now_us, const int32_t counts[kChannels], const float tensions_n[kChannels],
-                    uint8_t stale_mask) {
-  for (size_t i = 0; i < kChannels; ++i) tensions_n_[i] = tensions_n[i];
+void Guard::observe(uint64_t now_us, const int32_t* counts, const float* tensions_n, ChannelMask stale_mask) {
+  for (size_t i = 0; i < channels_; ++i) tensions_n_[i] = tensions_n[i];
   stale_mask_ = stale_mask;
   if (measured_ && now_us - window_start_us_ < kSpeedWindowUs) return;
   const float window_s = static_cast<float>(now_us - window_start_us_) * 1e-6f;
-  for (size_t i = 0; i < kChannels; ++i) {
+  for (size_t i = 0; i < channels_; ++i) {
     // Positive counts pay out: winding in counts down.
     const float moved_m = static_cast<float>(static_cast<int64_t>(window_counts_[i]) - counts[i]) * kTendonMPerCount;
     winding_speed_m_s_[i] = measured_ ? moved_m / window_s : 0.0f;
@@ -31,9 +32,9 @@ void Guard::observe(uint64_t now_us, const int32_t counts[kChannels], const floa
   }
   window_start_us_ = now_us;
   measured_ = true;
-  uint8_t still_braked = 0;
-  for (size_t i = 0; i < kChannels; ++i) {
-    if (braked_[i] && still(winding_speed_m_s_[i], kStillSpeedMPerS)) still_braked = static_cast<uint8_t>(still_braked | (1u << i));
+  ChannelMask still_braked = 0;
+  for (size_t i = 0; i < channels_; ++i) {
+    if (braked_[i] && still(winding_speed_m_s_[i], kStillSpeedMPerS)) still_braked = static_cast<ChannelMask>(still_braked | (1u << i));
   }
   still_in_brake_ = braked_still_.update(now_us, still_braked, kStillUs);
 }
@@ -69,8 +70,8 @@ float Guard::pull_n(size_t i, float duty) const {
   return -duty * kStallForceN - (w < 0.0f ? kMotorDampingNsPerM * w : 0.0f);
 }
 
-void Guard::drive(const float command[kChannels], float duty[kChannels], Drive drive[kChannels]) {
-  for (size_t i = 0; i < kChannels; ++i) {
+void Guard::drive(const float* command, float* duty, Drive* drive) {
+  for (size_t i = 0; i < channels_; ++i) {
     const float lowest = lowest_duty(i);
     const float d = clamp_range(command[i], lowest, 1.0f);
     duty[i] = d < lowest ? lowest : d;  // NaN gives 0, which may brake harder than the cap
@@ -80,15 +81,15 @@ void Guard::drive(const float command[kChannels], float duty[kChannels], Drive d
   }
 }
 
-void Guard::brake(size_t i, float duty[kChannels], Drive drive[kChannels]) {
+void Guard::brake(size_t i, float* duty, Drive* drive) {
   const float lowest = lowest_duty(i);
   driven_speed_m_s_[i] = winding_speed_m_s_[i];
   duty[i] = lowest > 0.0f ? lowest : 0.0f;
   drive[i] = lowest > 0.0f ? Drive::kDrive : Drive::kBrake;
 }
 
-void Guard::hold(float duty[kChannels], Drive drive[kChannels]) {
-  for (size_t i = 0; i < kChannels; ++i) {
+void Guard::hold(float* duty, Drive* drive) {
+  for (size_t i = 0; i < channels_; ++i) {
     brake(i, duty, drive);
     stopping_[i] = true;
   }
@@ -98,8 +99,8 @@ void Guard::hold(float duty[kChannels], Drive drive[kChannels]) {
 // tendon pulling it out through the brake (that would turn it at tension / 300 N·s/m). One
 // window is not enough: a spool the brake turns round, from winding in to being pulled out,
 // passes through still on the way.
-void Guard::release(float duty[kChannels], Drive drive[kChannels]) {
-  for (size_t i = 0; i < kChannels; ++i) {
+void Guard::release(float* duty, Drive* drive) {
+  for (size_t i = 0; i < channels_; ++i) {
     if (stopping_[i] && (still_in_brake_ & (1u << i))) stopping_[i] = false;
     if (stopping_[i]) {
       brake(i, duty, drive);
@@ -110,41 +111,41 @@ void Guard::release(float duty[kChannels], Drive drive[kChannels]) {
   }
 }
 
-void Guard::applied(const Drive drive[kChannels]) {
-  for (size_t i = 0; i < kChannels; ++i) braked_[i] = drive[i] == Drive::kBrake;
+void Guard::applied(const Drive* drive) {
+  for (size_t i = 0; i < channels_; ++i) braked_[i] = drive[i] == Drive::kBrake;
 }
 
-uint8_t Lasting::update(uint64_t now_us, uint8_t holding, uint32_t duration_us) {
-  uint8_t lasted = 0;
-  for (size_t i = 0; i < kChannels; ++i) {
-    const uint8_t bit = static_cast<uint8_t>(1u << i);
+ChannelMask Lasting::update(uint64_t now_us, ChannelMask holding, uint32_t duration_us) {
+  ChannelMask lasted = 0;
+  for (size_t i = 0; i < kMaxChannels; ++i) {
+    const ChannelMask bit = static_cast<ChannelMask>(1u << i);
     if (!(holding & bit)) continue;
     if (!(holding_ & bit)) since_us_[i] = now_us;
-    if (now_us - since_us_[i] >= duration_us) lasted = static_cast<uint8_t>(lasted | bit);
+    if (now_us - since_us_[i] >= duration_us) lasted = static_cast<ChannelMask>(lasted | bit);
   }
   holding_ = holding;
   return lasted;
 }
 
-uint16_t Guard::faults(uint64_t now_us, const float duty[kChannels], const Drive drive[kChannels]) {
-  uint8_t low = 0;
-  uint8_t at_cap = 0;
-  for (size_t i = 0; i < kChannels; ++i) {
+uint32_t Guard::faults(uint64_t now_us, const float* duty, const Drive* drive) {
+  ChannelMask low = 0;
+  ChannelMask at_cap = 0;
+  for (size_t i = 0; i < channels_; ++i) {
     if (drive[i] != Drive::kDrive || !still(winding_speed_m_s_[i], kStillSpeedMPerS)) continue;
-    const uint8_t bit = static_cast<uint8_t>(1u << i);
+    const ChannelMask bit = static_cast<ChannelMask>(1u << i);
     const float pull = pull_n(i, duty[i]);
     const bool fresh = !(stale_mask_ & bit);
     if (fresh && pull >= kPlausibleMinForceN && tensions_n_[i] < kPlausibleFraction * pull - kPlausibleMarginN) {
-      low = static_cast<uint8_t>(low | bit);
+      low = static_cast<ChannelMask>(low | bit);
     }
-    if (pull >= kAtCapFraction * cap_n_) at_cap = static_cast<uint8_t>(at_cap | bit);
+    if (pull >= kAtCapFraction * cap_n_) at_cap = static_cast<ChannelMask>(at_cap | bit);
   }
-  const uint8_t implausible = implausible_.update(now_us, low, kImplausibleUs);
-  const uint8_t over = at_cap_.update(now_us, at_cap, kAtCapUs);
-  uint16_t flags = 0;
-  for (size_t i = 0; i < kChannels; ++i) {
-    if (implausible & (1u << i)) flags = static_cast<uint16_t>(flags | fault::kLoadcellImplausible | fault::implausible_channel(i));
-    if (over & (1u << i)) flags = static_cast<uint16_t>(flags | fault::kTensionLimit | fault::tension_channel(i));
+  const ChannelMask implausible = implausible_.update(now_us, low, kImplausibleUs);
+  const ChannelMask over = at_cap_.update(now_us, at_cap, kAtCapUs);
+  uint32_t flags = 0;
+  for (size_t i = 0; i < channels_; ++i) {
+    if (implausible & (1u << i)) flags |= fault::kLoadcellImplausible | fault::implausible_channel(i);
+    if (over & (1u << i)) flags |= fault::kTensionLimit | fault::tension_channel(i);
   }
   return flags;
 }

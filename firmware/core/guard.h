@@ -27,16 +27,17 @@ class Lasting {
  public:
   // `holding` (bit i: channel i holds it now) at `now_us`; returns the channels that have held
   // it for `duration_us` or more.
-  uint8_t update(uint64_t now_us, uint8_t holding, uint32_t duration_us);
+  ChannelMask update(uint64_t now_us, ChannelMask holding, uint32_t duration_us);
 
  private:
-  uint8_t holding_ = 0;
-  uint64_t since_us_[kChannels] = {};
+  ChannelMask holding_ = 0;
+  uint64_t since_us_[kMaxChannels] = {};
 };
 
 class Guard {
  public:
-  Guard();
+  // The guard of `channels` motors (1..kMaxChannels).
+  explicit Guard(size_t channels = kDefaultChannels);
 
   // The tension limit (N) the pull and speed limits derive from.
   void set_tension_limit(float tension_limit_n);
@@ -50,8 +51,7 @@ class Guard {
 
   // What the sensors say at device time `now_us`, every tick: encoder counts, tensions (N) and
   // which load cells are stale (bit i).
-  void observe(uint64_t now_us, const int32_t counts[kChannels], const float tensions_n[kChannels],
-               uint8_t stale_mask);
+  void observe(uint64_t now_us, const int32_t* counts, const float* tensions_n, ChannelMask stale_mask);
   // Spool speed (m/s, positive = winding in) over the last window.
   float winding_speed_m_s(size_t channel) const { return winding_speed_m_s_[channel]; }
 
@@ -61,39 +61,40 @@ class Guard {
   float lowest_duty(size_t channel) const;
   // Motors driven with `command`, each clamped to [lowest_duty(i), 1] (NaN gives 0, or
   // lowest_duty(i) where that is positive).
-  void drive(const float command[kChannels], float duty[kChannels], Drive drive[kChannels]);
+  void drive(const float* command, float* duty, Drive* drive);
   // All motors brake, holding their spools: shorted, or where that would resist a spool flying
   // out with more than the cap, driven at lowest_duty(i).
-  void hold(float duty[kChannels], Drive drive[kChannels]);
+  void hold(float* duty, Drive* drive);
   // Motors let go: each brakes as hold() does until its spool has stayed still
   // (kStillSpeedMPerS) in the brake for kStillUs, then coasts until it drives again.
-  void release(float duty[kChannels], Drive drive[kChannels]);
+  void release(float* duty, Drive* drive);
 
   // The drives a tick gave the motors: what they have until the next tick.
-  void applied(const Drive drive[kChannels]);
+  void applied(const Drive* drive);
 
   // Fault flags (with their channel bits) of what `duty` and `drive`, the outputs the motors had
   // since the last tick, did to still spools: TENSION_LIMIT for a motor at its cap for
   // kAtCapUs, LOADCELL_IMPLAUSIBLE for a fresh tension implausibly low against a motor's pull for
   // kImplausibleUs. 0 when none.
-  uint16_t faults(uint64_t now_us, const float duty[kChannels], const Drive drive[kChannels]);
+  uint32_t faults(uint64_t now_us, const float* duty, const Drive* drive);
 
  private:
   float pull_n(size_t channel, float duty) const;
-  void brake(size_t channel, float duty[kChannels], Drive drive[kChannels]);
+  void brake(size_t channel, float* duty, Drive* drive);
 
+  size_t channels_;
   float cap_n_ = 0.0f;           // largest pull of a motor on its tendon (N)
   float speed_limit_m_s_ = 0.0f;
   bool measured_ = false;
   uint64_t window_start_us_ = 0;
-  int32_t window_counts_[kChannels] = {};
-  float winding_speed_m_s_[kChannels] = {};
-  float driven_speed_m_s_[kChannels] = {};  // the speed the last outputs were bounded with
-  float tensions_n_[kChannels] = {};
-  uint8_t stale_mask_ = 0;
-  bool stopping_[kChannels] = {};  // let go since driving: brakes until still in the brake
-  bool braked_[kChannels] = {};    // the last tick gave the motor the brake
-  uint8_t still_in_brake_ = 0;     // channels whose spools have stayed still in the brake for kStillUs
+  int32_t window_counts_[kMaxChannels] = {};
+  float winding_speed_m_s_[kMaxChannels] = {};
+  float driven_speed_m_s_[kMaxChannels] = {};  // the speed the last outputs were bounded with
+  float tensions_n_[kMaxChannels] = {};
+  ChannelMask stale_mask_ = 0;
+  bool stopping_[kMaxChannels] = {};  // let go since driving: brakes until still in the brake
+  bool braked_[kMaxChannels] = {};    // the last tick gave the motor the brake
+  ChannelMask still_in_brake_ = 0;    // channels whose spools have stayed still in the brake for kStillUs
   Lasting braked_still_;
   Lasting implausible_;
   Lasting at_cap_;

@@ -1,6 +1,8 @@
 // Message types of the host ↔ board protocol (firmware/PROTOCOL.md). Each struct lists its
 // fields in wire order; visit_fields() is the single place that order is written down, and
-// both encoding and decoding walk it. Enumerations travel as plain bytes so that a decoded
+// both encoding and decoding walk it. A message whose layout depends on the channel count
+// starts with it (`channels`), and its per-channel fields have that many entries on the wire
+// (the arrays here hold kMaxChannels). Enumerations travel as plain bytes so that a decoded
 // message can hold an out-of-range value, which the firmware then refuses with a NACK.
 #pragma once
 
@@ -49,14 +51,15 @@ enum class NackError : uint8_t {
 };
 
 namespace fault {
-constexpr uint16_t kWatchdog = 1u << 0;      // latched: host silent for the watchdog timeout
-constexpr uint16_t kTensionLimit = 1u << 1;  // latched: a tension exceeded the limit
-constexpr uint16_t kLoadcellStale = 1u << 2; // live: motion held while a load cell is stale
-constexpr uint16_t kLoadcellImplausible = 1u << 3;  // latched: a load cell cannot be believed
-// Latched: which channel exceeded the tension limit (bits 8..11).
-constexpr uint16_t tension_channel(size_t channel) { return static_cast<uint16_t>(1u << (8 + channel)); }
-// Latched: which channel's load cell was implausible (bits 12..15).
-constexpr uint16_t implausible_channel(size_t channel) { return static_cast<uint16_t>(1u << (12 + channel)); }
+constexpr uint32_t kWatchdog = 1u << 0;      // latched: host silent for the watchdog timeout
+constexpr uint32_t kTensionLimit = 1u << 1;  // latched: a tension exceeded the limit
+constexpr uint32_t kLoadcellStale = 1u << 2; // live: motion held while a load cell is stale
+constexpr uint32_t kLoadcellImplausible = 1u << 3;  // latched: a load cell cannot be believed
+// Latched: which channel exceeded the tension limit (bits 8..19).
+constexpr uint32_t tension_channel(size_t channel) { return 1u << (8 + channel); }
+// Latched: which channel's load cell was implausible (bits 20..31).
+constexpr uint32_t implausible_channel(size_t channel) { return 1u << (20 + channel); }
+static_assert(20 + kMaxChannels <= 32, "the fault flags hold a tension and an implausible bit per channel");
 }  // namespace fault
 
 namespace msg {
@@ -77,8 +80,9 @@ struct Disable {
 };
 struct Tare {
   static constexpr MsgType kType = MsgType::kTare;
-  uint8_t loadcell_mask;  // bit i: offset of load cell i := its latest raw count (reads 0 N)
-  uint8_t length_mask;    // bit i: length origin of motor i := its encoder count (reads 0 m)
+  uint8_t channels;
+  ChannelMask loadcell_mask;  // bit i: offset of load cell i := its latest raw count (reads 0 N)
+  ChannelMask length_mask;    // bit i: length origin of motor i := its encoder count (reads 0 m)
 };
 struct SetMode {
   static constexpr MsgType kType = MsgType::kSetMode;
@@ -86,8 +90,9 @@ struct SetMode {
 };
 struct SetSetpoints {
   static constexpr MsgType kType = MsgType::kSetSetpoints;
-  uint8_t mode;      // must equal the active mode
-  float values[4];   // m (lengths; pairs use [0], [1]) or N (tension)
+  uint8_t channels;
+  uint8_t mode;                // must equal the active mode
+  float values[kMaxChannels];  // m (lengths; pairs use the first channels / 2) or N (tension)
 };
 struct SetGains {
   static constexpr MsgType kType = MsgType::kSetGains;
@@ -99,8 +104,9 @@ struct SetGains {
 };
 struct SetCalibration {
   static constexpr MsgType kType = MsgType::kSetCalibration;
-  float gain_n_per_count[4];  // tension_n = gain_n_per_count · (raw − offset_counts)
-  float offset_counts[4];
+  uint8_t channels;
+  float gain_n_per_count[kMaxChannels];  // tension_n = gain_n_per_count · (raw − offset_counts)
+  float offset_counts[kMaxChannels];
 };
 struct SetLimits {
   static constexpr MsgType kType = MsgType::kSetLimits;
@@ -131,20 +137,21 @@ struct Nack {
 };
 struct TelemetryMessage {
   static constexpr MsgType kType = MsgType::kTelemetry;
-  uint64_t time_us;             // device time since the first tick
-  uint32_t sample_seq;          // telemetry counter: a gap means lost samples
-  int32_t encoder_counts[4];    // raw encoder counts (no origin applied)
-  float lengths_m[4];           // relative tendon lengths (origin set by TARE)
-  int32_t raw_counts[4];        // latest HX711 readings
-  float tensions_n[4];          // calibrated tensions
-  float targets[4];             // per-motor target: m (length modes) or N (tension)
-  float duty[4];                // motor commands in [-1, 1]
+  uint8_t channels;
+  uint64_t time_us;                      // device time since the first tick
+  uint32_t sample_seq;                   // telemetry counter: a gap means lost samples
+  int32_t encoder_counts[kMaxChannels];  // raw encoder counts (no origin applied)
+  float lengths_m[kMaxChannels];         // relative tendon lengths (origin set by TARE)
+  int32_t raw_counts[kMaxChannels];      // latest HX711 readings
+  float tensions_n[kMaxChannels];        // calibrated tensions
+  float targets[kMaxChannels];           // per-motor target: m (length modes) or N (tension)
+  float duty[kMaxChannels];              // motor commands in [-1, 1]
+  uint8_t drive_modes[kMaxChannels];     // Drive of each motor
   uint8_t state;
   uint8_t mode;
-  uint16_t fault_flags;
-  uint8_t stale_mask;           // bit i: load cell i stale
-  uint8_t drive_modes;          // 2 bits per motor (Drive), motor i at bits 2i..2i+1
-  uint32_t rx_bad_frames;       // frames dropped for framing or CRC errors
+  uint32_t fault_flags;
+  ChannelMask stale_mask;                // bit i: load cell i stale
+  uint32_t rx_bad_frames;                // frames dropped for framing or CRC errors
   uint32_t tx_dropped_frames;   // frames not sent because the TX queue was full
 };
 
@@ -155,13 +162,15 @@ template <class V> void visit_fields(V&, msg::Ping&) {}
 template <class V> void visit_fields(V&, msg::Enable&) {}
 template <class V> void visit_fields(V&, msg::Disable&) {}
 template <class V> void visit_fields(V& v, msg::Tare& m) {
-  v(m.loadcell_mask);
-  v(m.length_mask);
+  v(m.channels);
+  v(bits_of(m.loadcell_mask, m.channels, kMaxChannels));
+  v(bits_of(m.length_mask, m.channels, kMaxChannels));
 }
 template <class V> void visit_fields(V& v, msg::SetMode& m) { v(m.mode); }
 template <class V> void visit_fields(V& v, msg::SetSetpoints& m) {
+  v(m.channels);
   v(m.mode);
-  v(m.values);
+  v(first(m.values, m.channels));
 }
 template <class V> void visit_fields(V& v, msg::SetGains& m) {
   v(m.mode);
@@ -171,8 +180,9 @@ template <class V> void visit_fields(V& v, msg::SetGains& m) {
   v(m.output_limit);
 }
 template <class V> void visit_fields(V& v, msg::SetCalibration& m) {
-  v(m.gain_n_per_count);
-  v(m.offset_counts);
+  v(m.channels);
+  v(first(m.gain_n_per_count, m.channels));
+  v(first(m.offset_counts, m.channels));
 }
 template <class V> void visit_fields(V& v, msg::SetLimits& m) {
   v(m.tension_limit_n);
@@ -196,19 +206,20 @@ template <class V> void visit_fields(V& v, msg::Nack& m) {
   v(m.error);
 }
 template <class V> void visit_fields(V& v, msg::TelemetryMessage& m) {
+  v(m.channels);
   v(m.time_us);
   v(m.sample_seq);
-  v(m.encoder_counts);
-  v(m.lengths_m);
-  v(m.raw_counts);
-  v(m.tensions_n);
-  v(m.targets);
-  v(m.duty);
+  v(first(m.encoder_counts, m.channels));
+  v(first(m.lengths_m, m.channels));
+  v(first(m.raw_counts, m.channels));
+  v(first(m.tensions_n, m.channels));
+  v(first(m.targets, m.channels));
+  v(first(m.duty, m.channels));
+  v(first(m.drive_modes, m.channels));
   v(m.state);
   v(m.mode);
   v(m.fault_flags);
-  v(m.stale_mask);
-  v(m.drive_modes);
+  v(bits_of(m.stale_mask, m.channels, kMaxChannels));
   v(m.rx_bad_frames);
   v(m.tx_dropped_frames);
 }

@@ -13,19 +13,19 @@ void Safety::set_limits(float tension_limit_n, uint16_t watchdog_timeout_ms) {
   watchdog_timeout_ms_ = watchdog_timeout_ms;
 }
 
-bool Safety::update(uint64_t now_us, const float tensions_n[kChannels], uint8_t stale_mask) {
+bool Safety::update(uint64_t now_us, const float* tensions_n, ChannelMask stale_mask) {
   if (state_ != State::kEnabled) {
-    faults_ &= static_cast<uint16_t>(~fault::kLoadcellStale);
+    faults_ &= ~fault::kLoadcellStale;
     return false;
   }
   if (now_us > last_feed_us_ &&
       now_us - last_feed_us_ > static_cast<uint64_t>(watchdog_timeout_ms_) * 1000u) {
     trip(fault::kWatchdog);
   }
-  for (size_t i = 0; i < kChannels; ++i) {
+  for (size_t i = 0; i < channels_; ++i) {
     const bool fresh = (stale_mask & (1u << i)) == 0;
     if (fresh && tensions_n[i] > tension_limit_n_) {
-      trip(static_cast<uint16_t>(fault::kTensionLimit | fault::tension_channel(i)));
+      trip(fault::kTensionLimit | fault::tension_channel(i));
     }
   }
   if (state_ != State::kEnabled) return false;
@@ -33,13 +33,13 @@ bool Safety::update(uint64_t now_us, const float tensions_n[kChannels], uint8_t 
     faults_ |= fault::kLoadcellStale;
     return false;
   }
-  faults_ &= static_cast<uint16_t>(~fault::kLoadcellStale);
+  faults_ &= ~fault::kLoadcellStale;
   return true;
 }
 
-void Safety::trip(uint16_t flags) {
+void Safety::trip(uint32_t flags) {
   state_ = State::kFault;
-  faults_ = static_cast<uint16_t>(faults_ | flags);
+  faults_ |= flags;
 }
 
 }  // namespace twinfw

@@ -14,8 +14,12 @@ namespace twinfw {
 
 class Safety {
  public:
+  // The safety of `channels` motors (1..kMaxChannels).
+  explicit Safety(size_t channels = kDefaultChannels)
+      : channels_(channels < 1 ? 1 : (channels > kMaxChannels ? kMaxChannels : channels)) {}
+
   State state() const { return state_; }
-  uint16_t faults() const { return faults_; }
+  uint32_t faults() const { return faults_; }
   float tension_limit_n() const { return tension_limit_n_; }
 
   // Enters ENABLED, clears the fault flags and arms the watchdog at `now_us`.
@@ -27,13 +31,14 @@ class Safety {
 
   // Checks the watchdog and the tension limit of the fresh channels (bits of `stale_mask` are
   // stale ones); returns whether the motors may move.
-  bool update(uint64_t now_us, const float tensions_n[kChannels], uint8_t stale_mask);
+  bool update(uint64_t now_us, const float* tensions_n, ChannelMask stale_mask);
 
   // Enters FAULT with `flags` added to the latched ones.
-  void trip(uint16_t flags);
+  void trip(uint32_t flags);
 
+  size_t channels_;
   State state_ = State::kDisabled;
-  uint16_t faults_ = 0;
+  uint32_t faults_ = 0;
   uint64_t last_feed_us_ = 0;
   float tension_limit_n_ = kDefaultTensionLimitN;
   uint16_t watchdog_timeout_ms_ = kDefaultWatchdogMs;

@@ -10,7 +10,6 @@ the diff:
 
 from __future__ import annotations
 
-import dataclasses
 import json
 from pathlib import Path
 
@@ -27,15 +26,16 @@ VALID: list[tuple[str, int, c.Message]] = [
     ("ping_seq_ffff", 0xFFFF, c.Ping()),
     ("enable", 3, c.Enable()),
     ("disable", 4, c.Disable()),
-    ("tare_all", 5, c.Tare(loadcell_mask=0x0F, length_mask=0x0F)),
+    ("tare_all", 5, c.Tare(loadcell_mask=0x0F, length_mask=0x0F, channels=4)),
     ("set_mode_pairs", 6, c.SetMode(c.Mode.PAIRS)),
-    ("set_setpoints_lengths", 7, c.SetSetpoints.lengths([0.001953125, -0.0009765625, 0.0, 0.0078125])),
-    ("set_setpoints_pairs", 8, c.SetSetpoints.pairs([0.00390625, -0.001953125])),
-    ("set_setpoints_tensions", 9, c.SetSetpoints.tensions([1.25, 1.5, 0.75, 2.0])),
+    ("set_setpoints_lengths", 7, c.SetSetpoints.lengths([0.001953125, -0.0009765625, 0.0, 0.0078125], channels=4)),
+    ("set_setpoints_pairs", 8, c.SetSetpoints.pairs([0.00390625, -0.001953125], channels=4)),
+    ("set_setpoints_tensions", 9, c.SetSetpoints.tensions([1.25, 1.5, 0.75, 2.0], channels=4)),
     ("set_gains_tension", 10, c.SetGains(c.Mode.TENSION, kp=0.25, ki=0.5, kd=0.0078125, output_limit=0.5)),
-    ("set_calibration", 11, c.SetCalibration((2.0**-15, 2.0**-15, -(2.0**-16), 2.0**-14), (8200.0, -5100.0, 3300.0, -900.0))),
+    ("set_calibration", 11, c.SetCalibration((2.0**-15, 2.0**-15, -(2.0**-16), 2.0**-14), (8200.0, -5100.0, 3300.0, -900.0),
+                                             channels=4)),
     ("set_limits", 12, c.SetLimits(tension_limit_n=6.0, watchdog_timeout_ms=250)),
-    ("hello_reply", 0, c.HelloReply(1, (0, 1, 0), 4, 10000, 25000, 2.0**-20)),
+    ("hello_reply", 0, c.HelloReply(c.PROTOCOL_VERSION, (0, 2, 0), 4, 10000, 25000, 2.0**-20)),
     ("ack", 13, c.Ack(acked_seq=0x1234, acked_type=c.MsgType.ENABLE)),
     ("nack", 14, c.Nack(acked_seq=0xFF00, acked_type=c.MsgType.SET_SETPOINTS, error=c.NackError.WRONG_MODE)),
     (
@@ -54,9 +54,66 @@ VALID: list[tuple[str, int, c.Message]] = [
             mode=c.Mode.PAIRS,
             fault_flags=c.Fault.TENSION_LIMIT | c.Fault.TENSION_CHANNEL_3,
             stale_mask=0b0100,
-            drive_modes=0b10_00_01_01,
+            drive_modes=(c.Drive.DRIVE, c.Drive.DRIVE, c.Drive.COAST, c.Drive.BRAKE),
             rx_bad_frames=3,
             tx_dropped_frames=0,
+            channels=4,
+        ),
+    ),
+    # Three tendons (models/three-tendon): no pairs.
+    ("hello_reply_3", 0, c.HelloReply(c.PROTOCOL_VERSION, (0, 2, 0), 3, 10000, 25000, 2.0**-20)),
+    ("tare_3", 15, c.Tare(loadcell_mask=0b101, length_mask=0b111, channels=3)),
+    ("set_setpoints_lengths_3", 16, c.SetSetpoints.lengths([0.001953125, -0.0009765625, 0.0078125], channels=3)),
+    ("set_calibration_3", 17, c.SetCalibration((2.0**-15, -(2.0**-16), 2.0**-14), (8200.0, -5100.0, 0.0), channels=3)),
+    (
+        "telemetry_3",
+        0x0203,
+        c.TelemetryMessage(
+            time_us=25_000,
+            sample_seq=1,
+            encoder_counts=(-7, 65_536, 255),
+            lengths_m=(0.0078125, -0.0009765625, 0.0),
+            raw_counts=(-1, 8200, 256),
+            tensions_n=(0.5, 6.25, 0.0),
+            targets=(1.0, 0.5, 0.0),
+            duty=(-0.5, 0.0, 1.0),
+            state=c.State.FAULT,
+            mode=c.Mode.TENSION,
+            fault_flags=c.Fault.LOADCELL_IMPLAUSIBLE | c.Fault.IMPLAUSIBLE_CHANNEL_2,
+            stale_mask=0b100,
+            drive_modes=(c.Drive.BRAKE, c.Drive.COAST, c.Drive.DRIVE),
+            rx_bad_frames=0,
+            tx_dropped_frames=65_536,
+            channels=3,
+        ),
+    ),
+    # Eight tendons, the Teensy sketch's pin map (firmware/teensy/twin_rig/pins.h): pairs k, k + 4.
+    ("hello_reply_8", 0, c.HelloReply(c.PROTOCOL_VERSION, (0, 2, 0), 8, 10000, 25000, 2.0**-20)),
+    ("tare_8", 18, c.Tare(loadcell_mask=0xFF, length_mask=0x81, channels=8)),
+    ("set_setpoints_pairs_8", 19, c.SetSetpoints.pairs([0.00390625, -0.001953125, 0.0, 0.0009765625], channels=8)),
+    ("set_setpoints_tensions_8", 20, c.SetSetpoints.tensions([1.25, 1.5, 0.75, 2.0, 0.0, 6.0, 0.5, 0.25], channels=8)),
+    ("set_calibration_8", 21, c.SetCalibration((2.0**-15,) * 7 + (2.0**-16,), (8200.0, -5100.0, 3300.0, -900.0, 0.0, 1.0, -1.0, 65536.0),
+                                               channels=8)),
+    (
+        "telemetry_8",
+        0x0304,
+        c.TelemetryMessage(
+            time_us=1 << 40,
+            sample_seq=0xFFFF_FFFF,
+            encoder_counts=(0, 1, -1, 2**31 - 1, -(2**31), 21709, -21709, 256),
+            lengths_m=(0.0, 0.0205, -9.5e-7, 0.5, -0.5, 0.001, -0.001, 0.0078125),
+            raw_counts=(8_388_607, -8_388_608, 45_000, 0, 1, -1, 255, -256),
+            tensions_n=(1.25, 1.5, 0.0, -0.125, 6.0, 0.0, 0.25, 2.0),
+            targets=(0.015625, -0.015625, 0.0, 0.5, -0.015625, 0.015625, 0.0, -0.5),
+            duty=(1.0, -1.0, 0.0, 0.25, -0.25, 0.5, -0.5, 0.125),
+            state=c.State.ENABLED,
+            mode=c.Mode.PAIRS,
+            fault_flags=c.Fault.LOADCELL_STALE | c.Fault.TENSION_CHANNEL_8 | c.Fault.IMPLAUSIBLE_CHANNEL_5,
+            stale_mask=0b1000_0001,
+            drive_modes=(c.Drive.DRIVE,) * 4 + (c.Drive.BRAKE, c.Drive.COAST, c.Drive.DRIVE, c.Drive.BRAKE),
+            rx_bad_frames=0xFFFF_FFFF,
+            tx_dropped_frames=7,
+            channels=8,
         ),
     ),
 ]
@@ -73,13 +130,22 @@ def _invalid(valid: dict[str, str]) -> list[dict]:
     crc_flipped[-2] ^= 0x80  # the last CRC byte
     raw_short = bytes([c.MsgType.SET_MODE, 1, 0])  # SET_MODE without its mode byte, valid CRC
     raw_unknown = bytes([0x42, 2, 0])
+    # The 4-channel TELEMETRY's payload saying 3 channels: its length is not a 3-channel layout.
+    telemetry = c.cobs_decode(bytes.fromhex(valid["telemetry"])[:-1])[:-2]
+    raw_miscounted = telemetry[:3] + bytes([3]) + telemetry[4:]
+    # A TARE of more channels than any board has.
+    raw_too_many = bytes([c.MsgType.TARE, 3, 0, c.MAX_CHANNELS + 1, 0xFF, 0x0F, 0xFF, 0x0F])
+
+    def framed(raw: bytes) -> str:
+        return (c.cobs_encode(raw + c.crc16(raw).to_bytes(2, "little")) + b"\x00").hex()
+
     return [
         {"name": "payload_bit_flip", "hex": flipped.hex(), "expect": "bad_frame"},
         {"name": "crc_bit_flip", "hex": crc_flipped.hex(), "expect": "bad_frame"},
         {"name": "truncated", "hex": (setpoints[:-3] + b"\x00").hex(), "expect": "bad_frame"},
         {"name": "cobs_block_past_end", "hex": "0a0102030000", "expect": "bad_frame"},
         {"name": "too_short", "hex": "03010200", "expect": "bad_frame"},
-        {"name": "over_long", "hex": "01" * 300 + "00", "expect": "bad_frame"},
+        {"name": "over_long", "hex": "01" * 400 + "00", "expect": "bad_frame"},
         {"name": "garbage", "hex": bytes(range(1, 40)).hex() + "00", "expect": "bad_frame"},
         {
             "name": "short_payload",
@@ -91,6 +157,8 @@ def _invalid(valid: dict[str, str]) -> list[dict]:
             "hex": (c.cobs_encode(raw_unknown + c.crc16(raw_unknown).to_bytes(2, "little")) + b"\x00").hex(),
             "expect": "bad_message",
         },
+        {"name": "telemetry_miscounted", "hex": framed(raw_miscounted), "expect": "bad_message"},
+        {"name": "tare_too_many_channels", "hex": framed(raw_too_many), "expect": "bad_message"},
     ]
 
 
@@ -104,7 +172,8 @@ def build() -> dict:
             "name": name,
             "message": type(message).__name__,
             "seq": seq,
-            "fields": {f.name: _plain(getattr(message, f.name)) for f in dataclasses.fields(message)},
+            # In wire order: the C++ header initialises its structs from them in this order.
+            "fields": {name: _plain(getattr(message, name)) for name, _ in message.LAYOUT},
             "hex": c.encode_frame(message, seq).hex(),
         }
         for name, seq, message in VALID

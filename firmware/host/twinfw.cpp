@@ -7,7 +7,7 @@
 
 #include "firmware.h"
 
-static_assert(TWINFW_CHANNELS == twinfw::kChannels, "C API and core disagree on the channel count");
+static_assert(TWINFW_MAX_CHANNELS == twinfw::kMaxChannels, "C API and core disagree on the most channels");
 
 struct twinfw_board {
   twinfw::Firmware firmware;
@@ -24,7 +24,16 @@ TWINFW_EXPORT uint32_t twinfw_abi_version(void) { return TWINFW_ABI_VERSION; }
 
 TWINFW_EXPORT uint32_t twinfw_protocol_version(void) { return twinfw::kProtocolVersion; }
 
-TWINFW_EXPORT twinfw_board* twinfw_create(void) { return new (std::nothrow) twinfw_board(); }
+TWINFW_EXPORT uint32_t twinfw_max_channels(void) { return twinfw::kMaxChannels; }
+
+TWINFW_EXPORT twinfw_board* twinfw_create(uint32_t channels) {
+  if (channels < 1 || channels > twinfw::kMaxChannels) return nullptr;
+  return new (std::nothrow) twinfw_board{twinfw::Firmware(channels)};
+}
+
+TWINFW_EXPORT uint32_t twinfw_channels(const twinfw_board* fw) {
+  return static_cast<uint32_t>(fw->firmware.channels());
+}
 
 TWINFW_EXPORT void twinfw_destroy(twinfw_board* fw) { delete fw; }
 
@@ -36,12 +45,13 @@ TWINFW_EXPORT void twinfw_tick(twinfw_board* fw, uint64_t now_us, const int32_t*
                                const int32_t* raw_counts, uint32_t new_sample_mask, float* duty_out,
                                uint8_t* drive_out) {
   twinfw::Inputs in{};
-  std::memcpy(in.encoder_counts, encoder_counts, sizeof in.encoder_counts);
-  std::memcpy(in.raw_counts, raw_counts, sizeof in.raw_counts);
-  in.new_sample_mask = static_cast<uint8_t>(new_sample_mask & ((1u << twinfw::kChannels) - 1));
+  const size_t channels = fw->firmware.channels();
+  std::memcpy(in.encoder_counts, encoder_counts, channels * sizeof in.encoder_counts[0]);
+  std::memcpy(in.raw_counts, raw_counts, channels * sizeof in.raw_counts[0]);
+  in.new_sample_mask = static_cast<twinfw::ChannelMask>(new_sample_mask & ((1u << channels) - 1));
   // The core runs on a wrapping 32-bit microsecond clock like the Teensy's micros().
   const twinfw::Outputs& out = fw->firmware.tick(static_cast<uint32_t>(now_us), in);
-  for (size_t i = 0; i < twinfw::kChannels; ++i) {
+  for (size_t i = 0; i < channels; ++i) {
     duty_out[i] = out.duty[i];
     drive_out[i] = static_cast<uint8_t>(out.drive[i]);
   }

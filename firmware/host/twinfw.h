@@ -1,6 +1,7 @@
 /* C API over the firmware core for host programs (the emulated board, tests): a Firmware
  * object stepped with explicit time, and a standalone frame decoder for fuzzing the C++ codec.
- * Arrays have TWINFW_CHANNELS entries. Not thread-safe: one caller per object. */
+ * Arrays have as many entries as the board has channels (at most TWINFW_MAX_CHANNELS). Not
+ * thread-safe: one caller per object. */
 #ifndef TWINFW_H
 #define TWINFW_H
 
@@ -11,8 +12,8 @@
 extern "C" {
 #endif
 
-#define TWINFW_ABI_VERSION 1
-#define TWINFW_CHANNELS 4
+#define TWINFW_ABI_VERSION 2
+#define TWINFW_MAX_CHANNELS 12
 
 typedef struct twinfw_board twinfw_board;
 typedef struct twinfw_decoder twinfw_decoder;
@@ -22,8 +23,14 @@ uint32_t twinfw_abi_version(void);
 /* Protocol version the firmware speaks (firmware/PROTOCOL.md). */
 uint32_t twinfw_protocol_version(void);
 
-/* A fresh board as after power-up; NULL if out of memory. */
-twinfw_board* twinfw_create(void);
+/* TWINFW_MAX_CHANNELS of the built library. */
+uint32_t twinfw_max_channels(void);
+
+/* A fresh board of `channels` motors and load cells as after power-up; NULL if out of memory
+ * or channels is outside 1..TWINFW_MAX_CHANNELS. */
+twinfw_board* twinfw_create(uint32_t channels);
+/* The channel count the board was created with. */
+uint32_t twinfw_channels(const twinfw_board* fw);
 void twinfw_destroy(twinfw_board* fw);
 
 /* Host bytes, any chunking; commands are acted on at the time of the latest tick. */

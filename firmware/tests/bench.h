@@ -31,16 +31,19 @@ class Bench {
   static constexpr int32_t kRawOffset = 8200;
   static constexpr float kRawPerN = 45000.0f;
 
+  // A bench of `channels` motors (the thesis endoscope's four unless told).
+  explicit Bench(size_t channels = kDefaultChannels) : fw(channels), channels_(fw.channels()) {}
+
   Firmware fw;
   Replies replies;
   uint32_t now_us = 0;
-  double counts[kChannels] = {};
+  double counts[kMaxChannels] = {};
   // Load-cell model: tension = pretension − stiffness · length (a taut tendon slackens as it
   // pays out); samples every 12.5 ms unless a channel is silenced.
   float pretension_n = 1.0f;
   float stiffness_n_per_m = 200.0f;
-  float extra_tension_n[kChannels] = {};
-  uint8_t silenced_mask = 0;
+  float extra_tension_n[kMaxChannels] = {};
+  ChannelMask silenced_mask = 0;
   Outputs out{};
 
   template <class T>
@@ -61,8 +64,13 @@ class Bench {
   // Handshake, calibration to the plant's load cells, enable; true if all were acknowledged.
   bool start(Mode mode = Mode::kLengths) {
     send(msg::Hello{kProtocolVersion});
-    send(msg::SetCalibration{{1 / kRawPerN, 1 / kRawPerN, 1 / kRawPerN, 1 / kRawPerN},
-                             {kRawOffset, kRawOffset, kRawOffset, kRawOffset}});
+    msg::SetCalibration calibration{};
+    calibration.channels = static_cast<uint8_t>(channels_);
+    for (size_t i = 0; i < channels_; ++i) {
+      calibration.gain_n_per_count[i] = 1 / kRawPerN;
+      calibration.offset_counts[i] = kRawOffset;
+    }
+    send(calibration);
     run(0.05);  // fresh load-cell samples
     send(msg::SetMode{static_cast<uint8_t>(mode)});
     send(msg::Enable{});
@@ -73,17 +81,17 @@ class Bench {
   void run(double seconds, uint32_t tick_us = 1000) {
     const int steps = static_cast<int>(seconds * 1e6 / tick_us + 0.5);
     for (int s = 0; s < steps; ++s) {
-      for (size_t i = 0; i < kChannels; ++i) {
+      for (size_t i = 0; i < channels_; ++i) {
         const double rate = out.drive[i] == Drive::kDrive ? out.duty[i] * kTendonSpeedMPerS : 0.0;
         counts[i] += rate * tick_us * 1e-6 / kTendonMPerCount;
       }
       now_us += tick_us;
       Inputs in{};
       const bool sample = (now_us / 12500u) != ((now_us - tick_us) / 12500u);
-      for (size_t i = 0; i < kChannels; ++i) {
+      for (size_t i = 0; i < channels_; ++i) {
         in.encoder_counts[i] = static_cast<int32_t>(counts[i]);
         in.raw_counts[i] = kRawOffset + static_cast<int32_t>(kRawPerN * tension_n(i));
-        if (sample && !(silenced_mask & (1u << i))) in.new_sample_mask = static_cast<uint8_t>(in.new_sample_mask | (1u << i));
+        if (sample && !(silenced_mask & (1u << i))) in.new_sample_mask = static_cast<ChannelMask>(in.new_sample_mask | (1u << i));
       }
       out = fw.tick(now_us, in);
       drain();
@@ -142,6 +150,7 @@ class Bench {
     }
   }
 
+  size_t channels_;
   FrameDecoder decoder_;
   uint16_t seq_ = 0;
 };

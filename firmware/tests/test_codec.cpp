@@ -88,10 +88,17 @@ struct ValidVectorCheck {
   }
 };
 
-// Intact-but-invalid frames must fail message decoding as every command type the firmware knows.
+template <class T>
+bool decodes_as(const RawFrame& f) {
+  T message{};
+  return f.type == static_cast<uint8_t>(T::kType) && read_payload(f.payload, f.payload_size, message);
+}
+
+// Intact-but-invalid frames must fail message decoding as the type they claim: a short payload,
+// or one sized for another channel count than it says.
 bool decodes_as_any_command(const RawFrame& f) {
-  msg::SetMode set_mode{};
-  return f.type == static_cast<uint8_t>(MsgType::kSetMode) && read_payload(f.payload, f.payload_size, set_mode);
+  return decodes_as<msg::SetMode>(f) || decodes_as<msg::Tare>(f) || decodes_as<msg::SetSetpoints>(f) ||
+         decodes_as<msg::SetCalibration>(f) || decodes_as<msg::TelemetryMessage>(f);
 }
 
 void golden_vectors() {
@@ -100,7 +107,7 @@ void golden_vectors() {
   CHECK(valid.vectors >= 14);
   CHECK(golden::kProtocolVersion == kProtocolVersion);
   for (const golden::Invalid& v : golden::kInvalid) {
-    uint8_t bytes[400];
+    uint8_t bytes[512];
     const size_t n = from_hex(v.hex, bytes, sizeof bytes);
     FrameDecoder decoder;
     int accepted = 0;

@@ -16,7 +16,7 @@ void hold_is_bumpless() {
     Controller c;
     const Measurements now = at(0.002f, -0.001f, 0.0005f, 0.003f, 1.3f);
     c.set_mode(static_cast<Mode>(m), now, 6.0f);
-    float duty[kChannels];
+    float duty[kDefaultChannels];
     c.step(now, kControlPeriodS, duty);
     for (float d : duty) CHECK_NEAR(d, 0.0, 1e-6);
   }
@@ -28,16 +28,16 @@ void mode_switch_keeps_the_motors_pulling() {
   Controller c;
   const Measurements now = at(-0.001f, 0.0f, 0.001f, 0.0f, 2.0f);
   c.set_mode(Mode::kLengths, now, 6.0f);
-  const float sp[kChannels] = {-0.0012f, 0.0f, 0.0012f, 0.0f};
+  const float sp[kDefaultChannels] = {-0.0012f, 0.0f, 0.0012f, 0.0f};
   c.set_setpoints(sp);
-  float before[kChannels];
+  float before[kDefaultChannels];
   for (int k = 0; k < 50; ++k) c.step(now, kControlPeriodS, before);
   CHECK(before[0] < -0.01f && before[2] > 0.01f);
   c.set_mode(Mode::kTension, now, 6.0f);
-  float after[kChannels];
+  float after[kDefaultChannels];
   c.step(now, kControlPeriodS, after);
   // The tension gains clamp at 0.2 duty; within that the duty is unchanged.
-  for (size_t i = 0; i < kChannels; ++i) {
+  for (size_t i = 0; i < kDefaultChannels; ++i) {
     const float expected = before[i] > 0.2f ? 0.2f : (before[i] < -0.2f ? -0.2f : before[i]);
     CHECK_NEAR(after[i], expected, 1e-6);
   }
@@ -53,7 +53,7 @@ void antagonistic_pairs_couple() {
   c.set_mode(Mode::kPairs, at(0.002f, -0.001f, 0.0f, 0.0f), 6.0f);
   CHECK_NEAR(c.targets()[0], 0.002, 1e-7);
   CHECK_NEAR(c.targets()[2], 0.0, 1e-7);
-  const float d[kChannels] = {0.003f, -0.0005f, 0.0f, 0.0f};
+  const float d[kDefaultChannels] = {0.003f, -0.0005f, 0.0f, 0.0f};
   c.set_setpoints(d);
   // One tendon shortens by what the other pays out, about the pair's centre.
   CHECK_NEAR(c.targets()[0], 0.001 + 0.003, 1e-7);
@@ -61,7 +61,7 @@ void antagonistic_pairs_couple() {
   CHECK_NEAR(c.targets()[1], -0.0005 - 0.0005, 1e-7);
   CHECK_NEAR(c.targets()[3], -0.0005 + 0.0005, 1e-7);
   CHECK_NEAR(c.targets()[0] + c.targets()[2], 0.002, 1e-7);
-  float duty[kChannels];
+  float duty[kDefaultChannels];
   c.step(at(0.002f, -0.001f, 0.0f, 0.0f), kControlPeriodS, duty);
   CHECK(duty[0] > 0.0f && duty[2] < 0.0f);  // tendon 1 pays out, tendon 3 reels in
 }
@@ -69,9 +69,9 @@ void antagonistic_pairs_couple() {
 void tension_mode_sign() {
   Controller c;
   c.set_mode(Mode::kTension, at(0, 0, 0, 0, 1.0f), 6.0f);
-  const float sp[kChannels] = {1.5f, 0.5f, 1.0f, 1.0f};
+  const float sp[kDefaultChannels] = {1.5f, 0.5f, 1.0f, 1.0f};
   c.set_setpoints(sp);
-  float duty[kChannels];
+  float duty[kDefaultChannels];
   c.step(at(0, 0, 0, 0, 1.0f), kControlPeriodS, duty);
   CHECK(duty[0] < 0.0f);  // too slack: reel in
   CHECK(duty[1] > 0.0f);  // too tight: pay out
@@ -84,9 +84,9 @@ void tension_references_ramp() {
   c.set_tension_rate(20.0f);
   const Measurements now = at(0, 0, 0, 0, 1.0f);
   c.set_mode(Mode::kTension, now, 2.0f);
-  const float sp[kChannels] = {2.0f, 0.5f, 1.0f, 1.1f};
+  const float sp[kDefaultChannels] = {2.0f, 0.5f, 1.0f, 1.1f};
   c.set_setpoints(sp);
-  float duty[kChannels];
+  float duty[kDefaultChannels];
   c.step(now, kControlPeriodS, duty);
   CHECK_NEAR(c.references()[0], 1.2, 1e-6);
   CHECK_NEAR(c.references()[1], 0.8, 1e-6);
@@ -112,7 +112,7 @@ void closed_loops_on_the_bench() {
   {
     bench::Bench b;
     CHECK(b.start(Mode::kLengths));
-    b.send(msg::SetSetpoints{0, {0.002f, -0.003f, 0.0f, 0.001f}});
+    b.send(msg::SetSetpoints{4, 0, {0.002f, -0.003f, 0.0f, 0.001f}});
     b.run_fed(3.0);
     CHECK_NEAR(b.length_m(0), 0.002, 5e-6);
     CHECK_NEAR(b.length_m(1), -0.003, 5e-6);
@@ -121,7 +121,7 @@ void closed_loops_on_the_bench() {
   {
     bench::Bench b;
     CHECK(b.start(Mode::kPairs));
-    b.send(msg::SetSetpoints{1, {0.002f, -0.001f, 0.0f, 0.0f}});
+    b.send(msg::SetSetpoints{4, 1, {0.002f, -0.001f, 0.0f, 0.0f}});
     b.run_fed(3.0);
     CHECK_NEAR(b.length_m(0), 0.002, 5e-6);
     CHECK_NEAR(b.length_m(2), -0.002, 5e-6);
@@ -134,7 +134,7 @@ void closed_loops_on_the_bench() {
     // stiff tendon that the default tension gains are tuned for: give it gains for its own plant.
     CHECK(b.start(Mode::kTension));
     b.send(msg::SetGains{2, 0.04f, 0.1f, 0.0f, 0.5f});
-    b.send(msg::SetSetpoints{2, {1.5f, 0.5f, 1.0f, 1.2f}});
+    b.send(msg::SetSetpoints{4, 2, {1.5f, 0.5f, 1.0f, 1.2f}});
     b.run_fed(3.0);
     CHECK_NEAR(b.tension_n(0), 1.5, 0.01);
     CHECK_NEAR(b.tension_n(1), 0.5, 0.01);

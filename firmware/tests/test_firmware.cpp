@@ -33,7 +33,7 @@ void setpoint_gives_pwm_sign() {
   b.run(0.05);
   CHECK(b.out.drive[0] == Drive::kDrive);
   CHECK_NEAR(b.out.duty[0], 0.0, 1e-6);
-  b.send(msg::SetSetpoints{0, {b.length_m(0) + 0.001f, -0.001f, 0.0f, 0.0f}});
+  b.send(msg::SetSetpoints{4, 0, {b.length_m(0) + 0.001f, -0.001f, 0.0f, 0.0f}});
   b.run(0.011);
   CHECK(b.out.duty[0] > 0.0f && b.out.duty[1] < 0.0f);
   CHECK_NEAR(b.out.duty[2], 0.0, 1e-6);
@@ -56,7 +56,7 @@ void telemetry_schedule() {
 void control_runs_at_100_hz() {
   Bench b;
   CHECK(b.start());
-  b.send(msg::SetSetpoints{0, {0.003f, 0.0f, 0.0f, 0.0f}});
+  b.send(msg::SetSetpoints{4, 0, {0.003f, 0.0f, 0.0f, 0.0f}});
   int changes = 0;
   float last = b.out.duty[0];
   for (int i = 0; i < 100; ++i) {  // 100 ms at 1 kHz while the tendon moves
@@ -108,7 +108,7 @@ void commands_are_validated() {
   Bench b;
   b.send(msg::Hello{kProtocolVersion});
   auto last_error = [&b] { return static_cast<NackError>(b.replies.last_nack_error); };
-  b.send(msg::SetSetpoints{0, {0.001f, 0, 0, 0}});
+  b.send(msg::SetSetpoints{4, 0, {0.001f, 0, 0, 0}});
   CHECK(last_error() == NackError::kNotEnabled);
   b.send(msg::SetMode{2});
   CHECK(last_error() == NackError::kNotCalibrated);
@@ -117,16 +117,16 @@ void commands_are_validated() {
   b.run(0.05);
   b.send(msg::Enable{});
   const int nacks = b.replies.nacks;
-  b.send(msg::SetSetpoints{1, {0.001f, 0, 0, 0}});
+  b.send(msg::SetSetpoints{4, 1, {0.001f, 0, 0, 0}});
   CHECK(last_error() == NackError::kWrongMode);
-  b.send(msg::SetSetpoints{0, {NAN, 0, 0, 0}});
-  b.send(msg::SetSetpoints{0, {2.0f, 0, 0, 0}});  // 2 m: a value in mm sent as m
+  b.send(msg::SetSetpoints{4, 0, {NAN, 0, 0, 0}});
+  b.send(msg::SetSetpoints{4, 0, {2.0f, 0, 0, 0}});  // 2 m: a value in mm sent as m
   b.send(msg::SetGains{0, -1.0f, 0, 0, 1.0f});
   b.send(msg::SetGains{0, 1.0f, 0, 0, 1.5f});
   b.send(msg::SetLimits{0.0f, 250});
   b.send(msg::SetLimits{6.0f, 5});
-  b.send(msg::Tare{1, 0});
-  b.send(msg::SetCalibration{{1, 1, 1, 1}, {0, 0, 0, 0}});
+  b.send(msg::Tare{4, 1, 0});
+  b.send(msg::SetCalibration{4, {1, 1, 1, 1}, {0, 0, 0, 0}});
   CHECK(b.replies.nacks == nacks + 9);
   CHECK(last_error() == NackError::kNotWhileEnabled);
   b.run(0.03);
@@ -148,7 +148,7 @@ void tare_sets_origins() {
   b.extra_tension_n[1] = 0.5f;
   b.send(msg::Hello{kProtocolVersion});
   b.run(0.05);
-  b.send(msg::Tare{0b0010, 0b0100});
+  b.send(msg::Tare{4, 0b0010, 0b0100});
   b.run(0.03);
   CHECK(b.replies.acks == 1);
   CHECK_NEAR(b.replies.last.lengths_m[2], 0.0, 0.0);
@@ -162,7 +162,7 @@ void calibrations_outside_physical_bounds_are_refused() {
   b.send(msg::Hello{kProtocolVersion});
   auto refused = [&b](float gain_n_per_count, float offset_counts) {
     const int nacks = b.replies.nacks;
-    b.send(msg::SetCalibration{{1 / Bench::kRawPerN, gain_n_per_count, 1 / Bench::kRawPerN, 1 / Bench::kRawPerN},
+    b.send(msg::SetCalibration{4, {1 / Bench::kRawPerN, gain_n_per_count, 1 / Bench::kRawPerN, 1 / Bench::kRawPerN},
                                {Bench::kRawOffset, offset_counts, Bench::kRawOffset, Bench::kRawOffset}});
     return b.replies.nacks == nacks + 1 && b.replies.last_nack_error == static_cast<uint8_t>(NackError::kBadValue);
   };
@@ -176,7 +176,7 @@ void calibrations_outside_physical_bounds_are_refused() {
   CHECK(refused(NAN, 0.0f));
   // The bounds themselves are accepted: 36,000 and 56,250 counts/N, ±2^20 counts.
   const int acks = b.replies.acks;
-  b.send(msg::SetCalibration{{1 / kMinGainCountsPerN, 1 / kMaxGainCountsPerN, 1 / Bench::kRawPerN, 1 / Bench::kRawPerN},
+  b.send(msg::SetCalibration{4, {1 / kMinGainCountsPerN, 1 / kMaxGainCountsPerN, 1 / Bench::kRawPerN, 1 / Bench::kRawPerN},
                              {kMaxOffsetCounts, -kMaxOffsetCounts, 0.0f, 0.0f}});
   CHECK(b.replies.acks == acks + 1);
 }
@@ -200,7 +200,7 @@ void gains_beyond_their_bounds_are_refused() {
 void hello_leaves_the_board_disabled() {
   Bench b;
   CHECK(b.start());
-  b.send(msg::SetSetpoints{0, {0.002f, 0.0f, 0.0f, 0.0f}});
+  b.send(msg::SetSetpoints{4, 0, {0.002f, 0.0f, 0.0f, 0.0f}});
   b.run_fed(0.1);
   // A new host says HELLO: whatever the last one left driving stops.
   b.send(msg::Hello{kProtocolVersion});
@@ -226,9 +226,9 @@ void a_tare_outside_the_offset_bound_is_refused() {
   b.send(msg::Hello{kProtocolVersion});
   b.extra_tension_n[0] = 30.0f;  // 1.35 million counts over the 8200 offset
   b.run(0.05);
-  b.send(msg::Tare{0b0001, 0});
+  b.send(msg::Tare{4, 0b0001, 0});
   CHECK(b.replies.nacks == 1 && b.replies.last_nack_error == static_cast<uint8_t>(NackError::kBadValue));
-  b.send(msg::Tare{0b0010, 0});
+  b.send(msg::Tare{4, 0b0010, 0});
   CHECK(b.replies.acks == 1);
 }
 
@@ -248,7 +248,7 @@ void a_saturated_load_cell_faults() {
 void a_length_step_is_driven_as_a_ramp() {
   Bench b;
   CHECK(b.start());
-  b.send(msg::SetSetpoints{0, {-0.01f, 0.0f, 0.0f, 0.0f}});
+  b.send(msg::SetSetpoints{4, 0, {-0.01f, 0.0f, 0.0f, 0.0f}});
   b.run_fed(0.5);
   // No faster than the winding speed limit, 4.6 mm/s at 6 N: 2.3 mm of the 10 in 0.5 s.
   const double limit_m = 0.3 * 6.0 / kBlowImpedanceNsPerM * 0.5;

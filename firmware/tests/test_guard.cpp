@@ -9,15 +9,15 @@ using namespace twinfw;
 namespace {
 
 constexpr float kLimitN = 6.0f;
-const float kRelaxed[kChannels] = {1.0f, 1.0f, 1.0f, 1.0f};
+const float kRelaxed[kDefaultChannels] = {1.0f, 1.0f, 1.0f, 1.0f};
 
 // A guard that has seen spools moving at `winding_m_s` (positive = winding in) for 5 ms.
-Guard moving(const float winding_m_s[kChannels], const float tensions_n[kChannels] = kRelaxed) {
+Guard moving(const float winding_m_s[kDefaultChannels], const float tensions_n[kDefaultChannels] = kRelaxed) {
   Guard g;
   g.set_tension_limit(kLimitN);
-  int32_t counts[kChannels] = {};
+  int32_t counts[kDefaultChannels] = {};
   g.observe(0, counts, tensions_n, 0);
-  for (size_t i = 0; i < kChannels; ++i) {
+  for (size_t i = 0; i < kDefaultChannels; ++i) {
     counts[i] = static_cast<int32_t>(std::lround(-winding_m_s[i] * 0.005 / kTendonMPerCount));
   }
   g.observe(5000, counts, tensions_n, 0);
@@ -25,11 +25,11 @@ Guard moving(const float winding_m_s[kChannels], const float tensions_n[kChannel
 }
 
 void a_motor_winds_in_with_at_most_the_cap_and_nan_gives_zero() {
-  const float still[kChannels] = {};
+  const float still[kDefaultChannels] = {};
   Guard g = moving(still);
-  const float command[kChannels] = {-1.0f, 1.0f, NAN, -0.01f};
-  float duty[kChannels];
-  Drive drive[kChannels];
+  const float command[kDefaultChannels] = {-1.0f, 1.0f, NAN, -0.01f};
+  float duty[kDefaultChannels];
+  Drive drive[kDefaultChannels];
   g.drive(command, duty, drive);
   // 0.9 of the 6 N limit over the 154 N stall force; paying out is not bounded.
   CHECK_NEAR(duty[0], -0.9 * 6.0 / kStallForceN, 1e-6);
@@ -49,13 +49,13 @@ void the_winding_speed_limit_takes_the_pull_away() {
   const float limit = reference.winding_speed_limit();
   // (1.2 − 0.9) · 6 N over 390 N·s/m.
   CHECK_NEAR(limit, 0.3 * 6.0 / 390.0, 1e-6);
-  const float speeds[kChannels] = {0.0f, 0.5f * limit, limit, 2.0f * limit};
-  const float slack[kChannels] = {};
+  const float speeds[kDefaultChannels] = {0.0f, 0.5f * limit, limit, 2.0f * limit};
+  const float slack[kDefaultChannels] = {};
   Guard g = moving(speeds, slack);
   const float pull = -1.0f;
-  const float command[kChannels] = {pull, pull, pull, pull};
-  float duty[kChannels];
-  Drive drive[kChannels];
+  const float command[kDefaultChannels] = {pull, pull, pull, pull};
+  float duty[kDefaultChannels];
+  Drive drive[kDefaultChannels];
   g.drive(command, duty, drive);
   const double cap = 0.9 * 6.0 / kStallForceN;
   CHECK_NEAR(duty[0], -cap, 1e-6);
@@ -65,12 +65,12 @@ void the_winding_speed_limit_takes_the_pull_away() {
   CHECK_NEAR(duty[2], -kMotorDampingNsPerM * limit / kStallForceN, 1.5e-3);
   CHECK(duty[3] == 0.0f);  // beyond it, nothing
   // Paying out is never held back.
-  const float out[kChannels] = {1.0f, 1.0f, 1.0f, 1.0f};
+  const float out[kDefaultChannels] = {1.0f, 1.0f, 1.0f, 1.0f};
   g.drive(out, duty, drive);
   for (float d : duty) CHECK(d == 1.0f);
   // A taut tendon (over a tenth of the cap) may be wound in twice as fast: at the slack limit
   // its motor still pulls.
-  const float taut[kChannels] = {1.0f, 1.0f, 1.0f, 1.0f};
+  const float taut[kDefaultChannels] = {1.0f, 1.0f, 1.0f, 1.0f};
   Guard t = moving(speeds, taut);
   CHECK_NEAR(t.winding_speed_limit(2), 2.0 * limit, 1e-7);
   t.drive(command, duty, drive);
@@ -80,10 +80,10 @@ void the_winding_speed_limit_takes_the_pull_away() {
 void a_released_motor_brakes_until_its_spool_stands_still_in_the_brake() {
   Guard g;
   g.set_tension_limit(kLimitN);
-  const float command[kChannels] = {-0.01f, -0.01f, -0.01f, -0.01f};
-  float duty[kChannels];
-  Drive drive[kChannels];
-  int32_t counts[kChannels] = {};
+  const float command[kDefaultChannels] = {-0.01f, -0.01f, -0.01f, -0.01f};
+  float duty[kDefaultChannels];
+  Drive drive[kDefaultChannels];
+  int32_t counts[kDefaultChannels] = {};
   uint32_t now_us = 0;
   g.observe(now_us, counts, kRelaxed, 0);
   g.drive(command, duty, drive);
@@ -130,10 +130,10 @@ void a_spool_the_brake_turns_round_is_not_taken_for_still() {
   // through zero speed, then it is pulled out at 2 mm/s. It brakes on.
   Guard g;
   g.set_tension_limit(kLimitN);
-  const float command[kChannels] = {-0.01f, 0.0f, 0.0f, 0.0f};
-  float duty[kChannels];
-  Drive drive[kChannels];
-  int32_t counts[kChannels] = {};
+  const float command[kDefaultChannels] = {-0.01f, 0.0f, 0.0f, 0.0f};
+  float duty[kDefaultChannels];
+  Drive drive[kDefaultChannels];
+  int32_t counts[kDefaultChannels] = {};
   g.observe(0, counts, kRelaxed, 0);
   g.drive(command, duty, drive);
   g.applied(drive);
@@ -158,12 +158,12 @@ void no_brake_resists_a_spool_flying_out_with_more_than_the_cap() {
   // Spool 0 pays out at 50 mm/s, spool 1 at 10 mm/s: shorted, the back-EMF would resist them
   // with 15 N and 3 N against a 5.4 N cap. Spool 0's motor drives along to leave the cap, spool
   // 1's brakes, and neither may wind in.
-  const float speeds[kChannels] = {-0.05f, -0.01f, 0.0f, 0.0f};
+  const float speeds[kDefaultChannels] = {-0.05f, -0.01f, 0.0f, 0.0f};
   Guard g = moving(speeds);
   const double cap_n = 0.9 * kLimitN;
   const double back_emf_n = kMotorDampingNsPerM * 0.05;
-  float duty[kChannels];
-  Drive drive[kChannels];
+  float duty[kDefaultChannels];
+  Drive drive[kDefaultChannels];
   g.hold(duty, drive);
   CHECK(drive[0] == Drive::kDrive);
   // To the encoder quantum of the speed (0.19 mm/s: 0.06 N).
@@ -172,25 +172,25 @@ void no_brake_resists_a_spool_flying_out_with_more_than_the_cap() {
   CHECK(drive[2] == Drive::kBrake && drive[3] == Drive::kBrake);
   g.release(duty, drive);
   CHECK(drive[0] == Drive::kDrive && duty[0] > 0.0f && drive[1] == Drive::kBrake);
-  const float pull[kChannels] = {-1.0f, -1.0f, -1.0f, NAN};
+  const float pull[kDefaultChannels] = {-1.0f, -1.0f, -1.0f, NAN};
   g.drive(pull, duty, drive);
   CHECK_NEAR(duty[0] * kStallForceN, back_emf_n - cap_n, 0.1);
   CHECK_NEAR(duty[1] * kStallForceN, kMotorDampingNsPerM * 0.01 - cap_n, 0.1);
   CHECK_NEAR(duty[2] * kStallForceN, -cap_n, 1e-4);
   CHECK(duty[3] == 0.0f);
   // NaN on spool 0 gives the duty that leaves the cap, not the full brake of 0.
-  const float nan[kChannels] = {NAN, NAN, NAN, NAN};
+  const float nan[kDefaultChannels] = {NAN, NAN, NAN, NAN};
   g.drive(nan, duty, drive);
   CHECK(duty[0] > 0.0f && duty[1] == 0.0f);
 }
 
 void a_motor_at_its_cap_against_a_still_spool_trips_the_tension_limit() {
-  const float still[kChannels] = {};
-  const float tensions[kChannels] = {5.4f, 1.0f, 1.0f, 1.0f};
+  const float still[kDefaultChannels] = {};
+  const float tensions[kDefaultChannels] = {5.4f, 1.0f, 1.0f, 1.0f};
   Guard g = moving(still, tensions);
   const float cap = -0.9f * 6.0f / kStallForceN;
-  const float duty[kChannels] = {cap, -0.005f, 0.0f, 0.01f};
-  const Drive drive[kChannels] = {Drive::kDrive, Drive::kDrive, Drive::kDrive, Drive::kDrive};
+  const float duty[kDefaultChannels] = {cap, -0.005f, 0.0f, 0.01f};
+  const Drive drive[kDefaultChannels] = {Drive::kDrive, Drive::kDrive, Drive::kDrive, Drive::kDrive};
   CHECK(g.faults(10000, duty, drive) == 0);
   CHECK(g.faults(10000 + kAtCapUs - 1000, duty, drive) == 0);
   CHECK(g.faults(10000 + kAtCapUs, duty, drive) == (fault::kTensionLimit | fault::tension_channel(0)));
@@ -200,41 +200,41 @@ void a_motor_at_its_cap_against_a_spool_creeping_out_trips_too() {
   // Spool 0 creeps out at 0.4 mm/s (still) under a tendon the motor holds at its cap: its duty
   // leaves the back-EMF's share of the cap. The next windows read a count more or less; the
   // motor is at its cap all the same and trips after kAtCapUs.
-  const float creep[kChannels] = {-0.0004f, 0.0f, 0.0f, 0.0f};
-  const float tensions[kChannels] = {5.4f, 1.0f, 1.0f, 1.0f};
+  const float creep[kDefaultChannels] = {-0.0004f, 0.0f, 0.0f, 0.0f};
+  const float tensions[kDefaultChannels] = {5.4f, 1.0f, 1.0f, 1.0f};
   Guard g = moving(creep, tensions);
-  const float pull[kChannels] = {-1.0f, 0.0f, 0.0f, 0.0f};
-  float duty[kChannels];
-  Drive drive[kChannels];
+  const float pull[kDefaultChannels] = {-1.0f, 0.0f, 0.0f, 0.0f};
+  float duty[kDefaultChannels];
+  Drive drive[kDefaultChannels];
   g.drive(pull, duty, drive);
   CHECK(duty[0] > -0.9f * kLimitN / kStallForceN);
-  int32_t counts[kChannels] = {};
+  int32_t counts[kDefaultChannels] = {};
   counts[0] = static_cast<int32_t>(std::lround(0.0004 * 0.005 / kTendonMPerCount));
   uint32_t now_us = 5000;
   for (int tick = 0; tick <= static_cast<int>(kAtCapUs / 5000); ++tick) {
     now_us += 5000;
     counts[0] += 1 + tick % 2;  // 0.19 or 0.38 mm/s
     g.observe(now_us, counts, tensions, 0);
-    const uint16_t flags = g.faults(now_us, duty, drive);
+    const uint32_t flags = g.faults(now_us, duty, drive);
     if (tick < static_cast<int>(kAtCapUs / 5000)) CHECK(flags == 0);
     if (tick == static_cast<int>(kAtCapUs / 5000)) CHECK(flags == (fault::kTensionLimit | fault::tension_channel(0)));
   }
 }
 
 void a_cell_reading_far_under_its_stalled_motors_pull_is_implausible() {
-  const float still[kChannels] = {};
+  const float still[kDefaultChannels] = {};
   // Channel 1 reads a tenth of what its motor pulls at stall (3 N); channel 2 half of it.
-  const float tensions[kChannels] = {1.0f, 0.3f, 1.5f, 0.0f};
+  const float tensions[kDefaultChannels] = {1.0f, 0.3f, 1.5f, 0.0f};
   Guard g = moving(still, tensions);
   const float pull = -3.0f / kStallForceN;
-  const float duty[kChannels] = {-0.5f / kStallForceN, pull, pull, 0.0f};
-  const Drive drive[kChannels] = {Drive::kDrive, Drive::kDrive, Drive::kDrive, Drive::kBrake};
+  const float duty[kDefaultChannels] = {-0.5f / kStallForceN, pull, pull, 0.0f};
+  const Drive drive[kDefaultChannels] = {Drive::kDrive, Drive::kDrive, Drive::kDrive, Drive::kBrake};
   CHECK(g.faults(10000, duty, drive) == 0);
-  const uint16_t flags = g.faults(10000 + kImplausibleUs, duty, drive);
+  const uint32_t flags = g.faults(10000 + kImplausibleUs, duty, drive);
   CHECK(flags == (fault::kLoadcellImplausible | fault::implausible_channel(1)));
   // A break in the condition starts the count again.
-  const float fine[kChannels] = {1.0f, 3.0f, 1.5f, 0.0f};
-  int32_t counts[kChannels] = {};
+  const float fine[kDefaultChannels] = {1.0f, 3.0f, 1.5f, 0.0f};
+  int32_t counts[kDefaultChannels] = {};
   g.observe(20000 + kImplausibleUs, counts, fine, 0);
   CHECK(g.faults(20000 + kImplausibleUs, duty, drive) == 0);
   g.observe(30000 + kImplausibleUs, counts, tensions, 0);

@@ -8,7 +8,7 @@ using bench::Bench;
 namespace {
 
 bool all_drive(const Outputs& out, Drive d) {
-  for (size_t i = 0; i < kChannels; ++i) {
+  for (size_t i = 0; i < kDefaultChannels; ++i) {
     if (out.drive[i] != d || out.duty[i] != 0.0f) return false;
   }
   return true;
@@ -17,7 +17,7 @@ bool all_drive(const Outputs& out, Drive d) {
 void watchdog_trips_latches_and_reenables() {
   Bench b;
   CHECK(b.start());
-  b.send(msg::SetSetpoints{0, {0.01f, 0.0f, 0.0f, 0.0f}});
+  b.send(msg::SetSetpoints{4, 0, {0.01f, 0.0f, 0.0f, 0.0f}});
   b.run_fed(1.0);  // PING every 100 ms keeps it alive
   CHECK(b.fw.state() == State::kEnabled);
   b.run(0.14);  // 240 ms since the last PING: within the 250 ms default
@@ -31,11 +31,12 @@ void watchdog_trips_latches_and_reenables() {
   b.send(msg::Ping{});  // the host is back: the fault stays latched
   b.run(0.1);
   CHECK(b.fw.state() == State::kFault && b.length_m(0) == length_at_trip);
-  b.send(msg::SetSetpoints{0, {0.0f, 0.0f, 0.0f, 0.0f}});
+  b.send(msg::SetSetpoints{4, 0, {0.0f, 0.0f, 0.0f, 0.0f}});
   CHECK(static_cast<NackError>(b.replies.last_nack_error) == NackError::kNotEnabled);
   b.run(0.03);
   CHECK(b.replies.last.state == static_cast<uint8_t>(State::kFault) &&
-        (b.replies.last.fault_flags & fault::kWatchdog) && b.replies.last.drive_modes == 0);
+        (b.replies.last.fault_flags & fault::kWatchdog));
+  for (size_t i = 0; i < 4; ++i) CHECK(b.replies.last.drive_modes[i] == static_cast<uint8_t>(Drive::kCoast));
   b.send(msg::Enable{});
   CHECK(b.fw.state() == State::kEnabled && b.fw.faults() == 0);
   b.run(0.05);
@@ -75,7 +76,7 @@ void tension_limit_faults_one_channel() {
 void stale_loadcell_blocks_motion() {
   Bench b;
   CHECK(b.start());
-  b.send(msg::SetSetpoints{0, {0.005f, 0.0f, 0.0f, 0.0f}});
+  b.send(msg::SetSetpoints{4, 0, {0.005f, 0.0f, 0.0f, 0.0f}});
   b.run(0.02);
   CHECK(b.out.drive[0] == Drive::kDrive && b.out.duty[0] > 0.0f);
   b.silenced_mask = 0b1000;
@@ -88,7 +89,8 @@ void stale_loadcell_blocks_motion() {
   b.send(msg::Ping{});
   b.run(0.1);
   CHECK(b.length_m(0) == held);
-  CHECK(b.replies.last.stale_mask == 0b1000 && b.replies.last.drive_modes == 0b10101010);
+  CHECK(b.replies.last.stale_mask == 0b1000 && b.replies.last.channels == 4);
+  for (size_t i = 0; i < 4; ++i) CHECK(b.replies.last.drive_modes[i] == static_cast<uint8_t>(Drive::kBrake));
   b.silenced_mask = 0;
   b.run(0.03);
   CHECK(b.fw.faults() == 0 && b.out.drive[0] == Drive::kDrive && b.out.duty[0] > 0.0f);
@@ -107,7 +109,7 @@ void never_sampled_is_stale() {
 void disable_brakes_a_moving_spool_then_coasts() {
   Bench b;
   CHECK(b.start());
-  b.send(msg::SetSetpoints{0, {0.005f, 0.0f, 0.0f, 0.0f}});
+  b.send(msg::SetSetpoints{4, 0, {0.005f, 0.0f, 0.0f, 0.0f}});
   b.run(0.02);
   b.send(msg::Disable{});
   // Each motor brakes until its spool has stood still in the brake for kStillUs: motor 1, paying

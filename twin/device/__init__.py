@@ -7,7 +7,8 @@ time) or ``serial:///dev/ttyACM0`` (the rig, wall-clock time) — and use the sa
 """
 
 from twin.device.device import MODE_NAMES, Device
-from twin.device.errors import CommandRejected, DeviceDisconnected, DeviceError, DeviceTimeout, ProtocolVersionError
+from twin.device.errors import (ChannelCountError, CommandRejected, DeviceDisconnected, DeviceError, DeviceTimeout,
+                                ProtocolVersionError)
 from twin.device.fixture import Fixture, OperatorFixture, SimFixture
 from twin.device.sim_twin import SimTwin
 from twin.device.telemetry import DeviceInfo, Telemetry
@@ -26,6 +27,7 @@ __all__ = [
     "Fixture",
     "OperatorFixture",
     "ProtocolVersionError",
+    "ChannelCountError",
     "SimFixture",
     "SimTwin",
     "Telemetry",

@@ -36,6 +36,12 @@ class EmulatedBoard:
         seed: seed of the plant's sensor noise.
         base_rotation: clamp orientation, 3×3 (default the parameter set's ``rig.base_quat``).
 
+    The firmware drives as many motors as the plant has tendons (``tendons.count``, up to
+    :data:`twin.device.codec.MAX_CHANNELS`), and says so in its HELLO_REPLY.
+
+    Raises:
+        ValueError: the robot has more tendons than the firmware drives.
+
     Attributes:
         plant: the :class:`twin.sim.plant.Plant`; fixtures act on it directly.
         firmware: the :class:`FirmwareLib` of the current power-up.
@@ -43,8 +49,8 @@ class EmulatedBoard:
 
     def __init__(self, params: Params | None = None, *, seed: int = 0, base_rotation=None):
         self.plant = Plant(params, base_rotation=base_rotation, seed=seed)
-        if self.plant.tendon_count != codec.CHANNELS:
-            raise ValueError(f"tendons = {self.plant.tendon_count}: the firmware drives {codec.CHANNELS} motors")
+        if not 1 <= self.plant.tendon_count <= codec.MAX_CHANNELS:
+            raise ValueError(f"tendons.count = {self.plant.tendon_count}: the firmware drives 1..{codec.MAX_CHANNELS} motors")
         self._loop = self.plant.loop
         s = self._loop.state
         s.tick_fn, s.pending_fn = tick_entry_points()
@@ -138,8 +144,13 @@ class EmulatedBoard:
     def close(self) -> None:
         self.firmware.close()
 
+    @property
+    def channels(self) -> int:
+        """Motors and load cells of the board: the plant's tendon count."""
+        return self.plant.tendon_count
+
     def _power_up(self) -> None:
-        self.firmware = FirmwareLib()
+        self.firmware = FirmwareLib(self.plant.tendon_count)
         s = self._loop.state
         s.firmware = self.firmware.handle
         s.power_up_s = self.plant.time_s

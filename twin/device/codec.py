@@ -5,8 +5,12 @@ its bytes for this codec and the firmware's C++ codec alike. A frame is
 ``[type u8][seq u16][payload][crc u16]`` (little-endian, CRC-16/CCITT-FALSE over everything
 before it), COBS-encoded and terminated by ``0x00``.
 
+The board's channel count (motors and load cells) is its HELLO_REPLY's ``channels``; each
+message whose layout depends on it (TARE, SET_SETPOINTS, SET_CALIBRATION, TELEMETRY) starts
+with its count, and its per-channel fields have that many entries.
+
 Example:
-    >>> frame = encode_frame(SetSetpoints.lengths([0.001, 0.0, -0.001, 0.0]), seq=7)
+    >>> frame = encode_frame(SetSetpoints.lengths([0.001, 0.0, -0.001], channels=3), seq=7)
     >>> decoder = FrameDecoder()
     >>> [f.seq for f in decoder.feed(b"garbage\\x00" + frame)], decoder.bad_frames
     ([7], 1)
@@ -24,7 +28,9 @@ from typing import ClassVar, Iterable, Sequence
 
 __all__ = [
     "PROTOCOL_VERSION",
-    "CHANNELS",
+    "MAX_CHANNELS",
+    "DEFAULT_CHANNELS",
+    "pairs_possible",
     "MAX_PAYLOAD_BYTES",
     "MAX_RAW_FRAME_BYTES",
     "MsgType",
@@ -53,6 +59,8 @@ __all__ = [
     "Nack",
     "TelemetryMessage",
     "MESSAGE_TYPES",
+    "mask_bytes",
+    "payload_size",
     "check_fields",
     "Frame",
     "FrameDecoder",
@@ -65,9 +73,15 @@ __all__ = [
     "decode_frame",
 ]
 
-PROTOCOL_VERSION = 1
-CHANNELS = 4
-MAX_PAYLOAD_BYTES = 160
+PROTOCOL_VERSION = 2
+# Most channels a board may have: the firmware's kMaxChannels (firmware/core/config.h), which
+# the TELEMETRY fault flags have a tension and an implausible bit each for.
+MAX_CHANNELS = 12
+# The thesis endoscope's four tendons (models/endoscope/endoscope.toml, tendons.count): the
+# count of a message built without one.
+DEFAULT_CHANNELS = 4
+# The longest payload: TELEMETRY of MAX_CHANNELS channels (27 bytes, 25 per channel, the stale mask).
+MAX_PAYLOAD_BYTES = 27 + 25 * MAX_CHANNELS + (MAX_CHANNELS + 7) // 8
 _HEADER = struct.Struct("<BH")
 _CRC = struct.Struct("<H")
 MAX_RAW_FRAME_BYTES = _HEADER.size + MAX_PAYLOAD_BYTES + _CRC.size
@@ -93,7 +107,7 @@ class MsgType(enum.IntEnum):
 
 
 class Mode(enum.IntEnum):
-    """Control mode: setpoints are 4 lengths (m), 2 antagonistic pair lengths (m) or 4 tensions (N)."""
+    """Control mode: setpoints are N lengths (m), N/2 antagonistic pair lengths (m) or N tensions (N)."""
 
     LENGTHS = 0
     PAIRS = 1
@@ -132,22 +146,23 @@ class NackError(enum.IntEnum):
     NOT_CALIBRATED = 8
 
 
-class Fault(enum.IntFlag):
-    """Telemetry fault flags: WATCHDOG, TENSION_LIMIT and LOADCELL_IMPLAUSIBLE latch until
-    ENABLE; LOADCELL_STALE is live. The channel bits say which channel tripped."""
+Fault = enum.IntFlag("Fault", {
+    "WATCHDOG": 1 << 0,
+    "TENSION_LIMIT": 1 << 1,
+    "LOADCELL_STALE": 1 << 2,
+    "LOADCELL_IMPLAUSIBLE": 1 << 3,
+    # The channel bits, 1-based names as the operator counts tendons: bits 8..19 and 20..31.
+    **{f"TENSION_CHANNEL_{i + 1}": 1 << (8 + i) for i in range(MAX_CHANNELS)},
+    **{f"IMPLAUSIBLE_CHANNEL_{i + 1}": 1 << (20 + i) for i in range(MAX_CHANNELS)},
+}, module=__name__)
+Fault.__doc__ = """Telemetry fault flags: WATCHDOG, TENSION_LIMIT and LOADCELL_IMPLAUSIBLE latch until
+ENABLE; LOADCELL_STALE is live. TENSION_CHANNEL_k and IMPLAUSIBLE_CHANNEL_k say which channel
+(1-based) tripped."""
 
-    WATCHDOG = 1 << 0
-    TENSION_LIMIT = 1 << 1
-    LOADCELL_STALE = 1 << 2
-    LOADCELL_IMPLAUSIBLE = 1 << 3
-    TENSION_CHANNEL_1 = 1 << 8
-    TENSION_CHANNEL_2 = 1 << 9
-    TENSION_CHANNEL_3 = 1 << 10
-    TENSION_CHANNEL_4 = 1 << 11
-    IMPLAUSIBLE_CHANNEL_1 = 1 << 12
-    IMPLAUSIBLE_CHANNEL_2 = 1 << 13
-    IMPLAUSIBLE_CHANNEL_3 = 1 << 14
-    IMPLAUSIBLE_CHANNEL_4 = 1 << 15
+
+def pairs_possible(channels: int) -> bool:
+    """Whether ``channels`` tendons form antagonistic pairs (i, i + channels/2): an even count."""
+    return channels >= 2 and channels % 2 == 0
 
 
 class CodecError(ValueError):
@@ -166,7 +181,9 @@ class MessageError(CodecError):
 @dataclasses.dataclass(frozen=True)
 class Message:
     """Base of all messages. ``LAYOUT`` lists (field, struct code) in wire order; a code with a
-    count (``"4f"``) is a tuple field."""
+    count (``"3B"``) is a tuple field, ``"*f"`` a tuple of one entry per channel and ``"m"`` a
+    bit per channel in ceil(channels / 8) bytes. A message with per-channel fields starts with
+    ``channels`` (``"B"``)."""
 
     TYPE: ClassVar[MsgType]
     LAYOUT: ClassVar[tuple[tuple[str, str], ...]] = ()
@@ -211,9 +228,10 @@ class Tare(Message):
     """
 
     TYPE = MsgType.TARE
-    LAYOUT = (("loadcell_mask", "B"), ("length_mask", "B"))
+    LAYOUT = (("channels", "B"), ("loadcell_mask", "m"), ("length_mask", "m"))
     loadcell_mask: int = 0
     length_mask: int = 0
+    channels: int = DEFAULT_CHANNELS
 
 
 @dataclasses.dataclass(frozen=True)
@@ -225,29 +243,34 @@ class SetMode(Message):
 
 @dataclasses.dataclass(frozen=True)
 class SetSetpoints(Message):
-    """Setpoints of the active mode (``mode`` must match it).
+    """Setpoints of the active mode (``mode`` must match it), one per channel.
 
-    ``values``: four tendon lengths (m) in LENGTHS; two pair lengths (m) then two zeros in
-    PAIRS; four tensions (N) in TENSION.
+    ``values``: the tendon lengths (m) in LENGTHS; the N/2 pair lengths (m) then N/2 zeros in
+    PAIRS; the tensions (N) in TENSION.
     """
 
     TYPE = MsgType.SET_SETPOINTS
-    LAYOUT = (("mode", "B"), ("values", "4f"))
+    LAYOUT = (("channels", "B"), ("mode", "B"), ("values", "*f"))
     mode: int = Mode.LENGTHS
-    values: tuple[float, ...] = (0.0, 0.0, 0.0, 0.0)
+    values: tuple[float, ...] = (0.0,) * DEFAULT_CHANNELS
+    channels: int = DEFAULT_CHANNELS
 
     @classmethod
-    def lengths(cls, lengths_m: Sequence[float]) -> "SetSetpoints":
-        return cls(Mode.LENGTHS, _floats("lengths_m", lengths_m, CHANNELS))
+    def lengths(cls, lengths_m: Sequence[float], channels: int = DEFAULT_CHANNELS) -> "SetSetpoints":
+        return cls(Mode.LENGTHS, _floats("lengths_m", lengths_m, channels), channels)
 
     @classmethod
-    def pairs(cls, pair_lengths_m: Sequence[float]) -> "SetSetpoints":
-        """Pair (1,3) then pair (2,4): tendon 1 at c₁₃ + d, tendon 3 at c₁₃ − d (m)."""
-        return cls(Mode.PAIRS, _floats("pair_lengths_m", pair_lengths_m, CHANNELS // 2) + (0.0, 0.0))
+    def pairs(cls, pair_lengths_m: Sequence[float], channels: int = DEFAULT_CHANNELS) -> "SetSetpoints":
+        """Pair k couples tendon k with tendon k + channels/2 ((1,3) then (2,4) of four):
+        tendon 1 at c₁₃ + d, tendon 3 at c₁₃ − d (m). ``channels`` must be even."""
+        if not pairs_possible(channels):
+            raise CodecError(f"channels = {channels!r}: pairs need an even count of tendons")
+        half = channels // 2
+        return cls(Mode.PAIRS, _floats("pair_lengths_m", pair_lengths_m, half) + (0.0,) * half, channels)
 
     @classmethod
-    def tensions(cls, tensions_n: Sequence[float]) -> "SetSetpoints":
-        return cls(Mode.TENSION, _floats("tensions_n", tensions_n, CHANNELS))
+    def tensions(cls, tensions_n: Sequence[float], channels: int = DEFAULT_CHANNELS) -> "SetSetpoints":
+        return cls(Mode.TENSION, _floats("tensions_n", tensions_n, channels), channels)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -269,9 +292,10 @@ class SetCalibration(Message):
     """Load-cell calibration: tension_n = gain_n_per_count · (raw − offset_counts). Refused while enabled."""
 
     TYPE = MsgType.SET_CALIBRATION
-    LAYOUT = (("gain_n_per_count", "4f"), ("offset_counts", "4f"))
-    gain_n_per_count: tuple[float, ...] = (1.0, 1.0, 1.0, 1.0)
-    offset_counts: tuple[float, ...] = (0.0, 0.0, 0.0, 0.0)
+    LAYOUT = (("channels", "B"), ("gain_n_per_count", "*f"), ("offset_counts", "*f"))
+    gain_n_per_count: tuple[float, ...] = (1.0,) * DEFAULT_CHANNELS
+    offset_counts: tuple[float, ...] = (0.0,) * DEFAULT_CHANNELS
+    channels: int = DEFAULT_CHANNELS
 
 
 @dataclasses.dataclass(frozen=True)
@@ -296,7 +320,7 @@ class HelloReply(Message):
     )
     protocol_version: int = PROTOCOL_VERSION
     firmware_version: tuple[int, ...] = (0, 0, 0)
-    channels: int = CHANNELS
+    channels: int = DEFAULT_CHANNELS
     control_period_us: int = 0
     telemetry_period_us: int = 0
     tendon_m_per_count: float = 0.0
@@ -322,46 +346,48 @@ class Nack(Message):
 @dataclasses.dataclass(frozen=True)
 class TelemetryMessage(Message):
     """One 40 Hz sample. ``targets`` are per motor, in m (length modes) or N (tension);
-    ``duty`` in [-1, 1], positive pays tendon out; ``drive_modes`` packs a Drive per motor in
-    bits 2i..2i+1; ``stale_mask`` bit i = load cell i stale."""
+    ``duty`` in [-1, 1], positive pays tendon out; ``drive_modes`` holds a Drive per motor;
+    ``stale_mask`` bit i = load cell i stale."""
 
     TYPE = MsgType.TELEMETRY
     LAYOUT = (
+        ("channels", "B"),
         ("time_us", "Q"),
         ("sample_seq", "I"),
-        ("encoder_counts", "4i"),
-        ("lengths_m", "4f"),
-        ("raw_counts", "4i"),
-        ("tensions_n", "4f"),
-        ("targets", "4f"),
-        ("duty", "4f"),
+        ("encoder_counts", "*i"),
+        ("lengths_m", "*f"),
+        ("raw_counts", "*i"),
+        ("tensions_n", "*f"),
+        ("targets", "*f"),
+        ("duty", "*f"),
+        ("drive_modes", "*B"),
         ("state", "B"),
         ("mode", "B"),
-        ("fault_flags", "H"),
-        ("stale_mask", "B"),
-        ("drive_modes", "B"),
+        ("fault_flags", "I"),
+        ("stale_mask", "m"),
         ("rx_bad_frames", "I"),
         ("tx_dropped_frames", "I"),
     )
     time_us: int = 0
     sample_seq: int = 0
-    encoder_counts: tuple[int, ...] = (0, 0, 0, 0)
-    lengths_m: tuple[float, ...] = (0.0, 0.0, 0.0, 0.0)
-    raw_counts: tuple[int, ...] = (0, 0, 0, 0)
-    tensions_n: tuple[float, ...] = (0.0, 0.0, 0.0, 0.0)
-    targets: tuple[float, ...] = (0.0, 0.0, 0.0, 0.0)
-    duty: tuple[float, ...] = (0.0, 0.0, 0.0, 0.0)
+    encoder_counts: tuple[int, ...] = (0,) * DEFAULT_CHANNELS
+    lengths_m: tuple[float, ...] = (0.0,) * DEFAULT_CHANNELS
+    raw_counts: tuple[int, ...] = (0,) * DEFAULT_CHANNELS
+    tensions_n: tuple[float, ...] = (0.0,) * DEFAULT_CHANNELS
+    targets: tuple[float, ...] = (0.0,) * DEFAULT_CHANNELS
+    duty: tuple[float, ...] = (0.0,) * DEFAULT_CHANNELS
     state: int = State.DISABLED
     mode: int = Mode.LENGTHS
     fault_flags: int = 0
     stale_mask: int = 0
-    drive_modes: int = 0
+    drive_modes: tuple[int, ...] = (Drive.COAST,) * DEFAULT_CHANNELS
     rx_bad_frames: int = 0
     tx_dropped_frames: int = 0
+    channels: int = DEFAULT_CHANNELS
 
     def drives(self) -> tuple[Drive, ...]:
-        """The Drive of each motor, unpacked from ``drive_modes``."""
-        return tuple(enum_member(Drive, (self.drive_modes >> (2 * i)) & 0b11) for i in range(CHANNELS))
+        """The Drive of each motor."""
+        return tuple(enum_member(Drive, d) for d in self.drive_modes)
 
 
 MESSAGE_TYPES: dict[int, type[Message]] = {
@@ -378,11 +404,53 @@ def _floats(name: str, values: Iterable[float], count: int) -> tuple[float, ...]
     return values
 
 
-def _struct_of(cls: type[Message]) -> struct.Struct:
-    return struct.Struct("<" + "".join(code for _, code in cls.LAYOUT))
+def _sized(cls: type[Message]) -> bool:
+    """Whether ``cls``'s layout depends on the channel count (it then starts with ``channels``)."""
+    return any(code[0] == "*" or code == "m" for _, code in cls.LAYOUT)
 
 
-_STRUCTS = {t: _struct_of(cls) for t, cls in MESSAGE_TYPES.items()}
+_SIZED = frozenset(t for t, cls in MESSAGE_TYPES.items() if _sized(cls))
+assert all(MESSAGE_TYPES[t].LAYOUT[0] == ("channels", "B") for t in _SIZED)
+
+
+def mask_bytes(channels: int) -> int:
+    """Bytes of a bit-per-channel mask on the wire: ceil(channels / 8)."""
+    return (channels + 7) // 8
+
+
+_MASK_CODES = {1: "B", 2: "H"}
+
+
+def _codes(cls: type[Message], channels: int) -> list[tuple[str, str, int | None]]:
+    """(name, struct code, count or None for a scalar) of each field of ``cls`` at ``channels``."""
+    out = []
+    for name, code in cls.LAYOUT:
+        if code[0] == "*":
+            out.append((name, f"{channels}{code[1:]}", channels))
+        elif code == "m":
+            out.append((name, _MASK_CODES[mask_bytes(channels)], None))
+        elif code[0].isdigit():
+            out.append((name, code, int(code[:-1])))
+        else:
+            out.append((name, code, None))
+    return out
+
+
+@functools.lru_cache(maxsize=None)
+def _layout(msg_type: int, channels: int) -> tuple[struct.Struct, tuple[tuple[str, int, int | None], ...]]:
+    """The struct of a message type at a channel count, and each field's (name, index of its
+    first value in the unpacked tuple, count or None for a scalar)."""
+    fields, start, fmt = [], 0, "<"
+    for name, code, count in _codes(MESSAGE_TYPES[msg_type], channels):
+        fields.append((name, start, count))
+        start += count or 1
+        fmt += code
+    return struct.Struct(fmt), tuple(fields)
+
+
+def payload_size(msg_type: int, channels: int = DEFAULT_CHANNELS) -> int:
+    """Payload bytes of a message of ``msg_type``; ``channels`` sizes those whose layout depends on it."""
+    return _layout(msg_type, channels)[0].size
 
 
 def crc16(data: bytes) -> int:
@@ -450,51 +518,56 @@ def _raise_cobs_error(data: bytes) -> None:
     raise FrameError(f"invalid COBS frame of {n} bytes")
 
 
-def _fields_of(cls: type[Message]) -> tuple[tuple[str, int, int | None], ...]:
-    """(name, index of its first value in the unpacked tuple, count or None for a scalar)."""
-    fields, start = [], 0
-    for name, code in cls.LAYOUT:
-        count = int(code[:-1]) if code[0].isdigit() else None
-        fields.append((name, start, count))
-        start += count or 1
-    return tuple(fields)
-
-
-_FIELDS = {t: _fields_of(cls) for t, cls in MESSAGE_TYPES.items()}
+def _channels_of(message: Message) -> int:
+    channels = message.channels if message.TYPE in _SIZED else DEFAULT_CHANNELS
+    if not (isinstance(channels, int) and 1 <= channels <= MAX_CHANNELS):
+        raise CodecError(f"{type(message).__name__}.channels = {channels!r}: must be in 1..{MAX_CHANNELS}")
+    return channels
 
 
 def encode_payload(message: Message) -> bytes:
     """The payload bytes of ``message`` (little-endian, fields in LAYOUT order)."""
+    layout, fields = _layout(message.TYPE, _channels_of(message))
     flat: list = []
-    for name, _, count in _FIELDS[message.TYPE]:
+    for name, _, count in fields:
         value = getattr(message, name)
         if count is None:
             flat.append(value)
-        elif len(value) == count:
+        elif isinstance(value, (tuple, list)) and len(value) == count:
             flat.extend(value)
         else:
             raise CodecError(f"{type(message).__name__}.{name} = {value!r}: must have {count} entries")
     try:
-        return _STRUCTS[message.TYPE].pack(*flat)
+        return layout.pack(*flat)
     except (struct.error, OverflowError) as exc:
         raise CodecError(f"{message!r} cannot be encoded: {exc}") from None
 
 
 def decode_payload(msg_type: int, payload: bytes) -> Message:
-    """The message of type ``msg_type`` carried by ``payload``.
+    """The message of type ``msg_type`` carried by ``payload``; one whose layout depends on the
+    channel count is sized by the count it starts with.
 
     Raises:
-        MessageError: unknown type or a payload of the wrong length.
+        MessageError: unknown type, a channel count outside 1..MAX_CHANNELS, or a payload of the
+            wrong length.
     """
     cls = MESSAGE_TYPES.get(msg_type)
     if cls is None:
         raise MessageError(f"unknown message type 0x{msg_type:02x}")
-    layout = _STRUCTS[msg_type]
+    channels, sized = DEFAULT_CHANNELS, msg_type in _SIZED
+    if sized:
+        if not payload:
+            raise MessageError(f"{cls.__name__} payload is empty, expected its channel count first")
+        channels = payload[0]
+        if not 1 <= channels <= MAX_CHANNELS:
+            raise MessageError(f"{cls.__name__}.channels = {channels}: must be in 1..{MAX_CHANNELS}")
+    layout, fields = _layout(msg_type, channels)
     if len(payload) != layout.size:
-        raise MessageError(f"{cls.__name__} payload is {len(payload)} bytes, expected {layout.size}")
+        per = f" for {channels} channels" if sized else ""
+        raise MessageError(f"{cls.__name__} payload is {len(payload)} bytes, expected {layout.size}{per}")
     flat = layout.unpack(payload)
     return cls(**{name: flat[start] if count is None else flat[start:start + count]
-                  for name, start, count in _FIELDS[msg_type]})
+                  for name, start, count in fields})
 
 
 @dataclasses.dataclass(frozen=True)
@@ -532,27 +605,26 @@ def _check_frame(encoded: bytes) -> tuple[int, int, bytes]:
 
 _STATES = frozenset(State)
 _MODES = frozenset(Mode)
-# drive_modes bytes whose four 2-bit fields are all Drive members (3 is none).
-_DRIVE_BYTES = frozenset(b for b in range(256) if all(((b >> (2 * i)) & 0b11) in frozenset(Drive) for i in range(CHANNELS)))
+_DRIVES = frozenset(Drive)
 
 
 def _check_telemetry(m: TelemetryMessage) -> None:
     duty = m.duty
     # One expression for the common case, a sample each 25 ms: a sum of float32 values is
-    # finite exactly when every one is (float32's range is far inside float64's), and the
-    # chained comparisons fail on NaN.
-    if (m.state in _STATES and m.mode in _MODES and m.drive_modes in _DRIVE_BYTES and not m.stale_mask >> CHANNELS
-            and math.isfinite(sum(m.lengths_m + m.tensions_n + m.targets))
-            and -1.0 <= duty[0] <= 1.0 and -1.0 <= duty[1] <= 1.0 and -1.0 <= duty[2] <= 1.0 and -1.0 <= duty[3] <= 1.0):
+    # finite exactly when every one is (float32's range is far inside float64's), so the duty
+    # bounds are then its extremes.
+    if (m.state in _STATES and m.mode in _MODES and _DRIVES.issuperset(m.drive_modes) and not m.stale_mask >> m.channels
+            and math.isfinite(sum(m.lengths_m + m.tensions_n + m.targets + duty))
+            and -1.0 <= min(duty) and max(duty) <= 1.0):
         return
     if m.state not in _STATES:
         raise MessageError(f"TelemetryMessage.state = {m.state}: not a State")
     if m.mode not in _MODES:
         raise MessageError(f"TelemetryMessage.mode = {m.mode}: not a Mode")
-    if m.drive_modes not in _DRIVE_BYTES:
-        raise MessageError(f"TelemetryMessage.drive_modes = 0x{m.drive_modes:02x}: a motor's drive is not a Drive")
-    if m.stale_mask >> CHANNELS:
-        raise MessageError(f"TelemetryMessage.stale_mask = 0x{m.stale_mask:02x}: bits beyond the {CHANNELS} load cells")
+    if not _DRIVES.issuperset(m.drive_modes):
+        raise MessageError(f"TelemetryMessage.drive_modes = {m.drive_modes!r}: a motor's drive is not a Drive")
+    if m.stale_mask >> m.channels:
+        raise MessageError(f"TelemetryMessage.stale_mask = 0x{m.stale_mask:02x}: bits beyond the {m.channels} load cells")
     for name in ("lengths_m", "tensions_n", "targets"):
         if not all(map(math.isfinite, getattr(m, name))):
             raise MessageError(f"TelemetryMessage.{name} = {getattr(m, name)!r}: not finite")
@@ -560,9 +632,10 @@ def _check_telemetry(m: TelemetryMessage) -> None:
 
 
 def _check_hello_reply(m: HelloReply) -> None:
-    # The protocol version is not checked here: the host refuses another version by name.
-    if m.channels != CHANNELS:
-        raise MessageError(f"HelloReply.channels = {m.channels}: this host drives {CHANNELS}")
+    # The protocol version is not checked here: the host refuses another version by name. Nor
+    # is the count checked against a robot: the device does that, naming both.
+    if not 1 <= m.channels <= MAX_CHANNELS:
+        raise MessageError(f"HelloReply.channels = {m.channels}: must be in 1..{MAX_CHANNELS}")
     if not math.isfinite(m.tendon_m_per_count):
         raise MessageError(f"HelloReply.tendon_m_per_count = {m.tendon_m_per_count!r}: not finite")
 
@@ -575,7 +648,8 @@ _FIELD_CHECKS = {MsgType.TELEMETRY: _check_telemetry, MsgType.HELLO_REPLY: _chec
 
 def check_fields(message: Message) -> None:
     """Check that a board → host message carries only values the protocol defines: enum fields
-    hold members, floats are finite, duty lies in [-1, 1], a HELLO_REPLY names 4 channels.
+    hold members, floats are finite, duty lies in [-1, 1], a HELLO_REPLY names 1..MAX_CHANNELS
+    channels.
 
     Raises:
         MessageError: naming the field and its value.

@@ -48,9 +48,16 @@ def run_emulate(args: argparse.Namespace) -> int:
         print(f"twin emulate: --link {args.link}: already exists; not replacing it (remove it or choose "
               "another path)", file=sys.stderr)
         return 2
+    from twin.resources import NativeBuildError
+
     with sigterm_event() as stop:
         params = params_from_args(args)
-        board = PtyBoard(params, seed=args.seed, link_path=args.link)
+        try:
+            board = PtyBoard(params, seed=args.seed, link_path=args.link)
+        except (ValueError, NativeBuildError) as exc:
+            # One line: a build error's compiler output is for make to show, not this command.
+            print(f"twin emulate: the board cannot start: {_first_line(exc)}", file=sys.stderr)
+            return 1
         with board:
             print(f"port: {board.port}", flush=True)
             print(f"url:  {board.url}", flush=True)
@@ -60,18 +67,27 @@ def run_emulate(args: argparse.Namespace) -> int:
                 pass
             print(f"stopped after {board.ticks} ticks ({board.ticks * TICK_S:.1f} s of board time), "
                   f"{board.overruns} overruns, {board.tx_dropped_bytes} bytes dropped", flush=True)
+        if board.error is not None:
+            print(f"twin emulate: the board stopped: {type(board.error).__name__}: {_first_line(board.error)}",
+                  file=sys.stderr)
+            return 1
     return 0
 
 
+def _first_line(exc: BaseException) -> str:
+    return (str(exc).splitlines() or [""])[0]
+
+
 def _serve(board, stop: threading.Event, params, args) -> None:
-    """Wait for the stop; with ``--live``, show the twin behind the port meanwhile. The board's
-    thread steps the plant while this one reads it: a frame may mix two steps, which a view
-    drawn a few times a second cannot show."""
+    """Wait for the stop, or for the board's thread to end (:attr:`PtyBoard.error`); with
+    ``--live``, show the twin behind the port meanwhile. The board's thread steps the plant while
+    this one reads it: a frame may mix two steps, which a view drawn a few times a second cannot
+    show."""
     from twin.live import live_view_from_args
 
     view = live_view_from_args(args, params, command="emulate")
     if view is None:
-        while not stop.wait(1.0):
+        while not stop.wait(0.25) and board.error is None:
             pass
         return
     from twin.device.board import TICK_S
@@ -80,7 +96,7 @@ def _serve(board, stop: threading.Event, params, args) -> None:
 
     twin = SimTwin(board.board)
     try:
-        while not stop.wait(0.25):
+        while not stop.wait(0.25) and board.error is None:
             show_twin(view, twin, label=f"board time {board.ticks * TICK_S:.1f} s")
     finally:
         view.close()

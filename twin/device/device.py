@@ -33,7 +33,7 @@ Example::
     with open_device("sim://?seed=3") as dev:   # or "serial:///dev/ttyACM0"
         dev.tare()
         dev.enable()
-        dev.set_lengths([-0.002, 0.0, 0.002, 0.0])
+        dev.set_lengths([-0.002, 0.0, 0.002, 0.0])   # one length per tendon (the endoscope's four)
         dev.wait(1.0)
         lengths_m = dev.latest().tendon_lengths_m
 """
@@ -47,7 +47,8 @@ from typing import TYPE_CHECKING, ContextManager, Iterable, Sequence
 import numpy as np
 
 from twin.device import codec
-from twin.device.errors import CommandRejected, DeviceDisconnected, DeviceError, DeviceTimeout, ProtocolVersionError
+from twin.device.errors import (ChannelCountError, CommandRejected, DeviceDisconnected, DeviceError, DeviceTimeout,
+                                ProtocolVersionError)
 from twin.device.inbox import Inbox, LinkStats
 from twin.device.telemetry import DeviceInfo, Telemetry
 from twin.device.transport import Transport
@@ -123,15 +124,16 @@ def _calibration(gains: tuple[float, ...], offsets: tuple[float, ...]) -> None:
                              "(an eighth of the HX711's 24-bit range)")
 
 
-def _mask(name: str, channels: bool | Iterable[int]) -> int:
+def _mask(name: str, channels: bool | Iterable[int], count: int) -> int:
+    """The bit mask of ``channels`` (True: all ``count``, False: none, else indices 0..count-1)."""
     if channels is True:
-        return (1 << codec.CHANNELS) - 1
+        return (1 << count) - 1
     if channels is False:
         return 0
     mask = 0
     for channel in channels:
-        if not (isinstance(channel, (int, np.integer)) and 0 <= channel < codec.CHANNELS):
-            raise ValueError(f"{name} = {channels!r}: channels are 0..{codec.CHANNELS - 1}")
+        if not (isinstance(channel, (int, np.integer)) and 0 <= channel < count):
+            raise ValueError(f"{name} = {channels!r}: channels are 0..{count - 1}")
         mask |= 1 << int(channel)
     return mask
 
@@ -160,6 +162,9 @@ class Device:
             limit than the host's. None keeps the board's default (6 N) until :meth:`set_limits`.
         base_rotation: the clamp's orientation (3×3, body → world) the board's robot is mounted
             in (the twin is built in it): :attr:`base_rotation`. Default the thesis's horizontal clamp.
+        tendons: the robot's tendon count (``tendons.count``): :meth:`connect` refuses a board
+            with another channel count. None takes the board's count as it comes.
+        robot: the robot's name, for that refusal's message (None: "the robot").
 
     Attributes:
         fixture: the :class:`twin.device.fixture.Fixture` (None if the backend has none).
@@ -178,7 +183,13 @@ class Device:
         queue_size: int = 4096,
         tension_limit_n: float | None = None,
         base_rotation=HORIZONTAL,
+        tendons: int | None = None,
+        robot: str | None = None,
     ):
+        if tendons is not None and not (isinstance(tendons, (int, np.integer)) and tendons >= 1):
+            raise ValueError(f"tendons = {tendons!r}: must be a whole number >= 1, or None")
+        self._tendons = None if tendons is None else int(tendons)
+        self._robot = robot
         if not (math.isfinite(command_timeout_s) and command_timeout_s > 0):
             raise ValueError(f"command_timeout_s = {command_timeout_s!r}: must be finite and > 0")
         if keepalive_s is not None and not (math.isfinite(keepalive_s) and keepalive_s > 0):
@@ -244,10 +255,20 @@ class Device:
 
     @property
     def info(self) -> DeviceInfo:
-        """What the handshake reported (versions, rates, tendon m per count)."""
+        """What the handshake reported (versions, channels, rates, tendon m per count)."""
         if self._info is None:
             raise DeviceError(f"{self.url}: not connected (call connect())")
         return self._info
+
+    @property
+    def channels(self) -> int:
+        """Motors and load cells of the board (its HELLO_REPLY's count; the robot's tendon
+        count once connected): the length of every per-tendon argument and telemetry array.
+
+        Raises:
+            DeviceError: not connected.
+        """
+        return self.info.channels
 
     # ------------------------------------------------------------------ connection
     def connect(self, *, timeout_s: float = 2.0) -> DeviceInfo:
@@ -265,6 +286,8 @@ class Device:
             DeviceTimeout: no HELLO_REPLY, no answer to DISABLE or no telemetry in time.
             ProtocolVersionError: the board speaks another protocol version (it was sent
                 DISABLE, and nothing else).
+            ChannelCountError: the board drives another number of motors than the robot has
+                tendons (it was sent DISABLE, and nothing else).
         """
         if self._info is not None:
             return self._info
@@ -355,23 +378,33 @@ class Device:
         """Zero load cells (tension reads 0 N now) and/or tendon lengths (length reads 0 m now).
 
         Args:
-            loadcells: True for all, False for none, or channel indices 0..3.
+            loadcells: True for all, False for none, or channel indices 0..channels-1.
             lengths: likewise for the tendon length origins.
 
         Raises:
             CommandRejected: while enabled, or a load cell to tare is stale.
         """
-        self._command(codec.Tare(_mask("loadcells", loadcells), _mask("lengths", lengths)))
+        n = self.channels
+        self._command(codec.Tare(_mask("loadcells", loadcells, n), _mask("lengths", lengths, n), n))
 
     def set_mode(self, mode: str | codec.Mode) -> None:
         """Switch control mode: ``"lengths"``, ``"pairs"`` or ``"tensions"``. The new mode
-        starts from the current measurement (bumpless)."""
-        self._command(codec.SetMode(_mode(mode)))
+        starts from the current measurement (bumpless).
+
+        Raises:
+            ValueError: an unknown mode, or ``"pairs"`` on an odd count of tendons (pairs are
+                tendon i and i + N/2).
+        """
+        mode = _mode(mode)
+        if mode == codec.Mode.PAIRS and not codec.pairs_possible(self.channels):
+            raise ValueError(f"mode = 'pairs': the board's {self.channels} tendons do not form antagonistic "
+                             "pairs (tendon i and i + N/2 need an even count)")
+        self._command(codec.SetMode(mode))
 
     def set_gains(
         self, mode: str | codec.Mode, *, kp: float, ki: float, kd: float, output_limit: float = 1.0
     ) -> None:
-        """PID gains of one mode, for all four motors.
+        """PID gains of one mode, for all motors.
 
         Args:
             mode: ``"lengths"``, ``"pairs"`` or ``"tensions"``.
@@ -416,10 +449,10 @@ class Device:
                 f"gain_counts_per_n = {gain_counts_per_n!r}, offset_counts = {offset_counts!r}: "
                 "pass a Calibration, or both arrays"
             )
-        gains = _vector("gain_counts_per_n", gain_counts_per_n, codec.CHANNELS)
-        offsets = _vector("offset_counts", offset_counts, codec.CHANNELS)
+        gains = _vector("gain_counts_per_n", gain_counts_per_n, self.channels)
+        offsets = _vector("offset_counts", offset_counts, self.channels)
         _calibration(gains, offsets)
-        self._command(codec.SetCalibration(tuple(1.0 / g for g in gains), offsets))
+        self._command(codec.SetCalibration(tuple(1.0 / g for g in gains), offsets, self.channels))
 
     def set_limits(self, *, tension_limit_n: float | None = None, watchdog_timeout_s: float = 0.25) -> None:
         """Per-channel tension limit and watchdog timeout; every later :meth:`enable` sends them
@@ -438,38 +471,46 @@ class Device:
         self._command(codec.SetLimits(limit, round(watchdog_timeout_s * 1e3)))
 
     def set_lengths(self, lengths_m: Sequence[float]) -> None:
-        """Setpoints of ``"lengths"`` mode: 4 relative tendon lengths (m, positive = paid out,
+        """Setpoints of ``"lengths"`` mode: a relative length per tendon (m, positive = paid out,
         within ±:data:`MAX_LENGTH_SETPOINT_M`).
 
         Raises:
-            ValueError: not 4 finite numbers, or one beyond ±0.05 m (the value and its index named).
+            ValueError: not :attr:`channels` finite numbers, or one beyond ±0.05 m (the value
+                and its index named).
         """
-        lengths = _vector("lengths_m", lengths_m, codec.CHANNELS)
+        n = self.channels
+        lengths = _vector("lengths_m", lengths_m, n)
         limit = MAX_LENGTH_SETPOINT_M
-        self._command(codec.SetSetpoints.lengths(_bounded("lengths_m", lengths, -limit, limit, "m", "mm sent as m?")))
+        self._command(codec.SetSetpoints.lengths(_bounded("lengths_m", lengths, -limit, limit, "m", "mm sent as m?"), n))
 
     def set_pairs(self, pairs_m: Sequence[float]) -> None:
-        """Setpoints of ``"pairs"`` mode: d₁₃ and d₂₄ (m, within ±:data:`MAX_LENGTH_SETPOINT_M`);
-        tendon 1 goes to c₁₃ + d₁₃ and tendon 3 to c₁₃ − d₁₃, c the pair's mean length when the
-        mode was entered.
+        """Setpoints of ``"pairs"`` mode, one per antagonistic pair (tendon k and k + N/2 of N):
+        d₁₃ and d₂₄ on four tendons (m, within ±:data:`MAX_LENGTH_SETPOINT_M`); tendon 1 goes to
+        c₁₃ + d₁₃ and tendon 3 to c₁₃ − d₁₃, c the pair's mean length when the mode was entered.
 
         Raises:
-            ValueError: not 2 finite numbers, or one beyond ±0.05 m.
+            ValueError: an odd count of tendons (no pairs), not N/2 finite numbers, or one
+                beyond ±0.05 m.
         """
-        pairs = _vector("pairs_m", pairs_m, codec.CHANNELS // 2)
+        n = self.channels
+        if not codec.pairs_possible(n):
+            raise ValueError(f"pairs_m = {pairs_m!r}: the board's {n} tendons do not form antagonistic pairs "
+                             "(tendon i and i + N/2 need an even count)")
+        pairs = _vector("pairs_m", pairs_m, n // 2)
         limit = MAX_LENGTH_SETPOINT_M
-        self._command(codec.SetSetpoints.pairs(_bounded("pairs_m", pairs, -limit, limit, "m", "mm sent as m?")))
+        self._command(codec.SetSetpoints.pairs(_bounded("pairs_m", pairs, -limit, limit, "m", "mm sent as m?"), n))
 
     def set_tensions(self, tensions_n: Sequence[float]) -> None:
-        """Setpoints of ``"tensions"`` mode: 4 tendon tensions (N, from 0 to the tension limit
-        this host last set with :meth:`set_limits`, 6 N until then).
+        """Setpoints of ``"tensions"`` mode: a tension per tendon (N, from 0 to the tension
+        limit this host last set with :meth:`set_limits`, 6 N until then).
 
         Raises:
-            ValueError: not 4 finite numbers, or one outside 0..limit.
+            ValueError: not :attr:`channels` finite numbers, or one outside 0..limit.
         """
-        tensions = _vector("tensions_n", tensions_n, codec.CHANNELS)
+        n = self.channels
+        tensions = _vector("tensions_n", tensions_n, n)
         tensions = _bounded("tensions_n", tensions, 0.0, self._tension_limit_n, "N", "the tension limit; set_limits")
-        self._command(codec.SetSetpoints.tensions(tensions))
+        self._command(codec.SetSetpoints.tensions(tensions, n))
 
     # ------------------------------------------------------------------ telemetry and time
     def latest(self) -> Telemetry:
@@ -558,6 +599,9 @@ class Device:
         if reply.protocol_version != codec.PROTOCOL_VERSION:
             self._send(codec.Disable())
             raise ProtocolVersionError(self.url, reply.protocol_version)
+        if self._tendons is not None and reply.channels != self._tendons:
+            self._send(codec.Disable())
+            raise ChannelCountError(self.url, reply.channels, self._tendons, self._robot)
         self._transport.keep_alive(self._keepalive_s, self._ping)
         # Whatever a previous host left running stops before this one takes over.
         self._await_answer(codec.Disable())

@@ -8,7 +8,8 @@ from __future__ import annotations
 
 from twin.device import codec
 
-__all__ = ["CommandRejected", "DeviceDisconnected", "DeviceError", "DeviceTimeout", "ProtocolVersionError"]
+__all__ = ["ChannelCountError", "CommandRejected", "DeviceDisconnected", "DeviceError", "DeviceTimeout",
+           "ProtocolVersionError"]
 
 
 class DeviceError(IOError):
@@ -42,11 +43,28 @@ class ProtocolVersionError(DeviceError):
         self.host_version = host_version
 
 
+class ChannelCountError(DeviceError):
+    """The board drives another number of motors than the robot has tendons. It was sent a
+    DISABLE and nothing else.
+
+    Attributes:
+        board_channels: the channel count in the board's HELLO_REPLY.
+        tendons: the robot's tendon count (``tendons.count``).
+    """
+
+    def __init__(self, url: str, board_channels: int, tendons: int, robot: str | None = None):
+        name = "the robot" if robot is None else f"robot {robot!r}"
+        super().__init__(f"board at {url} has {board_channels} channels; {name} has {tendons} tendons")
+        self.board_channels = board_channels
+        self.tendons = tendons
+
+
 # Why the board refuses a command, in terms of what the caller should do about it.
 _NACK_HINTS = {
     codec.NackError.UNKNOWN_TYPE: "the board does not know this message type",
-    codec.NackError.BAD_LENGTH: "the payload length does not match the board's protocol",
-    codec.NackError.BAD_VALUE: "a value is not finite, out of range, or a load cell to tare is stale",
+    codec.NackError.BAD_LENGTH: "the payload length or channel count does not match the board's",
+    codec.NackError.BAD_VALUE: "a value is not finite, out of range, a load cell to tare is stale, "
+                               "or pairs mode on an odd count of tendons",
     codec.NackError.WRONG_MODE: "setpoints for another mode than the active one (call set_mode first)",
     codec.NackError.NOT_ENABLED: "setpoints are accepted only while enabled (call enable first)",
     codec.NackError.NOT_WHILE_ENABLED: "tare and calibration are refused while enabled (call disable first)",

@@ -7,9 +7,9 @@ lib`` (host g++) into the per-user cache (:mod:`twin.resources`), and anew when 
 source or the compiler changes.
 
 Example:
-    >>> fw = FirmwareLib()
+    >>> fw = FirmwareLib(channels=3)
     >>> fw.receive(codec.encode_frame(codec.Hello(), seq=1))
-    >>> duty = fw.tick(0, [0, 0, 0, 0], [0, 0, 0, 0], new_mask=0b1111)
+    >>> duty = fw.tick(0, [0, 0, 0], [0, 0, 0], new_mask=0b111)
     >>> [type(f.message).__name__ for f in codec.FrameDecoder().feed(fw.take_tx())]
     ['HelloReply', 'TelemetryMessage']
 """
@@ -42,8 +42,7 @@ __all__ = [
 
 FIRMWARE_DIR = resource_path("firmware")
 LIB_NAME = "libtwinfw.so"
-ABI_VERSION = 1
-_CHANNELS = codec.CHANNELS
+ABI_VERSION = 2
 
 
 class FirmwareBuildError(NativeBuildError):
@@ -95,7 +94,9 @@ def load_library() -> ctypes.CDLL:
     signatures = {
         "twinfw_abi_version": ([], ctypes.c_uint32),
         "twinfw_protocol_version": ([], ctypes.c_uint32),
-        "twinfw_create": ([], p),
+        "twinfw_max_channels": ([], ctypes.c_uint32),
+        "twinfw_create": ([ctypes.c_uint32], p),
+        "twinfw_channels": ([p], ctypes.c_uint32),
         "twinfw_destroy": ([p], None),
         "twinfw_receive": ([p, ctypes.c_char_p, ctypes.c_size_t], None),
         "twinfw_tick": ([p, ctypes.c_uint64, i32p, i32p, ctypes.c_uint32, f32p, u8p], None),
@@ -118,6 +119,9 @@ def load_library() -> ctypes.CDLL:
         raise FirmwareBuildError(
             f"{path} speaks protocol version {protocol}, twin.device.codec speaks {codec.PROTOCOL_VERSION}"
         )
+    most = lib.twinfw_max_channels()
+    if most != codec.MAX_CHANNELS:
+        raise FirmwareBuildError(f"{path} drives up to {most} channels, twin.device.codec {codec.MAX_CHANNELS}")
     return lib
 
 
@@ -133,12 +137,12 @@ _INT32_MIN, _INT32_MAX = -(2**31), 2**31 - 1
 
 
 def _channels(name: str, values: Sequence[int], out: np.ndarray) -> None:
-    """Copy 4 integers into the int32 buffer ``out``, refusing what does not fit."""
+    """Copy one integer per channel into the int32 buffer ``out``, refusing what does not fit."""
     array = np.asarray(values)
-    if array.shape != (_CHANNELS,) or array.dtype.kind not in "iu":
-        raise ValueError(f"{name} = {values!r}: must be {_CHANNELS} integers")
+    if array.shape != out.shape or array.dtype.kind not in "iu":
+        raise ValueError(f"{name} = {values!r}: must be {out.size} integers")
     # Checked as Python ints: this runs twice per tick, 200 ticks per simulated second, and
-    # numpy's min and max cost five times as much on four values.
+    # numpy's min and max cost five times as much on a few values.
     items = array.tolist()
     if min(items) < _INT32_MIN or max(items) > _INT32_MAX:
         raise ValueError(f"{name} = {values!r}: must fit in int32")
@@ -152,17 +156,30 @@ class FirmwareLib:
     control loop when due and the 40 Hz telemetry when due; commands given to ``receive`` take
     effect at the time of the latest tick. Call ``tick`` at 200 Hz or faster to hit both rates
     exactly. Not thread-safe.
+
+    Args:
+        channels: motors and load cells of the board (1..:data:`codec.MAX_CHANNELS`), what its
+            HELLO_REPLY reports; default the thesis endoscope's four.
+
+    Attributes:
+        channels: that count.
+
+    Raises:
+        ValueError: ``channels`` outside 1..MAX_CHANNELS.
     """
 
-    def __init__(self) -> None:
+    def __init__(self, channels: int = codec.DEFAULT_CHANNELS) -> None:
+        if not (isinstance(channels, (int, np.integer)) and 1 <= channels <= codec.MAX_CHANNELS):
+            raise ValueError(f"channels = {channels!r}: the firmware drives 1..{codec.MAX_CHANNELS} motors")
         self._lib = load_library()
-        self._fw = self._lib.twinfw_create()
+        self._fw = self._lib.twinfw_create(int(channels))
         if not self._fw:
             raise MemoryError("twinfw_create returned NULL")
-        self._duty = np.zeros(_CHANNELS, dtype=np.float32)
-        self._drive = np.zeros(_CHANNELS, dtype=np.uint8)
-        self._counts = np.zeros(_CHANNELS, dtype=np.int32)
-        self._raw = np.zeros(_CHANNELS, dtype=np.int32)
+        self.channels = int(channels)
+        self._duty = np.zeros(self.channels, dtype=np.float32)
+        self._drive = np.zeros(self.channels, dtype=np.uint8)
+        self._counts = np.zeros(self.channels, dtype=np.int32)
+        self._raw = np.zeros(self.channels, dtype=np.int32)
         # The buffers live as long as the board, so their C pointers are taken once.
         self._pointers = (
             self._counts.ctypes.data_as(ctypes.POINTER(ctypes.c_int32)),
@@ -183,19 +200,19 @@ class FirmwareLib:
 
         Args:
             now_us: board time in microseconds.
-            encoder_counts: 4 quadrature counts (int32).
-            raw_counts: 4 HX711 readings (int32); only channels in ``new_mask`` are taken.
+            encoder_counts: a quadrature count per channel (int32).
+            raw_counts: an HX711 reading per channel (int32); only channels in ``new_mask`` are taken.
             new_mask: bit i set when ``raw_counts[i]`` is a sample taken since the last tick.
 
         Returns:
-            Duty per motor in [-1, 1], shape (4,); positive pays tendon out. The drive state
+            Duty per motor in [-1, 1], shape (channels,); positive pays tendon out. The drive state
             (coast/drive/brake) of the same step is in :attr:`drive_modes`.
         """
         self._check_open()
         if now_us < 0:
             raise ValueError(f"now_us = {now_us!r}: must be >= 0")
-        if not 0 <= new_mask < 1 << _CHANNELS:
-            raise ValueError(f"new_mask = {new_mask!r}: must be in 0..{(1 << _CHANNELS) - 1}")
+        if not 0 <= new_mask < 1 << self.channels:
+            raise ValueError(f"new_mask = {new_mask!r}: must be in 0..{(1 << self.channels) - 1}")
         _channels("encoder_counts", encoder_counts, self._counts)
         _channels("raw_counts", raw_counts, self._raw)
         counts, raw, duty, drive = self._pointers
@@ -210,7 +227,7 @@ class FirmwareLib:
 
     @property
     def drive_modes(self) -> np.ndarray:
-        """:class:`codec.Drive` per motor after the latest tick, shape (4,), uint8."""
+        """:class:`codec.Drive` per motor after the latest tick, shape (channels,), uint8."""
         return self._drive.copy()
 
     def take_tx(self) -> bytes:

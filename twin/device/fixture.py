@@ -10,7 +10,7 @@ device's backend. Every action returns once the load or clamp is in place and st
 * :class:`OperatorFixture` (``serial://``) asks the operator on the console and returns when
   they press Enter.
 
-Channel indices are 0..3 as everywhere in the API; messages to the operator say tendon 1..4.
+Channel indices are 0..N-1 as everywhere in the API; messages to the operator say tendon 1..N.
 """
 
 from __future__ import annotations
@@ -20,6 +20,8 @@ import math
 from typing import TYPE_CHECKING, Callable, Iterable
 
 import numpy as np
+
+from twin.device.codec import DEFAULT_CHANNELS
 
 if TYPE_CHECKING:
     from twin.device.board import EmulatedBoard
@@ -135,10 +137,11 @@ class OperatorFixture(Fixture):
     Args:
         prompt: shows a request and returns when the operator confirms it; :func:`input` by
             default (press Enter). Tests pass a recorder.
-        channels: load cells on the rig.
+        channels: load cells on the rig (the robot's ``tendons.count``; default the thesis
+            endoscope's four).
     """
 
-    def __init__(self, prompt: Callable[[str], object] = input, *, channels: int = 4):
+    def __init__(self, prompt: Callable[[str], object] = input, *, channels: int = DEFAULT_CHANNELS):
         self._prompt = prompt
         self._count = channels
 

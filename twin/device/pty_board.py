@@ -50,6 +50,8 @@ class PtyBoard:
         ticks: board ticks run so far.
         overruns: times the board fell more than 0.1 s behind the wall clock and skipped ahead.
         tx_dropped_bytes: bytes not written because nobody read the port and its buffer was full.
+        error: what stopped the board's thread (the simulation diverged, say), or None while
+            it runs: the port then stays open but silent, as a board that hung.
     """
 
     def __init__(
@@ -65,6 +67,7 @@ class PtyBoard:
         self.ticks = 0
         self.overruns = 0
         self.tx_dropped_bytes = 0
+        self.error: BaseException | None = None
         self._fds: tuple[int, int] | None = None
         self._device_path = ""
         self._thread: threading.Thread | None = None
@@ -142,6 +145,12 @@ class PtyBoard:
         self.close()
 
     def _run(self) -> None:
+        try:
+            self._serve()
+        except Exception as exc:  # noqa: BLE001 - kept for the owner to report; the thread ends here
+            self.error = exc
+
+    def _serve(self) -> None:
         master = self._fds[0]
         next_tick_s = time.monotonic()
         while not self._stop.is_set():

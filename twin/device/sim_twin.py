@@ -60,11 +60,11 @@ class SimTwin:
         return self._board.plant.backbone_positions_m()
 
     def true_tensions_n(self) -> np.ndarray:
-        """(4,) true tension at the spool end of each tendon (N): what a perfect load cell reads."""
+        """(N,) true tension at the spool end of each tendon (N): what a perfect load cell reads."""
         return self._board.plant.true_tensions_n()
 
     def peak_tensions_n(self) -> np.ndarray:
-        """(4,) largest true tension of each tendon (N) at any physics step since
+        """(N,) largest true tension of each tendon (N) at any physics step since
         :meth:`clear_peak_tensions` or :meth:`reset`: what a bound on tension must hold, including
         what happens between load-cell samples."""
         return self._board.plant.peak_tensions_n()

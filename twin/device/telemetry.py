@@ -17,18 +17,18 @@ __all__ = ["DeviceInfo", "Telemetry"]
 
 @dataclasses.dataclass(frozen=True, eq=False)
 class Telemetry:
-    """One telemetry sample.
+    """One telemetry sample; N is the board's channel count (:attr:`DeviceInfo.channels`).
 
     Attributes:
         time_s: device time of the sample (s since the board's first tick): simulated time on
             ``sim://``, the board's clock on ``serial://``.
         seq: the board's sample counter; a gap means samples were lost on the way.
-        encoder_counts: (4,) int64 raw quadrature counts (no origin applied).
-        tendon_lengths_m: (4,) relative tendon lengths (m, from the last tare; positive = paid out).
-        raw_counts: (4,) int64 latest HX711 readings (counts).
-        tensions_n: (4,) calibrated tensions (N).
-        targets: (4,) per-motor targets: m in the length modes, N in tension mode.
-        motor_commands: (4,) duty per motor in [-1, 1]; positive pays tendon out.
+        encoder_counts: (N,) int64 raw quadrature counts (no origin applied).
+        tendon_lengths_m: (N,) relative tendon lengths (m, from the last tare; positive = paid out).
+        raw_counts: (N,) int64 latest HX711 readings (counts).
+        tensions_n: (N,) calibrated tensions (N).
+        targets: (N,) per-motor targets: m in the length modes, N in tension mode.
+        motor_commands: (N,) duty per motor in [-1, 1]; positive pays tendon out.
         drives: per motor :class:`codec.Drive` (coast, drive, brake).
         state: :class:`codec.State` (disabled, enabled, fault).
         mode: :class:`codec.Mode` (lengths, pairs, tension).
@@ -93,7 +93,7 @@ class DeviceInfo:
         clock: ``"simulated"`` or ``"wall"`` (see :attr:`twin.device.Device.clock`).
         protocol_version: the board's protocol version (equal to the host's once connected).
         firmware_version: (major, minor, patch).
-        channels: motors / load cells (4).
+        channels: motors / load cells (the robot's tendon count once connected).
         control_period_s: PID period (s), 0.01.
         telemetry_period_s: telemetry period (s), 0.025.
         tendon_m_per_count: tendon length per encoder count (m).

@@ -64,6 +64,7 @@ def open_device(
     command_timeout_s: float = 0.5,
     keepalive_s: float | None = 0.1,
     queue_size: int = 4096,
+    robot: str | None = None,
 ) -> Device:
     """A :class:`Device` for ``url``, not yet connected (use ``with`` or call ``connect()``).
 
@@ -75,6 +76,8 @@ def open_device(
             0 if neither is given.
         prompt: how the operator is asked for fixture actions on ``serial://``.
         command_timeout_s, keepalive_s, queue_size: see :class:`Device`.
+        robot: the robot's name, for the message refusing a board with another channel count
+            than its ``tendons.count`` (see :meth:`Device.connect`).
 
     Raises:
         ValueError: an unknown scheme or option, a bad option value, or a seed given twice
@@ -89,7 +92,8 @@ def open_device(
     settings = FusionSettings.from_params(params)
     # The parameter set's tension limit is what the board drives with: Device.enable sends it.
     device_args = dict(command_timeout_s=command_timeout_s, keepalive_s=keepalive_s, queue_size=queue_size,
-                       tension_limit_n=params.rig.tension_limit_n, base_rotation=_pose(url, options, params))
+                       tension_limit_n=params.rig.tension_limit_n, base_rotation=_pose(url, options, params),
+                       tendons=params.tendons.count, robot=robot)
 
     if parts.scheme == "sim":
         if parts.netloc or parts.path not in ("", "/"):
@@ -122,7 +126,8 @@ def open_device(
         with device.attended():
             return prompt(request)
 
-    device = Device(SerialTransport(path, url=url), fixture=OperatorFixture(ask), tracker=tracker, **device_args)
+    fixture = OperatorFixture(ask, channels=params.tendons.count)
+    device = Device(SerialTransport(path, url=url), fixture=fixture, tracker=tracker, **device_args)
     return device
 
 

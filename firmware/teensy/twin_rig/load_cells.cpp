@@ -5,7 +5,7 @@
 #include "pins.h"
 
 void LoadCells::begin() {
-  for (int i = 0; i < 4; ++i) {
+  for (size_t i = 0; i < pins::kRigChannels; ++i) {
     pinMode(pins::kLoadcellDout[i], INPUT);
     pinMode(pins::kLoadcellSck[i], OUTPUT);
     digitalWrite(pins::kLoadcellSck[i], LOW);  // SCK high for > 60 µs would power the chip down
@@ -14,10 +14,10 @@ void LoadCells::begin() {
 
 void LoadCells::poll(twinfw::Inputs& inputs) {
   const int channel = next_;
-  next_ = (next_ + 1) % 4;
+  next_ = (next_ + 1) % static_cast<int>(pins::kRigChannels);
   if (digitalRead(pins::kLoadcellDout[channel]) != LOW) return;
   inputs.raw_counts[channel] = read(channel);
-  inputs.new_sample_mask = static_cast<uint8_t>(inputs.new_sample_mask | (1u << channel));
+  inputs.new_sample_mask = static_cast<twinfw::ChannelMask>(inputs.new_sample_mask | (1u << channel));
 }
 
 // 24 data bits, MSB first, then one more pulse to select channel A at gain 128 for the next

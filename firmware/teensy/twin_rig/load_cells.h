@@ -1,4 +1,4 @@
-// Four HX711s read without blocking: the main loop calls poll() every pass, and poll() reads
+// The rig's HX711s (pins::kRigChannels) read without blocking: the main loop calls poll() every pass, and poll() reads
 // at most one channel, and only one whose conversion is ready (DOUT low), so a pass never
 // waits for the 80 Hz conversions.
 #pragma once

@@ -13,7 +13,7 @@ constexpr int kPwmMax = (1 << kPwmBits) - 1;
 
 void Motors::begin() {
   analogWriteResolution(kPwmBits);
-  for (int i = 0; i < 4; ++i) {
+  for (size_t i = 0; i < pins::kRigChannels; ++i) {
     analogWriteFrequency(pins::kMotorIn1[i], kPwmFrequencyHz);
     analogWriteFrequency(pins::kMotorIn2[i], kPwmFrequencyHz);
     analogWrite(pins::kMotorIn1[i], 0);  // coast until the firmware says otherwise
@@ -24,7 +24,7 @@ void Motors::begin() {
 // Drive: PWM on one input, the other low (drive/coast, "fast decay"). Coast: both low.
 // Brake: both high, which shorts the motor and holds the spool.
 void Motors::apply(const twinfw::Outputs& outputs) {
-  for (int i = 0; i < 4; ++i) {
+  for (size_t i = 0; i < pins::kRigChannels; ++i) {
     int in1 = 0;
     int in2 = 0;
     if (outputs.drive[i] == twinfw::Drive::kBrake) {

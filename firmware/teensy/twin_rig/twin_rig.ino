@@ -22,17 +22,24 @@ namespace {
 constexpr uint32_t kTickPeriodUs = 5000;
 
 // Named objects, not an array of temporaries: each Encoder hands `this` to its pin interrupts
-// in its constructor, so it must be built in place.
+// in its constructor, so it must be built in place. All eight are built (their pins pulled up,
+// so an unwired one stays still); the first pins::kRigChannels are read.
 Encoder encoder1(pins::kEncoderA[0], pins::kEncoderB[0]);
 Encoder encoder2(pins::kEncoderA[1], pins::kEncoderB[1]);
 Encoder encoder3(pins::kEncoderA[2], pins::kEncoderB[2]);
 Encoder encoder4(pins::kEncoderA[3], pins::kEncoderB[3]);
-Encoder* const encoders[4] = {&encoder1, &encoder2, &encoder3, &encoder4};
+Encoder encoder5(pins::kEncoderA[4], pins::kEncoderB[4]);
+Encoder encoder6(pins::kEncoderA[5], pins::kEncoderB[5]);
+Encoder encoder7(pins::kEncoderA[6], pins::kEncoderB[6]);
+Encoder encoder8(pins::kEncoderA[7], pins::kEncoderB[7]);
+Encoder* const encoders[pins::kMotors] = {&encoder1, &encoder2, &encoder3, &encoder4,
+                                          &encoder5, &encoder6, &encoder7, &encoder8};
+static_assert(twinfw::kMaxChannels >= pins::kMotors, "the core drives every motor of the pin map");
 IntervalTimer tickTimer;
 volatile bool tickDue = false;
 volatile uint32_t tickTimeUs = 0;
 
-twinfw::Firmware firmware;
+twinfw::Firmware firmware(pins::kRigChannels);
 twinfw::Inputs inputs = {};
 LoadCells loadCells;
 Motors motors;
@@ -87,7 +94,7 @@ void loop() {
   receiveFromHost();
   uint32_t nowUs;
   if (takeTick(nowUs)) {
-    for (int i = 0; i < 4; ++i) inputs.encoder_counts[i] = encoders[i]->read();
+    for (size_t i = 0; i < pins::kRigChannels; ++i) inputs.encoder_counts[i] = encoders[i]->read();
     motors.apply(firmware.tick(nowUs, inputs));
     inputs.new_sample_mask = 0;
     hw_watchdog::feed();
