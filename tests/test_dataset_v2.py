@@ -9,7 +9,7 @@ import pytest
 
 from twin import load_params
 from twin.data import dataset as dataset_module
-from twin.data.dataset import (COLUMNS, DatasetError, DatasetWriter, TendonGroup, columns, read_dataset,
+from twin.data.dataset import (COLUMNS, TENDON_GROUPS, DatasetError, DatasetWriter, TendonGroup, columns, read_dataset,
                                write_dataset)
 from twin.data.prediction import predict_dataset
 from twin.pose import HORIZONTAL, UP, matrix_to_quat, rot_x
@@ -44,7 +44,10 @@ def test_a_version_1_dataset_reads_as_it_always_did():
     assert d.lengths_m[1, 3] == pytest.approx(-4e-4)
     assert np.allclose(d.base_rotation, HORIZONTAL)
     assert d.params.tendons.count == 4 and d.params.backbone.length_m == pytest.approx(0.06)
-    assert (V1_FIXTURE / "measurements.csv").read_text().splitlines()[0].split(",") == list(COLUMNS)
+    # Version 1's columns are version 2's for four tendons, without the optional groups added since.
+    optional = {c for g in TENDON_GROUPS if not g.required for c in g.columns(4)}
+    assert (V1_FIXTURE / "measurements.csv").read_text().splitlines()[0].split(",") == [
+        c for c in COLUMNS if c not in optional]
     assert np.isnan(d.tip_quaternions).all() and d["time_s"].tolist() == [1.0, 2.0, 3.0]
 
 
@@ -170,17 +173,26 @@ def test_a_three_tendon_dataset_is_predicted_with_its_own_robot(tmp_path):
 def test_a_new_optional_per_tendon_group_is_one_entry_of_the_table(tmp_path, monkeypatch):
     # Written before the group existed: it reads, the group's cells NaN.
     write(tmp_path / "old", load_params(), [row(0, 4)])
-    slides = TendonGroup("slides", "slide_{i}", "whether tendon i slides in its guides (1) or sticks (0)",
-                         required=False)
-    monkeypatch.setattr(dataset_module, "TENDON_GROUPS", dataset_module.TENDON_GROUPS + (slides,))
+    stretch = TendonGroup("stretches", "stretch_{i}_m", "tendon stretch from a second encoder at the anchor (m)",
+                          required=False)
+    monkeypatch.setattr(dataset_module, "TENDON_GROUPS", dataset_module.TENDON_GROUPS + (stretch,))
     old = read_dataset(tmp_path / "old")
-    assert old.per_tendon("slides").shape == (1, 4) and np.isnan(old.per_tendon("slides")).all()
+    assert old.per_tendon("stretches").shape == (1, 4) and np.isnan(old.per_tendon("stretches")).all()
     three = load_robot("three-tendon")
-    d = write(tmp_path / "new", three, [row(0, 3, slide_1=1, slide_2=0, slide_3=1), row(1, 3)])
-    assert d.metadata["columns"][-11:-8] == ["slide_1", "slide_2", "slide_3"]
-    assert d.per_tendon("slides")[0].tolist() == [1.0, 0.0, 1.0] and np.isnan(d.per_tendon("slides")[1]).all()
+    d = write(tmp_path / "new", three, [row(0, 3, stretch_1_m=1e-5, stretch_2_m=0.0, stretch_3_m=2e-5), row(1, 3)])
+    header = d.metadata["columns"]
+    assert header.index("length_3_m") < header.index("stretch_1_m") < header.index("stretch_3_m") < \
+        header.index("tip_x_m")
+    assert d.per_tendon("stretches")[0].tolist() == [1e-5, 0.0, 2e-5] and np.isnan(d.per_tendon("stretches")[1]).all()
     with pytest.raises(KeyError, match="per-tendon group 'slip'"):
         d.per_tendon("slip")
+    # Resumed, the old file keeps its header: the new group's values stay out of its rows.
+    with DatasetWriter(tmp_path / "old", experiment="validation", device="sim://", params=load_params(),
+                       base_rotation=HORIZONTAL) as w:
+        w.write(row(1, 4, stretch_1_m=1e-5))
+    resumed = read_dataset(tmp_path / "old")
+    assert list(resumed["config"]) == [0, 1] and np.isnan(resumed.per_tendon("stretches")).all()
+    assert "stretch_1_m" not in (tmp_path / "old" / "measurements.csv").read_text()
 
 
 def test_the_v1_fixture_stays_readable_after_a_copy_is_resumed_by_todays_writer(tmp_path):
@@ -191,3 +203,4 @@ def test_the_v1_fixture_stays_readable_after_a_copy_is_resumed_by_todays_writer(
         w.write(row(3, 4))
     d = read_dataset(tmp_path / "d")
     assert list(d["config"]) == [0, 1, 2, 3] and d.tensions_n.shape == (4, 4)
+

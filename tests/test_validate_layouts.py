@@ -72,6 +72,8 @@ class IdealRig:
         self.lengths_m = np.full(self.tendons, self.STRAIGHT_M)
         self.kappa, self.phi_rad, self.mass_kg, self.held = 0.0, 0.0, 0.0, True
         self.setpoints = []
+        self.info = types.SimpleNamespace(tendon_m_per_count=params.rig.tendon_m_per_count)
+        self._received = []
 
     def disable(self):
         pass
@@ -105,16 +107,22 @@ class IdealRig:
     def _sample(self):
         kappa, phi = (0.0, 0.0) if self.held else (self.kappa, np.degrees(self.phi_rad))
         tensions = pcc_tensions_n(kappa, phi, self.params)
+        counts = np.round(self.lengths_m / self.info.tendon_m_per_count)
         return types.SimpleNamespace(tensions_n=tensions, tendon_lengths_m=self.lengths_m.copy(),
-                                     raw_counts=np.zeros(self.tendons), fault_flags=0, state="enabled",
-                                     time_s=self.time_s)
+                                     encoder_counts=counts, raw_counts=np.zeros(self.tendons), fault_flags=0,
+                                     state="enabled", time_s=self.time_s)
 
     def latest(self):
         return self._sample()
 
     def wait_next(self, timeout_s=1.0):
         self.time_s += 1.0 / self.rate_hz
-        return self._sample()
+        self._received.append(self._sample())
+        return self._received[-1]
+
+    def drain(self):
+        received, self._received = self._received, []
+        return received
 
     def read(self):
         tip = arc_tip_position_m(self.kappa, np.degrees(self.phi_rad), self.params.backbone.length_m)

@@ -123,8 +123,6 @@ class TendonGroup:
 TENDON_GROUPS = (
     TendonGroup("tensions", "tension_{i}_n", "calibrated tension at the load cell (N)"),
     TendonGroup("lengths", "length_{i}_m", "relative tendon length from the encoder (m, + = paid out)"),
-    TendonGroup("sliding_state", "slide_{i}", "the tendon friction's sliding state σ followed from the encoder "
-                "(+1 last pulled in … −1 last paid out, 1; twin.effects.SlidingState)", required=False),
 )
 
 _INT_COLUMNS = ("config", "repeat")
@@ -246,12 +244,6 @@ class Dataset:
     def lengths_m(self) -> np.ndarray:
         """(rows, N) relative tendon lengths (m)."""
         return self.per_tendon("lengths")
-
-    @property
-    def sliding_state(self) -> np.ndarray:
-        """(rows, N) the friction's sliding state recorded with each row (NaN where not recorded:
-        the prediction then guesses it from the lengths, :func:`twin.effects.friction_direction`)."""
-        return self.per_tendon("sliding_state")
 
     @property
     def tip_positions_m(self) -> np.ndarray:
@@ -454,6 +446,7 @@ class DatasetWriter:
         self.path = self.folder / MEASUREMENTS
         self._sync = sync
         self._done: set[int] = set()
+        self._left_out_columns: frozenset[str] = frozenset()
         if self.path.exists() and self.path.stat().st_size > 0:
             existing, complete_bytes = _read(self.folder)
             if existing.metadata.get("experiment") != experiment:
@@ -463,6 +456,12 @@ class DatasetWriter:
                 raise DatasetError(f"{self.folder}: holds a dataset of {existing.tendons} tendons; cannot resume it "
                                    f"with a robot of {params.tendons.count}")
             self._done = set(int(c) for c in existing["config"])
+            # Rows go under the file's header: an optional group it was written without stays out.
+            with open(self.path, "rb") as file:
+                header = tuple(_fields(file.readline().rstrip(b"\n"), self.path, 1))
+            kept = tuple(c for c in self._layout.columns if c in header or c in self._layout.required)
+            self._left_out_columns = frozenset(self._layout.columns) - frozenset(kept)
+            self._layout = dataclasses.replace(self._layout, columns=kept)
         else:
             meta = _metadata(experiment=experiment, device=device, params=params, base_rotation=base_rotation,
                              calibration=calibration, notes=notes, robot=robot, left_out=left_out)
@@ -501,6 +500,7 @@ class DatasetWriter:
         """
         config = row.get("config")
         layout = self._layout
+        row = {k: v for k, v in row.items() if k not in self._left_out_columns}
         missing = [c for c in layout.required if c not in row]
         if missing:
             raise DatasetError(f"row for config {config!r} lacks column(s) {missing}")

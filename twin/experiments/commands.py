@@ -188,8 +188,8 @@ def _check_resume(args, command: str, experiment: str, params) -> Path:
     """
     import warnings
 
-    from twin.data.dataset import (METADATA, MEASUREMENTS, RUN_DATASET, TENDONS, DatasetError, DatasetWarning,
-                                   read_dataset, read_metadata, recorded_params)
+    from twin.data.dataset import (METADATA, MEASUREMENTS, RUN_DATASET, DatasetError, DatasetWarning, read_dataset,
+                                   read_metadata, recorded_params)
     from twin.params import ParameterError
 
     folder = Path(args.resume)
@@ -228,16 +228,16 @@ def _check_resume(args, command: str, experiment: str, params) -> Path:
             raise RunRefused(f"{where}: its dataset cannot be resumed: {exc}") from None
         if metadata.get("experiment") != experiment:
             raise RunRefused(f"{where}: holds a {metadata.get('experiment')!r} dataset, not {experiment!r}")
-        recorded_tendons = int(metadata.get("tendons", TENDONS))
-        if recorded_tendons != params.tendons.count:
-            raise RunRefused(f"{where}: dataset {dataset} has {recorded_tendons} tendons; robot "
-                             f"{_robot_name(args)!r} has {params.tendons.count}")
         if record is None:
             differ("--device", args.device, metadata.get("device"))
         try:
-            recorded = recorded_params(metadata).to_dict()
+            recorded_set = recorded_params(metadata)
         except ParameterError as exc:
             raise RunRefused(f"{where}: the run's parameter set does not load today ({exc})") from None
+        if recorded_set.tendons.count != params.tendons.count:
+            raise RunRefused(f"{where}: dataset {dataset} has {recorded_set.tendons.count} tendons; robot "
+                             f"{_robot_name(args)!r} has {params.tendons.count}")
+        recorded = recorded_set.to_dict()
         changed = [(f"{section}.{key}", entry["value"], recorded.get(section, {}).get(key, {}).get("value"))
                    for section, entries in params.to_dict().items() for key, entry in entries.items()]
         changed = [c for c in changed if c[1] != c[2]]
