@@ -168,7 +168,8 @@ def pretension(device, params: Params, *, mode: str = "lengths", tension_n: floa
 
 
 # Why a configuration of the grid is left out: the wording of the report and the metadata.
-UNREALISABLE = "the tendon layout cannot bend towards its plane (no two neighbouring tendons less than 180° apart bracket it)"
+UNREALISABLE = ("the tendon layout cannot bend towards its plane (no two neighbouring tendons less than 180° apart "
+                "bracket it)")
 
 
 def unrealisable(grid: Sequence[tuple], params: Params) -> list[dict]:
