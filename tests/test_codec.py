@@ -235,3 +235,61 @@ def test_random_bytes_never_crash_and_are_counted():
     assert cpp.bad_frames == py.bad_frames
     # ~14,000 candidates, each passing the CRC with p = 2^-16: none expected for this seed.
     assert py_frames == [] and cpp_frames == []
+
+
+def test_golden_vectors_pin_every_sized_message_at_two_channel_counts_or_more():
+    sized = {cls.__name__ for cls in c.MESSAGE_TYPES.values() if cls.LAYOUT[:1] == (("channels", "B"),)}
+    assert sized == {"Tare", "SetSetpoints", "SetCalibration", "TelemetryMessage"}
+    for name in sized | {"HelloReply"}:
+        counts = {v["fields"]["channels"] for v in VECTORS["valid"] if v["message"] == name}
+        assert {3, 4, 8} <= counts, name
+
+
+def test_a_sized_message_is_decoded_by_the_count_it_carries():
+    for channels in (1, 3, 4, 8, c.MAX_CHANNELS):
+        message = c.TelemetryMessage(channels=channels, encoder_counts=tuple(range(channels)),
+                                     lengths_m=(0.5,) * channels, raw_counts=(-1,) * channels,
+                                     tensions_n=(0.25,) * channels, targets=(0.0,) * channels,
+                                     duty=(-1.0,) * channels, drive_modes=(c.Drive.BRAKE,) * channels,
+                                     stale_mask=1 << (channels - 1))
+        payload = c.encode_payload(message)
+        assert len(payload) == c.payload_size(c.MsgType.TELEMETRY, channels) == 27 + 25 * channels + c.mask_bytes(channels)
+        assert c.decode_payload(c.MsgType.TELEMETRY, payload) == message
+        assert message.drives() == (c.Drive.BRAKE,) * channels
+    # The longest payload is the telemetry of the most channels.
+    assert c.MAX_PAYLOAD_BYTES == c.payload_size(c.MsgType.TELEMETRY, c.MAX_CHANNELS)
+    assert max(c.payload_size(t, c.MAX_CHANNELS) for t in c.MESSAGE_TYPES) == c.MAX_PAYLOAD_BYTES
+
+
+def test_a_count_beyond_the_protocols_or_one_its_length_does_not_fit_is_a_bad_message():
+    payload = bytearray(c.encode_payload(c.Tare(loadcell_mask=1, channels=4)))
+    payload[0] = c.MAX_CHANNELS + 1
+    with pytest.raises(c.MessageError, match="Tare.channels = 13: must be in 1..12"):
+        c.decode_payload(c.MsgType.TARE, bytes(payload))
+    payload[0] = 0
+    with pytest.raises(c.MessageError, match="Tare.channels = 0"):
+        c.decode_payload(c.MsgType.TARE, bytes(payload))
+    telemetry = bytearray(c.encode_payload(c.TelemetryMessage()))
+    telemetry[0] = 3
+    with pytest.raises(c.MessageError, match="payload is 128 bytes, expected 103 for 3 channels"):
+        c.decode_payload(c.MsgType.TELEMETRY, bytes(telemetry))
+    with pytest.raises(c.CodecError, match="channels = 13: must be in 1..12"):
+        c.encode_payload(c.SetSetpoints(values=(0.0,) * 13, channels=13))
+    with pytest.raises(c.CodecError, match="must have 3 entries"):
+        c.encode_payload(c.SetCalibration(channels=3))
+
+
+def test_a_hello_reply_names_one_to_max_channels():
+    for channels in (1, 3, 8, c.MAX_CHANNELS):
+        c.check_fields(c.HelloReply(channels=channels))
+    for channels in (0, c.MAX_CHANNELS + 1):
+        with pytest.raises(c.MessageError, match=f"HelloReply.channels = {channels}"):
+            c.check_fields(c.HelloReply(channels=channels))
+
+
+def test_pairs_couple_tendon_k_with_k_plus_half():
+    assert c.SetSetpoints.pairs([0.001, -0.002], channels=4).values == (0.001, -0.002, 0.0, 0.0)
+    assert c.SetSetpoints.pairs([0.001, 0.0, 0.5], channels=6).values == (0.001, 0.0, 0.5, 0.0, 0.0, 0.0)
+    assert [c.pairs_possible(n) for n in (1, 2, 3, 4, 5, 6)] == [False, True, False, True, False, True]
+    with pytest.raises(c.CodecError, match="pair_lengths_m"):
+        c.SetSetpoints.pairs([0.001], channels=4)

@@ -3,6 +3,8 @@
 import ast
 import operator
 import re
+import shutil
+import subprocess
 
 import pytest
 
@@ -68,3 +70,32 @@ def test_the_driver_refuses_what_the_firmware_refuses():
     assert device.MAX_OFFSET_COUNTS == constant("kMaxOffsetCounts")
     assert device.MAX_TENSION_LIMIT_N == constant("kMaxTensionLimitN")
     assert device.MAX_LENGTH_SETPOINT_M == pytest.approx(constant("kMaxLengthSetpointM"), rel=1e-7)
+
+
+PINS = FIRMWARE_DIR / "teensy" / "twin_rig" / "pins.h"
+
+
+def _compile_pins(text: str, tmp_path) -> subprocess.CompletedProcess:
+    header = tmp_path / "pins.h"
+    header.write_text(text)
+    return subprocess.run(["g++", "-std=gnu++14", "-fsyntax-only", "-x", "c++", str(header)],
+                          capture_output=True, text=True, check=False)
+
+
+@pytest.mark.skipif(shutil.which("g++") is None, reason="needs g++")
+def test_the_teensy_pin_map_wires_eight_motors_each_pin_once(tmp_path):
+    text = PINS.read_text()
+    assert _compile_pins(text, tmp_path).returncode == 0
+    tables = {name: [int(p) for p in values.split(",")]
+              for name, values in re.findall(r"constexpr uint8_t (k\w+)\[kMotors\] = \{([^}]*)\};", text)}
+    assert set(tables) == {"kMotorIn1", "kMotorIn2", "kEncoderA", "kEncoderB", "kLoadcellDout", "kLoadcellSck"}
+    pins = [p for values in tables.values() for p in values]
+    assert all(len(values) == 8 for values in tables.values())
+    assert len(set(pins)) == len(pins) and 13 not in pins and all(0 <= p <= 57 for p in pins)
+    # The checks in the header are real: a pin wired twice, or a motor off PWM, does not compile.
+    twice = text.replace("kLoadcellSck[kMotors] = {16,", "kLoadcellSck[kMotors] = {15,")
+    assert "wired twice" in _compile_pins(twice, tmp_path).stderr
+    off_pwm = text.replace("kMotorIn2[kMotors] = {3,", "kMotorIn2[kMotors] = {13,")
+    assert "not on a PWM pin" in _compile_pins(off_pwm, tmp_path).stderr
+    # The rig's count is the parameter set's.
+    assert re.search(r"kRigChannels = (\d+);", text).group(1) == str(PARAMS.tendons.count)

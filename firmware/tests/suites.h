@@ -8,3 +8,4 @@ void test_controller();
 void test_firmware();
 void test_safety();
 void test_guard();
+void test_channels();

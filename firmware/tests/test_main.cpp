@@ -20,7 +20,7 @@ int main() {
   const Suite suites[] = {
       {"units", test_units},       {"pid", test_pid},         {"codec", test_codec},
       {"controller", test_controller}, {"firmware", test_firmware}, {"safety", test_safety},
-      {"guard", test_guard},
+      {"guard", test_guard},       {"channels", test_channels},
   };
   for (const Suite& s : suites) {
     const int before = check::counters().failures;
