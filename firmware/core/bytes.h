@@ -40,6 +40,15 @@ Bits<T> bits_of(T& bits, size_t channels, size_t capacity) {
 }
 constexpr size_t mask_bytes(size_t channels) { return (channels + 7) / 8; }
 
+// Gives each entry of `values` to the visitor `v`; false, visiting none, when its count exceeds
+// its capacity.
+template <class V, class T>
+bool visit_each(V& v, const Span<T>& values) {
+  if (values.count > values.capacity) return false;
+  for (size_t i = 0; i < values.count; ++i) v(values.data[i]);
+  return true;
+}
+
 class ByteWriter {
  public:
   ByteWriter(uint8_t* buf, size_t capacity) : buf_(buf), capacity_(capacity) {}
@@ -60,11 +69,7 @@ class ByteWriter {
   }
   template <class T>
   void operator()(const Span<T>& values) {
-    if (values.count > values.capacity) {
-      ok_ = false;
-      return;
-    }
-    for (size_t i = 0; i < values.count; ++i) (*this)(values.data[i]);
+    if (!visit_each(*this, values)) ok_ = false;
   }
   template <class T>
   void operator()(const Bits<T>& mask) {
@@ -114,11 +119,7 @@ class ByteReader {
   }
   template <class T>
   void operator()(const Span<T>& values) {
-    if (values.count > values.capacity) {
-      ok_ = false;
-      return;
-    }
-    for (size_t i = 0; i < values.count; ++i) (*this)(values.data[i]);
+    if (!visit_each(*this, values)) ok_ = false;
   }
   template <class T>
   void operator()(const Bits<T>& mask) {
