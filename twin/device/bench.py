@@ -73,7 +73,7 @@ def _latencies(device: Device, commands: int, rng: np.random.Generator) -> tuple
         # A random phase against the 40 Hz telemetry, so the latencies sample it evenly.
         time.sleep(rng.uniform(0.0, period_s))
         start_s = time.monotonic()
-        device.set_lengths([target, 0.0, 0.0, 0.0])
+        device.set_lengths([target] + [0.0] * (device.channels - 1))
         acks.append(time.monotonic() - start_s)
         sample = device.wait_next()
         while np.float32(sample.targets[0]) != target:
