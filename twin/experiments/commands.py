@@ -405,7 +405,7 @@ def _validate(args, folder: Path, params) -> int:
           file=sys.stderr)
     if left_out:
         print(f"twin validate: {len(left_out)} of the grid's {len(grid)} configurations left out: robot "
-              f"{_robot_name(args)!r} cannot realise them ({left_out[0]['reason']}): "
+              f"{_robot_name(args)!r} cannot realise them, {left_out[0]['reason']}: "
               f"{_configurations(left_out)}", file=sys.stderr)
     start = time.perf_counter()
     device = _open(args, params)
