@@ -204,3 +204,25 @@ def test_the_v1_fixture_stays_readable_after_a_copy_is_resumed_by_todays_writer(
     d = read_dataset(tmp_path / "d")
     assert list(d["config"]) == [0, 1, 2, 3] and d.tensions_n.shape == (4, 4)
 
+
+def test_appending_another_experiment_with_sliding_states_to_a_file_without_them_keeps_its_header(tmp_path):
+    shutil.copytree(V1_FIXTURE, tmp_path / "d")
+    header = (tmp_path / "d" / "measurements.csv").read_text().splitlines()[0]
+    with pytest.raises(DatasetError, match="cannot resume it as 'decide-reapproach'"):
+        DatasetWriter(tmp_path / "d", experiment="decide-reapproach", device="sim://", params=load_params(),
+                      base_rotation=HORIZONTAL)
+    with DatasetWriter(tmp_path / "d", experiment="decide-reapproach", device="sim://", params=load_params(),
+                       base_rotation=HORIZONTAL, append=True) as w:
+        w.write(row(3, 4, slide_1=1.0, slide_2=-1.0, slide_3=0.5, slide_4=0.0))
+    assert (tmp_path / "d" / "measurements.csv").read_text().splitlines()[0] == header
+    d = read_dataset(tmp_path / "d")
+    assert list(d["experiment"]) == ["validation"] * 3 + ["decide-reapproach"]
+    assert np.isnan(d.sliding_state).all()
+
+
+def test_a_new_dataset_records_the_sliding_state_and_reads_it_back(tmp_path):
+    with DatasetWriter(tmp_path / "d", experiment="validation", device="sim://", params=load_params(),
+                       base_rotation=HORIZONTAL) as w:
+        w.write(row(0, 4, slide_1=1.0, slide_2=-1.0, slide_3=0.25))
+    d = read_dataset(tmp_path / "d")
+    assert d.sliding_state[0, :3].tolist() == [1.0, -1.0, 0.25] and np.isnan(d.sliding_state[0, 3])

@@ -123,6 +123,8 @@ class TendonGroup:
 TENDON_GROUPS = (
     TendonGroup("tensions", "tension_{i}_n", "calibrated tension at the load cell (N)"),
     TendonGroup("lengths", "length_{i}_m", "relative tendon length from the encoder (m, + = paid out)"),
+    TendonGroup("sliding_state", "slide_{i}", "the tendon friction's sliding state σ followed from the encoder "
+                "(+1 last pulled in … −1 last paid out, 1; twin.effects.SlidingState)", required=False),
 )
 
 _INT_COLUMNS = ("config", "repeat")
@@ -244,6 +246,12 @@ class Dataset:
     def lengths_m(self) -> np.ndarray:
         """(rows, N) relative tendon lengths (m)."""
         return self.per_tendon("lengths")
+
+    @property
+    def sliding_state(self) -> np.ndarray:
+        """(rows, N) the friction's sliding state recorded with each row (NaN where not recorded:
+        the prediction then guesses it from the lengths, :func:`twin.effects.friction_direction`)."""
+        return self.per_tendon("sliding_state")
 
     @property
     def tip_positions_m(self) -> np.ndarray:
@@ -426,6 +434,9 @@ class DatasetWriter:
         robot: the robot's name (``--robot``), recorded in the metadata.
         left_out: the configurations of the experiment's grid it does not run, each a mapping
             with its ``config`` and the ``reason`` (recorded as ``left_out``).
+        append: add rows of another ``experiment`` to an existing dataset (of the same robot);
+            they carry their experiment in the ``experiment`` column. An optional per-tendon group
+            the existing file was written without stays out of the appended rows.
         sync: sync every row to disk (the default: a row is seconds of rig time); with False,
             rows are synced once, on :meth:`close` (bulk writes of synthetic data).
 
@@ -438,7 +449,7 @@ class DatasetWriter:
 
     def __init__(self, folder: str | Path, *, experiment: str, device: str, params: Params, base_rotation,
                  calibration: Mapping | None = None, notes: str = "", robot: str | None = None,
-                 left_out: Iterable[Mapping[str, Any]] = (), sync: bool = True):
+                 left_out: Iterable[Mapping[str, Any]] = (), sync: bool = True, append: bool = False):
         self.folder = Path(folder)
         self._layout = _layout(params.tendons.count)
         self.folder.mkdir(parents=True, exist_ok=True)
@@ -449,7 +460,7 @@ class DatasetWriter:
         self._left_out_columns: frozenset[str] = frozenset()
         if self.path.exists() and self.path.stat().st_size > 0:
             existing, complete_bytes = _read(self.folder)
-            if existing.metadata.get("experiment") != experiment:
+            if existing.metadata.get("experiment") != experiment and not append:
                 raise DatasetError(f"{self.folder}: holds a {existing.metadata.get('experiment')!r} dataset; "
                                    f"cannot resume it as {experiment!r}")
             if existing.tendons != params.tendons.count:

@@ -199,7 +199,8 @@ def fit_parameters(dataset: Dataset, params: Params, parameters: Sequence[FitPar
             trial = apply_values(params, parameters, to_values(z), source)
         except (ValueError, OverflowError):  # out of range, or a log parameter stepped past exp's range
             return np.full(measured.size, _FAILED_ROW_PENALTY_M)
-        tip, ok, _, _ = predict_rows(trial, base_rotation, tensions, masses, lengths, guesses=solutions)
+        tip, ok, _, _ = predict_rows(trial, base_rotation, tensions, masses, lengths, guesses=solutions,
+                                  sliding_state=data.sliding_state)
         err = tip - measured
         err[~ok] = _FAILED_ROW_PENALTY_M
         failed[0] = int(np.count_nonzero(~ok))

@@ -60,11 +60,14 @@ class Predictions:
 
 
 def predict_rows(params: Params, base_rotation, tensions_n, tip_mass_kg, lengths_m, *, progress: bool = False,
-                 model: RodModel | None = None,
-                 guesses: list | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+                 model: RodModel | None = None, guesses: list | None = None,
+                 sliding_state=None) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Predict tracker positions (base frame, m) for arrays of measurements.
 
     Args:
+        sliding_state: (n, tendons) the friction's sliding state recorded with each row
+            (:attr:`twin.data.dataset.Dataset.sliding_state`), or None (a dataset without it): the
+            friction's direction is then guessed from the lengths (:func:`twin.effects.friction_direction`).
         guesses: one entry per row, the row's last converged :class:`twin.rod.RodSolution` or
             None: each row starts from its own entry instead of the previous row's solution, and
             its entry is replaced by the new one. Repeated predictions of the same rows under
@@ -87,7 +90,8 @@ def predict_rows(params: Params, base_rotation, tensions_n, tip_mass_kg, lengths
         load = dict(
             tip_force_n=effects.tip_force_n(params, tip_mass_kg[i]),
             base_rotation=rotation,
-            friction_direction=effects.friction_direction(lengths_m[i], params.effects.tendon_friction_direction),
+            friction_direction=effects.friction_direction(lengths_m[i], params.effects.tendon_friction_direction,
+                                                          None if sliding_state is None else sliding_state[i]),
             raise_on_failure=False,
         )
         if guesses is None:
@@ -120,5 +124,5 @@ def predict_dataset(dataset: Dataset, params: Params | None = None, *, progress:
     dataset.check_robot(params)
     tip, converged, residual, times = predict_rows(
         params, dataset.base_rotation, dataset.tensions_n, dataset["tip_mass_kg"], dataset.lengths_m,
-        progress=progress, guesses=guesses)
+        progress=progress, guesses=guesses, sliding_state=dataset.sliding_state)
     return Predictions(tip, dataset.tip_positions_m, converged, residual, times)

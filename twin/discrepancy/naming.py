@@ -101,7 +101,7 @@ def row_errors(dataset: Dataset, params: Params, rows: np.ndarray,
     """
     data = dataset.subset(rows)
     tip, ok, _, _ = predict_rows(params, data.base_rotation, data.tensions_n, data["tip_mass_kg"], data.lengths_m,
-                                 guesses=guesses)
+                                 guesses=guesses, sliding_state=data.sliding_state)
     err = tip - data.tip_positions_m
     err[~ok] = FAILED_ROW_PENALTY_M
     return err, ok

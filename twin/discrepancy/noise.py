@@ -92,12 +92,14 @@ def estimate_noise(dataset: Dataset, params: Params, errors_m: np.ndarray, conve
         data = dataset.subset(ok)
         args = (data["tip_mass_kg"], data.lengths_m)
         solutions = [None] * len(data)
-        tip0, ok0, _, _ = predict_rows(params, data.base_rotation, data.tensions_n, *args, guesses=solutions)
+        tip0, ok0, _, _ = predict_rows(params, data.base_rotation, data.tensions_n, *args, guesses=solutions,
+                                     sliding_state=data.sliding_state)
         carried = np.zeros((len(data), 3))
         for channel in range(data.tensions_n.shape[1]):
             bumped = data.tensions_n.copy()
             bumped[:, channel] += _TENSION_STEP_N
-            tip1, ok1, _, _ = predict_rows(params, data.base_rotation, bumped, *args, guesses=list(solutions))
+            tip1, ok1, _, _ = predict_rows(params, data.base_rotation, bumped, *args, guesses=list(solutions),
+                                         sliding_state=data.sliding_state)
             step = np.where((ok0 & ok1)[:, None], tip1 - tip0, 0.0)
             carried += (step * sigma_l / _TENSION_STEP_N) ** 2
         variance = variance + carried.mean(axis=0)

@@ -39,6 +39,13 @@ PRESLIDING_M = 2e-5
 # friction sweep (tests/test_discrepancy_twin.py) 1 ms steps diverged once, in tension mode after
 # 124 s, and 0.83 ms steps (2.5 ms / 3, 5 ms / 6) never did.
 FRICTION_MAX_STEP_S = 0.84e-3
+# Time constant (s) of the spool tension the twin's friction forces follow. The forces are
+# explicit (set before each step from the last step's tension), so a tension spike of one step
+# (a tendon snapping taut) would return at once as a friction force and, with the sliding state
+# flipping with the spool's chatter, grow into a divergence (seen in the validation sweep at
+# μ = 0.15, κ = 26.2 1/m: 100 N within 2 ms, then NaN). A few milliseconds of lag damp that and
+# change nothing at rest nor in motions slower than the board's 5 ms tick.
+FRICTION_TENSION_LAG_S = 2e-3
 # Starting value of μ for a fit when it is off (0) in the parameter set: log(0) cannot start one.
 _FIT_START = 0.02
 
@@ -120,6 +127,7 @@ class TendonFriction:
         self._own_bodies = np.unique(self._bodies)
         self._spool_dofs = np.asarray(spool_dofs)
         self.state = np.zeros(len(self._sites))
+        self._tension_n: np.ndarray | None = None
 
     @classmethod
     def in_model(cls, model, coeff: float, tendons: int) -> "TendonFriction":
@@ -137,6 +145,7 @@ class TendonFriction:
 
     def reset(self) -> None:
         self.state[:] = 0.0
+        self._tension_n = None
 
     def before_step(self, model, data, spool_tensions_n: np.ndarray) -> None:
         """Update the sliding state over the last step and set ``data.xfrc_applied``."""
@@ -147,7 +156,13 @@ class TendonFriction:
         u = seg / np.linalg.norm(seg, axis=2, keepdims=True)      # (n, S-1, 3)
         cos = np.clip(np.einsum("nkj,nkj->nk", u[:, :-1], u[:, 1:]), -1.0, 1.0)
         wrap = np.cumsum(np.arccos(cos), axis=1)                  # at sites 1 .. S-2
-        t0 = np.asarray(spool_tensions_n, dtype=float)[:, None]
+        tension = np.asarray(spool_tensions_n, dtype=float)
+        if self._tension_n is None:
+            self._tension_n = tension.copy()
+        else:
+            dt = model.opt.timestep
+            self._tension_n += (tension - self._tension_n) * (dt / (FRICTION_TENSION_LAG_S + dt))
+        t0 = self._tension_n[:, None]
         decay = np.exp(-self.state[:, None] * self.coeff * wrap)
         excess = np.concatenate([np.zeros_like(t0), t0 * (decay - 1.0)], axis=1)  # T_k − T₀
         pulls = excess[:, :, None] * u                            # per segment
@@ -181,6 +196,7 @@ class TendonFrictionEffect(Effect):
     name = "tendon_friction"
     description = ("capstan friction at the disc holes: tension lost towards the tip while pulled, "
                    "gained while released")
+    deciding_experiments = ("reapproach",)
     parameters = (Key("tendon_friction_coeff", nonnegative=True),
                   Key("tendon_friction_direction", off=1.0, choices=(1.0, -1.0)))
 

@@ -16,6 +16,7 @@ from tqdm import tqdm
 
 from twin.calibration import Calibration, run_calibration
 from twin.data.dataset import DatasetWriter
+from twin.effects import SlidingState
 from twin.params import Params
 from twin.pcc import tendon_length_changes_m, validation_grid
 from twin.pose import matrix_to_quat
@@ -184,7 +185,8 @@ def unrealisable(grid: Sequence[tuple], params: Params) -> list[dict]:
 
 def run_validation(device, folder: str | Path, params: Params, *, grid: Sequence[tuple] | None = None,
                    pretension_n: float | None = None, progress: bool = True, settle_timeout_s: float = 10.0,
-                   calibration: dict | None = None, robot: str | None = None) -> Path:
+                   calibration: dict | None = None, robot: str | None = None, experiment: str = "validation",
+                   overshoot: float = 0.0, min_overshoot_m: float = 0.0) -> Path:
     """The thesis's validation sweep (§8.3) on ``device``, written to a dataset in ``folder``.
 
     For each (κ, φ): hold straight, pretension to 1.2–1.5 N, release, drive the PCC tendon-length
@@ -203,6 +205,14 @@ def run_validation(device, folder: str | Path, params: Params, *, grid: Sequence
             whole grid (the endoscope within 1.8 s; measured, seed 2): 10 s leaves the rig room.
         calibration: the load-cell calibration the device applies, recorded in the metadata.
         robot: the robot's name, recorded in the metadata.
+        experiment: the rows' ``experiment``; another than the dataset's own appends them to it
+            (the discrepancy workflow's deciding experiments, :mod:`twin.discrepancy.decide`).
+        overshoot: approach each configuration from the other side: every tendon first goes past
+            its setpoint by this fraction of its move (at least ``min_overshoot_m``), then back,
+            so its friction's sliding state flips (0: straight there).
+
+    Every row records each tendon's friction sliding state, followed from the encoders over the
+    whole run (:class:`twin.effects.SlidingState`): a static state remembers how it was reached.
 
     The setpoints realise (κ, φ) for any tendon layout: each tendon shortens by r κ s cos(φ − α)
     over its anchored length s (:func:`twin.pcc.tendon_length_changes_m`). The configurations
@@ -218,10 +228,12 @@ def run_validation(device, folder: str | Path, params: Params, *, grid: Sequence
     for config, kappa, phi, mass in rows:
         if config not in skipped:
             groups.setdefault((kappa, phi), []).append((config, mass))
-    with DatasetWriter(folder, experiment="validation", device=device.url, params=params,
+    with DatasetWriter(folder, experiment=experiment, device=device.url, params=params,
                        base_rotation=device.base_rotation, calibration=calibration, robot=robot,
-                       left_out=left_out) as writer:
+                       left_out=left_out, append=experiment != "validation") as writer:
         done = writer.completed()
+        sliding = SlidingState(device.info.tendon_m_per_count)
+        sliding.follow(device.drain())
         todo = [(k, v) for k, v in groups.items() if not all(c in done for c, _ in v)]
         # The bar closes (ends its line) also when a stop raises, so the reason prints below it.
         with tqdm(total=sum(len(v) for _, v in todo), desc="validation sweep", unit="config",
@@ -234,20 +246,27 @@ def run_validation(device, folder: str | Path, params: Params, *, grid: Sequence
                 # The relative lengths of the pretensioned straight endoscope: the zero of the PCC setpoints.
                 zero = device.latest().tendon_lengths_m.copy()
                 device.fixture.release_holder()
-                device.set_lengths(zero + tendon_length_changes_m(kappa, phi, params))
+                target = zero + tendon_length_changes_m(kappa, phi, params)
+                if overshoot > 0:
+                    move = target - zero
+                    device.set_lengths(target + np.sign(move) * np.maximum(np.abs(move) * overshoot, min_overshoot_m))
+                    wait_for_rest(device, timeout_s=settle_timeout_s)
+                device.set_lengths(target)
                 for config, mass in sorted(configs, key=lambda c: c[1]):
                     device.fixture.hang_tip_mass(mass)
                     wait_for_rest(device, timeout_s=settle_timeout_s)
                     if config not in done:
                         m = measure(device)
-                        writer.write(_row(config, kappa, phi, mass, m, zero))
+                        writer.write(_row(config, kappa, phi, mass, m, zero, sliding=sliding.follow(device.drain())))
+                    else:
+                        sliding.follow(device.drain())
                     bar.update(1)
                 device.fixture.hang_tip_mass(0.0)
                 device.disable()
     return Path(folder)
 
 
-def _row(config, kappa, phi, mass, m: Measurement, zero_lengths, repeat: int = 0) -> dict:
+def _row(config, kappa, phi, mass, m: Measurement, zero_lengths, repeat: int = 0, sliding=None) -> dict:
     row = {"config": config, "repeat": repeat, "kappa_cmd_per_m": kappa, "phi_cmd_deg": phi, "tip_mass_kg": mass,
            "tip_x_m": m.tip_position_m[0], "tip_y_m": m.tip_position_m[1], "tip_z_m": m.tip_position_m[2],
            "tip_qw": m.tip_quaternion[0], "tip_qx": m.tip_quaternion[1], "tip_qy": m.tip_quaternion[2],
@@ -255,6 +274,8 @@ def _row(config, kappa, phi, mass, m: Measurement, zero_lengths, repeat: int = 0
     for i in range(len(m.tensions_n)):
         row[f"tension_{i + 1}_n"] = m.tensions_n[i]
         row[f"length_{i + 1}_m"] = m.lengths_m[i] - zero_lengths[i]
+        if sliding is not None:
+            row[f"slide_{i + 1}"] = sliding[i]
     return row
 
 

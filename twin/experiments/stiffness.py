@@ -79,7 +79,7 @@ def error_surface(dataset: Dataset, params: Params, youngs_grid_pa, shear_grid_p
         for j, e in enumerate(youngs_grid_pa):
             trial = params.replace({"backbone.youngs_modulus_pa": float(e), "backbone.shear_modulus_pa": float(g)})
             tip, ok, _, _ = predict_rows(trial, dataset.base_rotation, dataset.tensions_n, dataset["tip_mass_kg"],
-                                         dataset.lengths_m)
+                                         dataset.lengths_m, sliding_state=dataset.sliding_state)
             if ok.all():
                 out[i, j] = float(np.sum(np.linalg.norm(tip - dataset.tip_positions_m, axis=1)))
     return out
