@@ -14,6 +14,8 @@ namespace pins {
 // Motors the rig has wired and the firmware drives: the thesis endoscope's four tendons
 // (models/endoscope/endoscope.toml, tendons.count). A rig with more sets it here, up to kMotors.
 constexpr size_t kRigChannels = 4;
+// Motors this map has pins for: eight, as many as the Teensy 3.5's twenty PWM pins give two
+// each with room to spare.
 constexpr size_t kMotors = 8;
 
 // DRV8871 inputs: IN1 high drives forward (pays tendon out, counts up), IN2 high reverse.
