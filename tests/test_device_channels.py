@@ -162,3 +162,17 @@ def test_the_emulated_firmware_reports_its_count_and_sizes_its_telemetry(channel
     assert telemetry.channels == channels and len(telemetry.duty) == len(telemetry.drive_modes) == channels
     with pytest.raises(ValueError, match="channels = 13: the firmware drives 1..12 motors"):
         FirmwareLib(channels=13)
+
+
+def test_a_three_channel_board_on_a_pseudo_terminal_serves_its_robot():
+    params = load_robot("three-tendon")
+    with PtyBoard(params) as board, open_device(board.url, params=params, robot="three-tendon") as device:
+        assert device.clock == "wall" and device.channels == 3
+        device.tare()
+        device.enable()
+        device.set_lengths([0.0, 0.0005, 0.0])
+        sample = device.wait_next()
+        while sample.targets[1] == 0.0:
+            sample = device.wait_next()
+        assert sample.targets.tolist() == pytest.approx([0.0, 0.0005, 0.0], abs=1e-7)
+        assert sample.tensions_n.shape == (3,) and len(sample.drives) == 3
