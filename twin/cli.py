@@ -24,6 +24,7 @@ COMMAND_MODULES = [
     "twin.device.igtl_server",
     "twin.experiments.commands",
     "twin.discrepancy.commands",
+    "twin.dynamics.commands",
     "twin.control.commands",
     "twin.tuning",
     "twin.bench",
