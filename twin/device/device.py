@@ -396,9 +396,8 @@ class Device:
                 tendon i and i + N/2).
         """
         mode = _mode(mode)
-        if mode == codec.Mode.PAIRS and not codec.pairs_possible(self.channels):
-            raise ValueError(f"mode = 'pairs': the board's {self.channels} tendons do not form antagonistic "
-                             "pairs (tendon i and i + N/2 need an even count)")
+        if mode == codec.Mode.PAIRS:
+            self._check_pairs("mode", "pairs")
         self._command(codec.SetMode(mode))
 
     def set_gains(
@@ -493,9 +492,7 @@ class Device:
                 beyond ±0.05 m.
         """
         n = self.channels
-        if not codec.pairs_possible(n):
-            raise ValueError(f"pairs_m = {pairs_m!r}: the board's {n} tendons do not form antagonistic pairs "
-                             "(tendon i and i + N/2 need an even count)")
+        self._check_pairs("pairs_m", pairs_m)
         pairs = _vector("pairs_m", pairs_m, n // 2)
         limit = MAX_LENGTH_SETPOINT_M
         self._command(codec.SetSetpoints.pairs(_bounded("pairs_m", pairs, -limit, limit, "m", "mm sent as m?"), n))
@@ -612,6 +609,12 @@ class Device:
         if not self._wait_for(lambda: inbox.sample_count > count, timeout_s):
             raise DeviceTimeout(f"{self.url}: handshake done but no telemetry within {timeout_s} s")
         return DeviceInfo.from_reply(reply, url=self.url, clock=self.clock)
+
+    def _check_pairs(self, name: str, value) -> None:
+        """Refuse, naming ``name`` and its value, pairs on an odd count of tendons."""
+        if not codec.pairs_possible(self.channels):
+            raise ValueError(f"{name} = {value!r}: the board's {self.channels} tendons do not form antagonistic "
+                             "pairs (tendon i and i + N/2 need an even count)")
 
     def _shutdown(self) -> None:
         self._transport.close()
