@@ -15,7 +15,16 @@ from twin.device import ChannelCountError, CommandRejected, open_device
 from twin.device import codec as c
 from twin.device.firmware_lib import FirmwareLib
 from twin.device.pty_board import PtyBoard
+from twin.params import load_params
 from twin.robots import load_robot
+
+
+def _evenly_routed(count: int):
+    """The endoscope with ``count`` tendons evenly round its discs, its per-tendon errors off."""
+    return load_params(overrides={"tendons.angles_deg": [360.0 * i / count for i in range(count)],
+                                  "effects.tension_gain_error": [0.0] * count,
+                                  "effects.tension_offset_error_n": [0.0] * count,
+                                  "sensors.loadcell_offset_counts": [0.0] * count})
 
 
 def _unloaded_calibration(device, params) -> tuple[list[float], list[float]]:
@@ -176,3 +185,19 @@ def test_a_three_channel_board_on_a_pseudo_terminal_serves_its_robot():
             sample = device.wait_next()
         assert sample.targets.tolist() == pytest.approx([0.0, 0.0005, 0.0], abs=1e-7)
         assert sample.tensions_n.shape == (3,) and len(sample.drives) == 3
+
+
+@pytest.mark.parametrize("count", [2, 8])
+def test_an_emulated_board_of_two_or_eight_tendons_drives_its_pairs(count):
+    with open_device("sim://", params=_evenly_routed(count)) as device:
+        assert device.channels == count
+        device.tare()
+        device.set_mode("pairs")
+        device.enable()
+        device.set_pairs([0.001] + [0.0] * (count // 2 - 1))
+        device.wait(1.5)
+        sample = device.latest()
+        assert sample.enabled and sample.fault_flags == 0
+        half = count // 2
+        assert sample.targets[0] - sample.targets[half] == pytest.approx(0.002, abs=1e-6)
+        assert sample.tendon_lengths_m[0] - sample.tendon_lengths_m[half] == pytest.approx(0.002, abs=2e-4)
