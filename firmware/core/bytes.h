@@ -39,6 +39,11 @@ Bits<T> bits_of(T& bits, size_t channels, size_t capacity) {
   return Bits<T>{&bits, channels, capacity};
 }
 constexpr size_t mask_bytes(size_t channels) { return (channels + 7) / 8; }
+// Whether a mask of `mask.channels` fits its capacity and its integer.
+template <class T>
+bool mask_fits(const Bits<T>& mask) {
+  return mask.channels <= mask.capacity && mask_bytes(mask.channels) <= sizeof(T);
+}
 
 // Gives each entry of `values` to the visitor `v`; false, visiting none, when its count exceeds
 // its capacity.
@@ -74,12 +79,12 @@ class ByteWriter {
   template <class T>
   void operator()(const Bits<T>& mask) {
     const size_t n = mask_bytes(mask.channels);
-    if (mask.channels > mask.capacity || n > sizeof(T) ||
-        (n < sizeof(T) && (static_cast<uint64_t>(*mask.bits) >> (8 * n)) != 0)) {
+    // A bit beyond the mask's bytes cannot be carried: refused, not dropped.
+    if (mask_fits(mask) && (n == sizeof(T) || (static_cast<uint64_t>(*mask.bits) >> (8 * n)) == 0)) {
+      put(*mask.bits, n);
+    } else {
       ok_ = false;
-      return;
     }
-    put(*mask.bits, n);
   }
 
   size_t size() const { return size_; }
@@ -123,12 +128,11 @@ class ByteReader {
   }
   template <class T>
   void operator()(const Bits<T>& mask) {
-    const size_t n = mask_bytes(mask.channels);
-    if (mask.channels > mask.capacity || n > sizeof(T)) {
+    if (mask_fits(mask)) {
+      *mask.bits = static_cast<T>(get(mask_bytes(mask.channels)));
+    } else {
       ok_ = false;
-      return;
     }
-    *mask.bits = static_cast<T>(get(n));
   }
 
   // True when every field was present and no byte is left over.

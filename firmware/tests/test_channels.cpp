@@ -118,9 +118,22 @@ void the_twelfth_channel_has_its_fault_bits() {
   CHECK(b.replies.last.channels == kMaxChannels && b.replies.last.fault_flags == b.fw.faults());
 }
 
+void a_layout_that_cannot_carry_a_message_encodes_nothing() {
+  uint8_t frame[kMaxEncodedFrameBytes];
+  // A mask bit beyond the mask's byte, a count beyond kMaxChannels: refused, not truncated.
+  CHECK(encode_message(msg::Tare{4, 0x100, 0}, 1, frame, sizeof frame) == 0);
+  CHECK(encode_message(msg::Tare{kMaxChannels + 1, 0, 0}, 1, frame, sizeof frame) == 0);
+  CHECK(encode_message(msg::SetSetpoints{kMaxChannels + 1, 0, {}}, 1, frame, sizeof frame) == 0);
+  CHECK(encode_message(msg::Tare{9, 0x100, 0}, 1, frame, sizeof frame) > 0);  // two mask bytes
+  msg::TelemetryMessage longest{};
+  longest.channels = kMaxChannels;
+  CHECK(encode_message(longest, 1, frame, sizeof frame) == kMaxPayloadBytes + 7);
+}
+
 }  // namespace
 
 void test_channels() {
+  a_layout_that_cannot_carry_a_message_encodes_nothing();
   the_count_is_the_constructed_one_within_range();
   an_eight_channel_board_reports_and_drives_every_motor();
   pairs_of_eight_are_tendon_k_and_k_plus_four();
