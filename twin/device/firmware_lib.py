@@ -175,7 +175,7 @@ class FirmwareLib:
         self._fw = self._lib.twinfw_create(int(channels))
         if not self._fw:
             raise MemoryError("twinfw_create returned NULL")
-        self.channels = int(channels)
+        self.channels = int(self._lib.twinfw_channels(self._fw))
         self._duty = np.zeros(self.channels, dtype=np.float32)
         self._drive = np.zeros(self.channels, dtype=np.uint8)
         self._counts = np.zeros(self.channels, dtype=np.int32)
