@@ -15,9 +15,7 @@ most 40 ticks of 5 ms).
 
 from __future__ import annotations
 
-import dataclasses
-
-from twin.effects.base import DYNAMIC_ONLY, Effect, FitParameter, Key, Params, PlantDynamics
+from twin.effects.base import DynamicEffect, Key, Params, PlantDynamics
 
 __all__ = ["EFFECT", "MAX_LATENCY_S"]
 
@@ -25,21 +23,20 @@ __all__ = ["EFFECT", "MAX_LATENCY_S"]
 MAX_LATENCY_S = 0.195
 
 
-class ActuationLatencyEffect(Effect):
+class ActuationLatencyEffect(DynamicEffect):
     name = "actuation_latency"
     description = "the motors act on the firmware's outputs a fixed delay late"
     parameters = (Key("actuation_latency_s", nonnegative=True),)
-    untestable = DYNAMIC_ONLY
+    field = "actuation_latency_s"
+    fit_scale = 0.01
+    fit_bounds = (0.001, 0.15)
 
     def plant_dynamics(self, params: Params, dynamics: PlantDynamics) -> PlantDynamics:
         latency_s = params.effects.actuation_latency_s
         if latency_s > MAX_LATENCY_S:
             raise ValueError(f"effects.actuation_latency_s = {latency_s!r}: the twin's plant loop delays the motors "
                              f"by at most {MAX_LATENCY_S} s")
-        return dataclasses.replace(dynamics, actuation_latency_s=latency_s)
-
-    def dynamic_candidate(self, params: Params) -> FitParameter:
-        return FitParameter("effects.actuation_latency_s", log=True, scale=0.01, bounds=(1e-3, 0.15))
+        return super().plant_dynamics(params, dynamics)
 
 
 EFFECT = ActuationLatencyEffect()

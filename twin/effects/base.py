@@ -37,8 +37,8 @@ from typing import Any, Callable, Protocol
 
 import numpy as np
 
-__all__ = ["DYNAMIC_ONLY", "PER_TENDON", "Key", "BodySpec", "PlantDynamics", "StepHook", "FitParameter", "Candidate", "Effect",
-           "EFFECTS"]
+__all__ = ["DYNAMIC_ONLY", "PER_TENDON", "DynamicEffect", "Key", "BodySpec", "PlantDynamics", "StepHook",
+           "FitParameter", "Candidate", "Effect", "EFFECTS"]
 
 # The parameter set, twin.params.Params (not imported: twin.params imports this package).
 Params = Any
@@ -269,6 +269,28 @@ class Effect:
         """The one scalar the dynamic calibration (:mod:`twin.dynamics`) fits through twin replays
         to find the effect in time series; None for an effect that only changes statics."""
         return None
+
+
+class DynamicEffect(Effect):
+    """An effect of one scalar key that the plant loop makes happen (a :class:`PlantDynamics`
+    field) and only time series show: the dynamic calibration fits the key on log scale.
+
+    Attributes:
+        field: the :class:`PlantDynamics` field the key sets.
+        fit_scale: typical size of the key, in its unit.
+        fit_bounds: (low, high) the values the dynamic calibration searches, in its unit (> 0).
+    """
+
+    untestable = DYNAMIC_ONLY
+    field: str = ""
+    fit_scale: float = 1.0
+    fit_bounds: tuple[float, float] = (1e-3, 1.0)
+
+    def plant_dynamics(self, params: Params, dynamics: PlantDynamics) -> PlantDynamics:
+        return dataclasses.replace(dynamics, **{self.field: params.get(self.parameters[0].key)})
+
+    def dynamic_candidate(self, params: Params) -> FitParameter:
+        return FitParameter(self.parameters[0].key, log=True, scale=self.fit_scale, bounds=self.fit_bounds)
 
 
 # Effects by name, in the order they are tried and written (filled by twin.effects).

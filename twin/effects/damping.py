@@ -13,24 +13,18 @@ Dynamic calibration: the factor, fitted on log scale between 0.1 and 10.
 
 from __future__ import annotations
 
-import dataclasses
-
-from twin.effects.base import DYNAMIC_ONLY, Effect, FitParameter, Key, Params, PlantDynamics
+from twin.effects.base import DynamicEffect, Key
 
 __all__ = ["EFFECT"]
 
 
-class DampingEffect(Effect):
+class DampingEffect(DynamicEffect):
     name = "damping"
     description = "the backbone damps its motion more (or less) than sim.damping_time_s says"
     parameters = (Key("damping_scale", off=1.0, nonnegative=True),)
-    untestable = DYNAMIC_ONLY
-
-    def plant_dynamics(self, params: Params, dynamics: PlantDynamics) -> PlantDynamics:
-        return dataclasses.replace(dynamics, damping_scale=params.effects.damping_scale)
-
-    def dynamic_candidate(self, params: Params) -> FitParameter:
-        return FitParameter("effects.damping_scale", log=True, scale=0.5, bounds=(0.1, 10.0))
+    field = "damping_scale"
+    fit_scale = 0.5
+    fit_bounds = (0.1, 10.0)
 
 
 EFFECT = DampingEffect()

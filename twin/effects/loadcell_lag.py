@@ -13,24 +13,18 @@ Dynamic calibration: the time constant, fitted on log scale between 1 ms and 0.5
 
 from __future__ import annotations
 
-import dataclasses
-
-from twin.effects.base import DYNAMIC_ONLY, Effect, FitParameter, Key, Params, PlantDynamics
+from twin.effects.base import DynamicEffect, Key
 
 __all__ = ["EFFECT"]
 
 
-class LoadcellLagEffect(Effect):
+class LoadcellLagEffect(DynamicEffect):
     name = "loadcell_lag"
     description = "each load cell reads its tendon's tension through a first-order low-pass"
     parameters = (Key("loadcell_lag_s", nonnegative=True),)
-    untestable = DYNAMIC_ONLY
-
-    def plant_dynamics(self, params: Params, dynamics: PlantDynamics) -> PlantDynamics:
-        return dataclasses.replace(dynamics, loadcell_lag_s=params.effects.loadcell_lag_s)
-
-    def dynamic_candidate(self, params: Params) -> FitParameter:
-        return FitParameter("effects.loadcell_lag_s", log=True, scale=0.02, bounds=(1e-3, 0.5))
+    field = "loadcell_lag_s"
+    fit_scale = 0.02
+    fit_bounds = (0.001, 0.5)
 
 
 EFFECT = LoadcellLagEffect()

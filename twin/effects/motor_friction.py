@@ -13,24 +13,18 @@ Dynamic calibration: the friction force, fitted on log scale between 0.01 N and 
 
 from __future__ import annotations
 
-import dataclasses
-
-from twin.effects.base import DYNAMIC_ONLY, Effect, FitParameter, Key, Params, PlantDynamics
+from twin.effects.base import DynamicEffect, Key
 
 __all__ = ["EFFECT"]
 
 
-class MotorFrictionEffect(Effect):
+class MotorFrictionEffect(DynamicEffect):
     name = "motor_friction"
     description = "Coulomb friction in each motor and gearbox: a dead band of the drive"
     parameters = (Key("motor_friction_n", nonnegative=True),)
-    untestable = DYNAMIC_ONLY
-
-    def plant_dynamics(self, params: Params, dynamics: PlantDynamics) -> PlantDynamics:
-        return dataclasses.replace(dynamics, motor_friction_n=params.effects.motor_friction_n)
-
-    def dynamic_candidate(self, params: Params) -> FitParameter:
-        return FitParameter("effects.motor_friction_n", log=True, scale=0.1, bounds=(0.01, 3.0))
+    field = "motor_friction_n"
+    fit_scale = 0.1
+    fit_bounds = (0.01, 3.0)
 
 
 EFFECT = MotorFrictionEffect()

@@ -15,24 +15,18 @@ Dynamic calibration: the play, fitted on log scale between 10 µm and 2 mm.
 
 from __future__ import annotations
 
-import dataclasses
-
-from twin.effects.base import DYNAMIC_ONLY, Effect, FitParameter, Key, Params, PlantDynamics
+from twin.effects.base import DynamicEffect, Key
 
 __all__ = ["EFFECT"]
 
 
-class SpoolBacklashEffect(Effect):
+class SpoolBacklashEffect(DynamicEffect):
     name = "spool_backlash"
     description = "the motor encoders follow the spools through a play: lost motion after each reversal"
     parameters = (Key("spool_backlash_m", nonnegative=True),)
-    untestable = DYNAMIC_ONLY
-
-    def plant_dynamics(self, params: Params, dynamics: PlantDynamics) -> PlantDynamics:
-        return dataclasses.replace(dynamics, spool_backlash_m=params.effects.spool_backlash_m)
-
-    def dynamic_candidate(self, params: Params) -> FitParameter:
-        return FitParameter("effects.spool_backlash_m", log=True, scale=1e-4, bounds=(1e-5, 2e-3))
+    field = "spool_backlash_m"
+    fit_scale = 0.0001
+    fit_bounds = (1e-05, 0.002)
 
 
 EFFECT = SpoolBacklashEffect()
