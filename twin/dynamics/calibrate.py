@@ -3,8 +3,8 @@
 The rule (the verdicts are the static workflow's, :mod:`twin.discrepancy.naming`):
 
 * **Split.** The experiments are split in two: the candidates are fitted on the training ones
-  (default the steps, :data:`TRAINING`) and judged on the held-out ones (the slow cycles and the
-  chirp), which excite the same effects differently.
+  (default the length steps, :data:`TRAINING`) and judged on the held-out ones (the slow cycles,
+  the chirp and the tension steps), which excite the same effects differently.
 * **Noise level.** The twin with the parameter set's sensor noise, replayed against the
   noiseless twin, gives each experiment's and channel group's gap at the noise level (which
   includes what noisy load cells do through a tension loop). Every gap is scored as its mean
@@ -21,10 +21,6 @@ The rule (the verdicts are the static workflow's, :mod:`twin.discrepancy.naming`
   loop near stick-slip or its stability limit change by orders of magnitude over a few per cent
   of a friction or a latency: the strict score alone has narrow basins between which a grid
   steps, the broad one alone cannot place the value to a few per cent.
-* **Held out.** Each fitted candidate is scored on the held-out experiments against its own
-  noise level (:meth:`_Split.heldout`): with motor friction the noise of one experiment is
-  frozen into the stick-slip state the next starts from, and no replay can follow it; the
-  score charges the candidate for the noise it adds.
 * **effect** when the best candidate's held-out score is at most the current model's over
   :data:`MIN_GAIN` and no other candidate comes within :data:`TIE_FACTOR` of it there;
   **ambiguous** when one does (the held-out data cannot tell them apart); **unexplained** when
@@ -53,8 +49,9 @@ from twin.sim.plant import SimulationError
 
 __all__ = ["GRID_POINTS", "MIN_GAIN", "NOISE_SCORE", "TIE_FACTOR", "TRAINING", "CandidateFit", "DynamicResult", "calibrate"]
 
-# Experiments fitted on by default; the others are held out.
-TRAINING = ("tension_steps", "length_steps")
+# Experiments fitted on by default; the others are held out. The length steps come first in the
+# set and no sensor noise enters a length loop, so their replay follows them exactly.
+TRAINING = ("length_steps",)
 # Mean score (squared gap over the noise level's square) below which a gap is noise: the twin's
 # own noisy replays score 0.8-2.5 per experiment and group (tension steps the most: the tension
 # loop carries the load-cell noise into the motion).
@@ -98,8 +95,6 @@ class CandidateFit:
         on_bound: the fit ended on a bound: the data do not determine it.
         evaluations: twin replays it took.
         training_score, heldout_score: mean (strict) scores with the fitted value.
-        heldout_own: its held-out score against its own noise level (:meth:`_Split.heldout`):
-            what ranks the candidates.
     """
 
     effect: str
@@ -110,12 +105,11 @@ class CandidateFit:
     evaluations: int
     training_score: float
     heldout_score: float
-    heldout_own: float
 
     def to_dict(self) -> dict:
         return {"effect": self.effect, "key": self.parameter.key, "value": self.value, "converged": self.converged,
                 "on_bound": self.on_bound, "evaluations": self.evaluations, "training_score": self.training_score,
-                "heldout_score": self.heldout_score, "heldout_own_score": self.heldout_own}
+                "heldout_score": self.heldout_score}
 
 
 @dataclasses.dataclass
@@ -155,16 +149,16 @@ class DynamicResult:
             return "none: the replay gap is at the noise level; no dynamic effect is missing"
         if self.verdict == "effect":
             fit = self.fits[0]
-            left = ("to the noise level" if fit.heldout_own < NOISE_SCORE else
-                    f"to {fit.heldout_own:.3g} times the noise level's square: more than noise remains")
+            left = ("to the noise level" if fit.heldout_score < NOISE_SCORE else
+                    f"to {fit.heldout_score:.3g} times the noise level's square: more than noise remains")
             return (f"effect: {fit.effect} ({fit.parameter.key} = {fit.value:.4g}); held-out score "
-                    f"{self.score_before[1]:.3g} -> {fit.heldout_own:.3g}, {left}")
+                    f"{self.score_before[1]:.3g} -> {fit.heldout_score:.3g}, {left}")
         if self.verdict == "ambiguous":
             return f"ambiguous: {' and '.join(self.tied)} explain the held-out experiments equally well"
         best = self.fits[0] if self.fits else None
         where = ", ".join(f"{g} {self.before.group_rms(g):.3g}" for g in GROUPS)
         return (f"unexplained: no candidate explains the held-out gap (best {best.effect}: score "
-                f"{self.score_before[1]:.3g} -> {best.heldout_own:.3g}, a gain under {MIN_GAIN:g}); "
+                f"{self.score_before[1]:.3g} -> {best.heldout_score:.3g}, a gain under {MIN_GAIN:g}); "
                 f"held-out RMS gaps {where}")
 
     def to_dict(self) -> dict:
@@ -215,33 +209,6 @@ class _Split:
             return self.comparison(replay(self.replayed, params, base_rotation))
         except (ProtocolError, SimulationError):
             return None
-
-    def heldout(self, params: Params, base_rotation) -> tuple[float, float]:
-        """The scores of ``params`` against the current model's noise levels and against its own.
-
-        Its own: the twin of ``params`` with sensor noise against the noiseless one gives the
-        noise levels σ_c (what noise does through that model: frozen into a stick-slip state,
-        carried by a loop near its limit); the score is the Gaussian log-likelihood's, per
-        experiment and group, mean(gap²)/σ_c² + ln(σ_c²/σ₀²), averaged — 1 for a model that
-        misses nothing, and a candidate cannot buy tolerance by making the twin noisier: the
-        second term charges what it gains."""
-        try:
-            clean = replay(self.replayed, params, base_rotation)
-            noisy = replay(self.replayed, params, base_rotation, noise_seed=NOISE_SEED)
-        except (ProtocolError, SimulationError):
-            return FAILED_SCORE, FAILED_SCORE
-        comparison = self.comparison(clean)
-        own = self._own_levels(clean, noisy)
-        gaps = comparison.scores(own)
-        penalty = np.array([[math.log(o[g] ** 2 / n[g] ** 2) for g in GROUPS] for o, n in zip(own, self.noise)])
-        return self.score(comparison), float(np.mean(gaps + penalty))
-
-    def _own_levels(self, clean: list[Series], noisy: list[Series]) -> list[dict[str, float]]:
-        """Noise levels of a model: its noisy replay against its noiseless one, at least the
-        current model's."""
-        pick = [k for k, c in enumerate(self.chosen) if c]
-        levels = compare([noisy[k] for k in pick], [clean[k] for k in pick]).levels()
-        return [{g: max(n[g], o[g]) for g in GROUPS} for n, o in zip(self.noise, levels)]
 
     def score(self, comparison: Comparison | None, *, broad: bool = False) -> float:
         """The mean score of a comparison (:data:`FAILED_SCORE` for None); ``broad`` adds
@@ -309,10 +276,10 @@ def _fit(effect: str, trial: _Trial, refine: bool, test: _Split) -> CandidateFit
                                           options={"xatol": 1e-3 * span})
         converged = bool(broad.success and strict.success)
     x, training = trial.best()
-    strict, own = test.heldout(trial.with_x(x), trial.base_rotation)
+    heldout = test.score(test.comparison_of(trial.with_x(x), trial.base_rotation))
     on_bound = min(x - trial.low, trial.high - x) < 0.01 * (trial.high - trial.low)
     return CandidateFit(effect, trial.parameter, trial.value(x), converged, on_bound, trial.evaluations,
-                        training, strict, own)
+                        training, heldout)
 
 
 def calibrate(measured: list[Series], params: Params, base_rotation, *, training=TRAINING,
@@ -365,12 +332,12 @@ def calibrate(measured: list[Series], params: Params, base_rotation, *, training
             fits.append(_fit(name, trial, name in refined, test))
             if name in refined:
                 bar.update(1)
-    fits.sort(key=lambda f: f.heldout_own)
+    fits.sort(key=lambda f: f.heldout_score)
     best = fits[0]
-    if best.heldout_own > score_before[1] / MIN_GAIN:
+    if best.heldout_score > score_before[1] / MIN_GAIN:
         return DynamicResult("unexplained", None, [], fits, after=None, params_after=None,
                              wall_s=time.perf_counter() - start, **common)
-    tied = [f.effect for f in fits if f.heldout_own < TIE_FACTOR * best.heldout_own]
+    tied = [f.effect for f in fits if f.heldout_score < TIE_FACTOR * best.heldout_score]
     if len(tied) > 1:
         return DynamicResult("ambiguous", None, tied, fits, after=None, params_after=None,
                              wall_s=time.perf_counter() - start, **common)

@@ -60,7 +60,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     c.add_argument("run", metavar="RUN_FOLDER", help="run folder of twin dynamics record (or its dynamics/ folder)")
     _model_args(c)
     c.add_argument("--training", metavar="NAME,NAME", default=None,
-                   help="experiments fitted on (default tension_steps,length_steps); the others are held out")
+                   help="experiments fitted on (default length_steps); the others are held out")
     c.add_argument("--out-params", metavar="FILE",
                    help=f"fitted parameter file (default RUN_FOLDER/{FITTED_PARAMS}); written when an effect is named")
     c.add_argument("--json", action="store_true", help="print one JSON object")

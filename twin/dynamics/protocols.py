@@ -9,11 +9,8 @@ telemetry sample and the tracked tip until the schedule ends. The same function 
 rig and replays on the twin (:mod:`twin.dynamics.replay`), so both see the commands at the same
 device times, to the telemetry period (25 ms at the thesis's 40 Hz).
 
-The set (:func:`experiment_set`):
+The set (:func:`experiment_set`), in the order it runs:
 
-``tension_steps``  tensions mode: each tendon in turn stepped from the pretension up by
-                   :data:`TENSION_STEP_FRACTION` of the headroom to the tension limit, held,
-                   stepped back.
 ``length_steps``   lengths mode: the PCC lengths of curvature :data:`STEP_KAPPA_PER_M` in each
                    tendon's plane in turn, held, back to straight.
 ``pull_release``   lengths mode: slow triangles of curvature to :data:`CYCLE_KAPPA_PER_M` and back
@@ -21,6 +18,9 @@ The set (:func:`experiment_set`):
                    :data:`CYCLE_COMMAND_S`.
 ``chirp``          lengths mode: curvature ``κ_a sin(2π ∫f dt)`` with f swept linearly from
                    :data:`CHIRP_HZ` low to high, a command per telemetry period.
+``tension_steps``  tensions mode: each tendon in turn stepped from the pretension up by
+                   :data:`TENSION_STEP_FRACTION` of the headroom to the tension limit, held,
+                   stepped back.
 
 ``quick`` keeps the first tendon of the steps, one cycle and a shorter chirp.
 """
@@ -159,11 +159,13 @@ def experiment_set(params: Params, *, quick: bool = False) -> list[Experiment]:
     chirp_t = np.arange(0.0, chirp_s + 1e-9, 0.025)
     f0, f1 = CHIRP_HZ
     chirp_k = CHIRP_KAPPA_PER_M * np.sin(2 * math.pi * (f0 * chirp_t + 0.5 * (f1 - f0) / chirp_s * chirp_t ** 2))
+    # The tension steps last: their loop carries load-cell noise into the motion, and what it
+    # leaves (a spool stuck by friction where the noise left it) would carry into the others.
     return [
-        _steps("tension_steps", "tensions", rest, tension_targets),
         _steps("length_steps", "lengths", np.zeros(n), length_targets),
         _kappa_schedule("pull_release", params, cycle_t, cycle_k, angles[0], cycles * period_s + STEP_HOLD_S),
         _kappa_schedule("chirp", params, chirp_t, chirp_k, angles[0], chirp_s + STEP_HOLD_S),
+        _steps("tension_steps", "tensions", rest, tension_targets),
     ]
 
 
