@@ -205,19 +205,21 @@ def test_the_v1_fixture_stays_readable_after_a_copy_is_resumed_by_todays_writer(
     assert list(d["config"]) == [0, 1, 2, 3] and d.tensions_n.shape == (4, 4)
 
 
-def test_appending_another_experiment_with_sliding_states_to_a_file_without_them_keeps_its_header(tmp_path):
+def test_appending_another_experiment_to_a_file_without_sliding_states_adds_their_columns(tmp_path):
     shutil.copytree(V1_FIXTURE, tmp_path / "d")
-    header = (tmp_path / "d" / "measurements.csv").read_text().splitlines()[0]
+    before = read_dataset(tmp_path / "d")
     with pytest.raises(DatasetError, match="cannot resume it as 'decide-reapproach'"):
         DatasetWriter(tmp_path / "d", experiment="decide-reapproach", device="sim://", params=load_params(),
                       base_rotation=HORIZONTAL)
     with DatasetWriter(tmp_path / "d", experiment="decide-reapproach", device="sim://", params=load_params(),
                        base_rotation=HORIZONTAL, append=True) as w:
         w.write(row(3, 4, slide_1=1.0, slide_2=-1.0, slide_3=0.5, slide_4=0.0))
-    assert (tmp_path / "d" / "measurements.csv").read_text().splitlines()[0] == header
+    assert (tmp_path / "d" / "measurements.csv").read_text().splitlines()[0].split(",") == list(COLUMNS)
     d = read_dataset(tmp_path / "d")
     assert list(d["experiment"]) == ["validation"] * 3 + ["decide-reapproach"]
-    assert np.isnan(d.sliding_state).all()
+    assert np.isnan(d.sliding_state[:3]).all() and d.sliding_state[3].tolist() == [1.0, -1.0, 0.5, 0.0]
+    for name in ("tension_1_n", "length_4_m", "tip_z_m", "time_s"):
+        assert d[name][:3].tolist() == before[name].tolist()
 
 
 def test_a_new_dataset_records_the_sliding_state_and_reads_it_back(tmp_path):

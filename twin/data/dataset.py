@@ -354,6 +354,20 @@ def _sync_folder(folder: Path) -> None:
         os.close(fd)
 
 
+def _add_columns(path: Path, header: tuple[str, ...], columns: tuple[str, ...], complete_bytes: int) -> None:
+    """Rewrite ``measurements.csv`` under the header ``columns`` (a superset of ``header``):
+    every complete row keeps its cells, a new column is empty. Atomic (:func:`write_atomic`)."""
+    lines = path.read_bytes()[:complete_bytes].split(b"\n")
+    index = {name: i for i, name in enumerate(header)}
+    out = [_line(columns)]
+    for r, line in enumerate(lines[1:], start=2):
+        if not line.strip():
+            continue
+        cells = _fields(line, path, r)
+        out.append(_line([cells[index[c]] if c in index else "" for c in columns]))
+    write_atomic(path, "".join(out))
+
+
 def _line(cells: Iterable[str]) -> str:
     """One CSV row as a complete line, quoted as csv.writer quotes it."""
     buffer = io.StringIO()
@@ -436,7 +450,8 @@ class DatasetWriter:
             with its ``config`` and the ``reason`` (recorded as ``left_out``).
         append: add rows of another ``experiment`` to an existing dataset (of the same robot);
             they carry their experiment in the ``experiment`` column. An optional per-tendon group
-            the existing file was written without stays out of the appended rows.
+            the file was written without is added to it first (empty in its old rows), whereas a
+            plain resume keeps the file's header and leaves such a group out.
         sync: sync every row to disk (the default: a row is seconds of rig time); with False,
             rows are synced once, on :meth:`close` (bulk writes of synthetic data).
 
@@ -471,6 +486,12 @@ class DatasetWriter:
             with open(self.path, "rb") as file:
                 header = tuple(_fields(file.readline().rstrip(b"\n"), self.path, 1))
             kept = tuple(c for c in self._layout.columns if c in header or c in self._layout.required)
+            if append and kept != self._layout.columns:
+                # A deciding experiment's rows carry what the file was written without (the
+                # sliding state, which is what tells friction apart): the file gains those
+                # columns, empty in its old rows, rewritten whole and atomically first.
+                _add_columns(self.path, header, self._layout.columns, complete_bytes)
+                kept, complete_bytes = self._layout.columns, self.path.stat().st_size
             self._left_out_columns = frozenset(self._layout.columns) - frozenset(kept)
             self._layout = dataclasses.replace(self._layout, columns=kept)
         else:

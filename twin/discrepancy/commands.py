@@ -48,6 +48,14 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--holdout", type=float, default=1 / 3, metavar="FRACTION",
                    help="share of configurations held out (default 1/3)")
     p.add_argument("--max-effects", type=int, default=3, metavar="N", help="name at most N effects (default 3)")
+    p.add_argument("--device", metavar="URL",
+                   help="when the static data cannot decide (a tie, or structure the best candidates leave), run the "
+                   "experiments that tell the contenders apart on this device (the rig the data were taken on, or "
+                   "sim://), append them to DATASET and decide (twin.discrepancy.decide)")
+    p.add_argument("--twin-set", dest="twin_overrides", action="append", default=[], metavar="KEY=VALUE",
+                   help="with --device sim://: the twin's hidden settings, the rig the dataset was taken on (as "
+                   "given to twin validate --twin-set), repeatable")
+    p.add_argument("--device-seed", type=int, default=None, metavar="SEED", help="sim:// noise seed of --device")
     p.set_defaults(func=run_discrepancy_command)
 
 
@@ -74,19 +82,39 @@ def run_discrepancy_command(args: argparse.Namespace) -> int:
         return refuse(f"--params {args.params}: no such file")
     except OSError as exc:
         return refuse(f"--params {args.params}: cannot be read ({exc.strerror})")
+    if args.twin_overrides and not (args.device or "").startswith("sim://"):
+        return refuse("--twin-set applies to --device sim:// only")
+
+    def workflow(data):
+        return run_discrepancy(data, params, holdout_fraction=args.holdout, seed=args.seed,
+                               max_effects=args.max_effects, progress=True)
+
     try:
-        result = run_discrepancy(dataset, params, holdout_fraction=args.holdout, seed=args.seed,
-                                 max_effects=args.max_effects, progress=True)
+        result = workflow(dataset)
     except ValueError as exc:
         return refuse(str(exc))
+    decision = None
+    if args.device:
+        try:
+            result, decision = _decide(args, result, dataset, params, workflow)
+        except ValueError as exc:
+            return refuse(str(exc))
     if args.out_params:
         result.params_after.save(args.out_params)
     if args.report:
         write_report(result, args.report)
     code = EXIT_CODES[result.verdict]
     if args.json:
-        print(json.dumps(result.to_dict()))
+        out = result.to_dict()
+        if args.device:
+            out["decided_by"] = None if decision is None else {
+                "contenders": list(decision.contenders), "experiments": list(decision.designs),
+                "rows_added": decision.rows_added}
+        print(json.dumps(out))
         return code
+    if decision is not None:
+        print(f"decided by experiment: {', '.join(decision.designs)} ({decision.rows_added} rows appended to "
+              f"{args.dataset}) for {', '.join(decision.contenders)}")
     print(result.residuals.statement)
     print(f"verdict: {result.statement()}")
     print(f"named: {', '.join(result.named) or 'none'}")
@@ -102,3 +130,31 @@ def run_discrepancy_command(args: argparse.Namespace) -> int:
     if args.report:
         print(f"report written to {args.report}/report.md")
     return code
+
+
+def _decide(args, result, dataset, params, workflow):
+    """Run the deciding experiments of ``result`` on ``--device`` (twin.discrepancy.decide) and
+    the workflow again; returns (result, decision or None when nothing needed deciding)."""
+    from twin.cliargs import UsageError
+    from twin.device.commands import open_device_arg
+    from twin.discrepancy.decide import contenders, decide
+
+    if not contenders(result):
+        print(f"twin discrepancy: --device {args.device}: the static data decide ({result.verdict}); nothing run",
+              file=sys.stderr)
+        return result, None
+    twin = params.replace(dict(parse_override(o) for o in args.twin_overrides), source="twin-set (hidden)") \
+        if args.twin_overrides else params
+    try:
+        device = open_device_arg(args.device, params=twin, seed=args.device_seed)
+    except UsageError as exc:
+        raise ValueError(str(exc)) from None
+    with device:
+        device.connect()
+        cal = dataset.metadata.get("calibration") or {}
+        if cal.get("gain_counts_per_n"):
+            device.set_calibration(gain_counts_per_n=cal["gain_counts_per_n"], offset_counts=cal["offset_counts"])
+        decision = decide(result, device, dataset.path, params, run_workflow=workflow)
+    if decision is None:
+        return result, None
+    return decision.result, decision

@@ -217,6 +217,8 @@ class Effect:
         parameters: the ``[effects]`` keys the effect owns.
         uses: keys of other sections that carry it too (``backbone.mass_kg`` for the weight).
         untestable: why the discrepancy workflow cannot test the effect; empty when it can.
+        deciding_experiments: the experiments that tell this effect apart from the others when
+            static data leave them tied (names in :data:`twin.discrepancy.decide.DESIGNS`).
     """
 
     name: str = ""
@@ -224,6 +226,7 @@ class Effect:
     parameters: tuple[Key, ...] = ()
     uses: tuple[str, ...] = ()
     untestable: str = ""
+    deciding_experiments: tuple[str, ...] = ()
 
     @property
     def keys(self) -> tuple[str, ...]:

@@ -21,6 +21,7 @@ __all__ = ["EFFECT"]
 class BaseTiltEffect(Effect):
     name = "base_tilt"
     description = "the clamp is tilted about world x, then y"
+    deciding_experiments = ("planes",)
     parameters = (Key("base_tilt_deg", size=2),)
 
     def clamp_rotation(self, params: Params, rotation: np.ndarray) -> np.ndarray:

@@ -23,6 +23,7 @@ _RANGE = 10.0
 class StiffnessEffect(Effect):
     name = "stiffness"
     description = "Young's and shear moduli differ"
+    deciding_experiments = ("tip-load",)
     uses = ("backbone.youngs_modulus_pa", "backbone.shear_modulus_pa")
 
     def candidate(self, params: Params) -> Candidate:

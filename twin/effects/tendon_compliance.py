@@ -21,6 +21,7 @@ __all__ = ["EFFECT"]
 class TendonComplianceEffect(Effect):
     name = "tendon_compliance"
     description = "tendon stretch per newton: encoder lengths differ from the path lengths"
+    deciding_experiments = ("pretension",)
     parameters = (Key("tendon_compliance_m_per_n", nonnegative=True),)
     untestable = "tension-driven predictions do not depend on tendon stretch"
 

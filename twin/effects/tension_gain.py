@@ -22,6 +22,7 @@ __all__ = ["EFFECT"]
 class TensionGainEffect(Effect):
     name = "tension_gain"
     description = "each load cell reads (1 + g_i) times the true tension"
+    deciding_experiments = ("pretension",)
     parameters = (Key("tension_gain_error", size=PER_TENDON),)
 
     def loadcell_response(self, params: Params, gain: np.ndarray,

@@ -37,6 +37,7 @@ def _antagonist_representatives(angles_deg) -> list[int]:
 class TensionOffsetEffect(Effect):
     name = "tension_offset"
     description = "each load cell reads the true tension plus o_i newtons"
+    deciding_experiments = ("pretension",)
     parameters = (Key("tension_offset_error_n", size=PER_TENDON),)
 
     def loadcell_response(self, params: Params, gain: np.ndarray,

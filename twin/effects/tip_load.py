@@ -21,6 +21,7 @@ __all__ = ["EFFECT"]
 class TipLoadEffect(Effect):
     name = "tip_load"
     description = "the hung tip load weighs a fraction more than its nominal mass"
+    deciding_experiments = ("tip-load",)
     parameters = (Key("tip_load_error_fraction"),)
 
     def true_tip_mass_kg(self, params: Params, mass_kg: float) -> float:

@@ -19,6 +19,7 @@ __all__ = ["EFFECT"]
 class TrackerOffsetEffect(Effect):
     name = "tracker_offset"
     description = "the tracker's origin is offset from the tip, in the tip frame"
+    deciding_experiments = ("planes",)
     parameters = (Key("tracker_offset_m", size=3),)
 
     def tracker_offset_m(self, params: Params, offset_m: np.ndarray) -> np.ndarray:

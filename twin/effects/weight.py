@@ -21,6 +21,7 @@ __all__ = ["EFFECT"]
 class WeightEffect(Effect):
     name = "weight"
     description = "the endoscope's weight, or how much of it sits at the discs, differs"
+    deciding_experiments = ("tip-load",)
     uses = ("backbone.mass_kg",)
     parameters = (Key("disc_mass_fraction", nonnegative=True),)
 

@@ -1,0 +1,93 @@
+"""The experiment that decides: when static data leave candidates tied, ``twin discrepancy
+--device`` runs what tells them apart on the device, appends it to the dataset and decides."""
+
+import csv
+import json
+
+import numpy as np
+
+from twin import effects
+from twin.cli import main
+from twin.data.dataset import read_dataset
+from twin.device import open_device
+from twin.discrepancy.decide import DESIGNS, designs_for
+from twin.experiments.protocols import nominal_calibration, run_validation
+from twin.params import load_params
+
+FRICTION = "effects.tendon_friction_coeff=0.15"
+GRID = [(i, kappa, phi, mass) for i, (kappa, phi, mass) in enumerate(
+    (k, p, m) for k in (13.0, 26.2) for p in (0.0, 90.0, 180.0, 270.0) for m in (0.0, 0.01))]
+
+
+def run(capsys, *argv):
+    code = main([str(a) for a in argv])
+    return code, capsys.readouterr()
+
+
+def test_every_effect_names_designs_that_exist_and_a_tie_runs_the_union_of_theirs():
+    for effect in effects.EFFECTS.values():
+        assert set(effect.deciding_experiments) <= set(DESIGNS), effect.name
+    assert [d.name for d in designs_for(["tendon_friction", "stiffness"])] == ["reapproach", "tip-load"]
+    assert [d.name for d in designs_for(["tracker_offset", "base_tilt"])] == ["planes"]
+    assert designs_for(["no such effect"]) == []
+
+
+def _sweep(folder, twin_set: dict):
+    """GRID on the twin with ``twin_set`` hidden, calibrated as ``twin validate`` calibrates it."""
+    params = load_params()
+    with open_device("sim://", params=params.replace(twin_set) if twin_set else params) as device:
+        device.connect()
+        cal = nominal_calibration(params)
+        device.set_calibration(gain_counts_per_n=cal["gain_counts_per_n"], offset_counts=cal["offset_counts"])
+        run_validation(device, folder, params, grid=GRID, progress=False, calibration=cal)
+
+
+def _older_friction_dataset(folder):
+    """A friction twin's sweep as a host that does not record the sliding state would take it."""
+    _sweep(folder, {"effects.tendon_friction_coeff": 0.15})
+    path = folder / "measurements.csv"
+    rows = list(csv.reader(open(path, newline="")))
+    keep = [i for i, name in enumerate(rows[0]) if not name.startswith("slide_")]
+    with open(path, "w", newline="") as f:
+        csv.writer(f, lineterminator="\r\n").writerows([[r[i] for i in keep] for r in rows])
+
+
+def test_on_a_friction_dataset_without_sliding_states_the_reapproach_decides_for_friction(tmp_path, capsys):
+    data = tmp_path / "data"
+    _older_friction_dataset(data)
+    code, out = run(capsys, "discrepancy", data, "--json")
+    static = json.loads(out.out)
+    # Without the sliding states a stiffer backbone explains friction about as well: a tie.
+    assert code == 3 and static["verdict"] in ("ambiguous", "unexplained") and static["effect"] != "tendon_friction"
+    assert "stiffness" in {c["effect"] for c in static["candidates"]}
+
+    code, out = run(capsys, "discrepancy", data, "--device", "sim://", "--twin-set", FRICTION, "--json")
+    decided = json.loads(out.out)
+    assert code == 0 and decided["verdict"] == "effect" and decided["effects"][0] == "tendon_friction", out.out
+    assert "reapproach" in decided["decided_by"]["experiments"]
+    assert "tendon_friction" in decided["decided_by"]["contenders"]
+    coeff = decided["parameters"]["effects.tendon_friction_coeff"]["value"]
+    assert 0.1 < coeff < 0.2
+    # The older rows keep their guessed friction direction; the new ones carry the state.
+    assert decided["remaining_rms_m"] < static["remaining_rms_m"] / 2
+    extended = read_dataset(data)
+    appended = extended["experiment"] == "decide-reapproach"
+    assert appended.sum() > 0
+    assert np.count_nonzero(extended["experiment"] != "validation") == decided["decided_by"]["rows_added"]
+    # The appended rows carry the sliding state the older rows lack.
+    assert np.isfinite(extended.sliding_state[appended]).all()
+    assert np.isnan(extended.sliding_state[extended["experiment"] == "validation"]).all()
+
+
+def test_when_the_static_data_decide_the_device_is_not_touched(tmp_path, capsys):
+    _sweep(tmp_path / "d", {})
+    rows = len(read_dataset(tmp_path / "d"))
+    code, out = run(capsys, "discrepancy", tmp_path / "d", "--device", "sim://", "--json")
+    result = json.loads(out.out)
+    assert code == 0 and result["verdict"] == "none" and result["decided_by"] is None, out.out
+    assert "the static data decide" in out.err and len(read_dataset(tmp_path / "d")) == rows
+
+
+def test_twin_set_without_a_sim_device_is_refused_in_one_line(tmp_path, capsys):
+    code, out = run(capsys, "discrepancy", tmp_path, "--twin-set", FRICTION)
+    assert code == 2 and len(out.err.strip().splitlines()) == 1
