@@ -20,7 +20,8 @@ from twin.dynamics.protocols import Series, run_experiment
 from twin.params import Params
 from twin.pose import matrix_to_quat
 
-__all__ = ["GROUPS", "NOISE_FLOORS", "Comparison", "compare", "replay", "replay_params"]
+__all__ = ["GROUPS", "NOISE_FLOORS", "TRIM", "UNITS", "Comparison", "compare", "replay", "replay_params",
+           "trimmed_mean_square"]
 
 # The channel groups compared, each with the smallest gap that counts as noise: two encoder
 # counts (0.94 µm a count; a length loop's noiseless replay repeats to the count, a model never
@@ -28,6 +29,9 @@ __all__ = ["GROUPS", "NOISE_FLOORS", "Comparison", "compare", "replay", "replay_
 GROUPS = ("lengths", "tensions", "tip")
 NOISE_FLOORS = {"lengths": 2e-6, "tensions": 5e-4, "tip": 1e-6}
 UNITS = {"lengths": "m", "tensions": "N", "tip": "m"}
+# Share of the samples with the largest gaps a score leaves out (:func:`trimmed_mean_square`):
+# the two-segment robot's clean chirp has 3 of its 104 samples at engagement spikes of 0.2-0.3 N.
+TRIM = 0.05
 
 
 def replay_params(params: Params, base_rotation, *, noiseless: bool = True) -> Params:
@@ -94,19 +98,33 @@ class Comparison:
         return float(math.sqrt(np.mean(per_row)))
 
     def levels(self) -> list[dict[str, float]]:
-        """Per experiment, each group's RMS gap per channel, at least :data:`NOISE_FLOORS`: of a
-        comparison of a noisy twin with the noiseless one, the gap at the noise level."""
-        return [{g: max(float(np.sqrt(np.mean(r[g] ** 2))) if r[g].size else 0.0, NOISE_FLOORS[g]) for g in GROUPS}
+        """Per experiment, each group's RMS gap per channel (:func:`trimmed_mean_square`), at least
+        :data:`NOISE_FLOORS`: of a comparison of a noisy twin with the noiseless one, the gap at
+        the noise level."""
+        return [{g: max(math.sqrt(trimmed_mean_square(r[g])), NOISE_FLOORS[g]) for g in GROUPS}
                 for r in self.residuals]
 
     def scores(self, noise: list[dict[str, float]]) -> np.ndarray:
-        """(experiments, groups) each group's mean squared gap over its noise level squared
-        (``noise``: :meth:`levels` of the noise reference): about 1 at the noise level."""
-        return np.array([[np.mean(r[g] ** 2) / n[g] ** 2 if r[g].size else 0.0 for g in GROUPS]
+        """(experiments, groups) each group's mean squared gap (:func:`trimmed_mean_square`) over
+        its noise level squared (``noise``: :meth:`levels` of the noise reference): about 1 at the
+        noise level."""
+        return np.array([[trimmed_mean_square(r[g]) / n[g] ** 2 for g in GROUPS]
                          for r, n in zip(self.residuals, noise)])
 
     def to_dict(self) -> dict:
         return {g: {"rms": self.rms(g).tolist(), "unit": UNITS[g]} for g in GROUPS}
+
+
+def trimmed_mean_square(gaps: np.ndarray) -> float:
+    """Mean over samples and channels of the squared gaps (rows, channels), leaving out the
+    :data:`TRIM` share of samples with the largest: a slack tendon taken up spikes its tension
+    for a sample or two at a time the noise decides, and a few such spikes would otherwise
+    outweigh seconds of agreement. A missing effect shows in most samples, not a few."""
+    if gaps.size == 0:
+        return 0.0
+    per_sample = np.sort(np.mean(gaps ** 2, axis=1))
+    keep = max(1, int(round(per_sample.size * (1.0 - TRIM))))
+    return float(np.mean(per_sample[:keep]))
 
 
 def compare(measured: list[Series], replayed: list[Series]) -> Comparison:

@@ -216,7 +216,9 @@ class TendonFrictionEffect(Effect):
                          variants=({"effects.tendon_friction_direction": 1.0},
                                    {"effects.tendon_friction_direction": -1.0}))
 
-    def dynamic_candidate(self, params: Params) -> FitParameter:
+    def dynamic_candidate(self, params: Params) -> FitParameter | None:
+        if min(params.tendon_ends_m()) < params.backbone.length_m:
+            return None  # the twin's friction is not modelled for multi-segment robots (step_hook)
         return FitParameter("effects.tendon_friction_coeff", log=True, scale=0.05, bounds=(1e-3, 1.0))
 
 
