@@ -272,3 +272,15 @@ def test_the_motors_act_the_latency_late():
 
     # Telemetry comes every 25 ms: the delay shows to within a sample.
     assert first_motion_s(0.04) - first_motion_s(0.0) == pytest.approx(0.04, abs=TELEMETRY_PERIOD_S + 1e-6)
+
+
+def test_a_static_effect_the_dynamic_library_lacks_is_unexplained(tmp_path, capsys):
+    # A load cell reading 10 % high: no dynamic effect explains the gap it leaves in every experiment.
+    folder = record(capsys, tmp_path, "effects.tension_gain_error=[0.1, 0.0, 0.0, 0.0]")
+    code, out, err = run(capsys, "dynamics", "calibrate", folder, "--json")
+    assert code == 3, err
+    result = json.loads(out)
+    assert result["verdict"] == "unexplained" and result["named"] is None and result["fitted_params"] is None
+    assert result["score_before"]["heldout"] > result["noise_score"]
+    assert all(c["heldout_score"] > result["score_before"]["heldout"] / result["min_gain"] for c in result["candidates"])
+    assert not (folder / "fitted_dynamics.toml").exists()
