@@ -142,6 +142,16 @@ def test_an_effect_outside_the_library_is_unexplained_and_shown_where(results):
     assert data["verdict"] == "unexplained" and data["remaining_rms_m"] == pytest.approx(result.remaining_rms_m)
 
 
+def test_a_constant_tip_moment_is_unexplained_not_named(tmp_path):
+    # A cable's pull on the tip: 1.5 mN·m about the world y axis, which no candidate carries.
+    # (About z, in the plane of tendons 2 and 4, it is the same internal moment as an offset
+    # between their load cells, and is named tension_offset: the data cannot tell them apart.)
+    data = synthetic_validation_dataset(tmp_path, NOMINAL, NOMINAL, grid=GRID, seed=7, tip_moment_nm=(0.0, 1.5e-3, 0.0))
+    result = run_discrepancy(data)
+    assert result.verdict == "unexplained" and result.named == (), result.statement()
+    assert result.remaining_rms_m > 3 * result.residuals.noise.rms_3d_m
+
+
 def test_a_modulus_change_moves_the_axial_stiffness_too_and_leaves_no_offset(results):
     result = results("modulus")
     assert result.verdict == "effect" and result.named == ("stiffness",), result.statement()

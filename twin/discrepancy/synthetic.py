@@ -40,7 +40,8 @@ PRETENSION_RANGE_N = (1.2, 1.5)  # thesis §8.3: set by hand in the reference ho
 def synthetic_validation_dataset(folder: str | Path, nominal: Params, truth: Params, *,
                                  grid: Iterable[tuple[int, float, float, float]] | None = None,
                                  repeats: int = 1, seed: int = 0, tracker_noise_m: float | None = None,
-                                 loadcell_noise_n: float | None = None, base_rotation=HORIZONTAL) -> Dataset:
+                                 loadcell_noise_n: float | None = None, base_rotation=HORIZONTAL,
+                                 tip_moment_nm=None) -> Dataset:
     """Write a validation dataset measured on the ``truth`` endoscope, labelled with ``nominal``.
 
     Args:
@@ -53,6 +54,8 @@ def synthetic_validation_dataset(folder: str | Path, nominal: Params, truth: Par
         tracker_noise_m: tracker noise per axis (m); default ``truth.sensors.tracker_noise_m``.
         loadcell_noise_n: load-cell noise (N); default ``truth.sensors.loadcell_noise_n``.
         base_rotation: nominal clamp orientation (3×3, body → world).
+        tip_moment_nm: a constant moment at the tip (N·m, world frame), as a cable or a contact
+            would put there: an effect no parameter of the model carries.
 
     Returns:
         The dataset as read back. Configurations the true model cannot solve are left out (none
@@ -76,6 +79,7 @@ def synthetic_validation_dataset(folder: str | Path, nominal: Params, truth: Par
             # not move (cos(φ − α) = 0 up to rounding): they stay as the holder pulled them.
             lengths = np.round(tendon_length_changes_m(kappa, phi, nominal) / count_m) * count_m + 0.0
             sol = predictor.solve(tensions, tip_force_n=effects.tip_force_n(truth, mass), base_rotation=clamp,
+                                  tip_moment_nm=tip_moment_nm,
                                   friction_direction=effects.friction_direction(
                                       lengths, truth.effects.tendon_friction_direction), raise_on_failure=False)
             if not sol.converged:
