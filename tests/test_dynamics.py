@@ -172,11 +172,25 @@ def test_a_hidden_dynamic_effect_is_named_and_fitted_near_the_truth(tmp_path, ca
     assert result["verdict"] == "effect" and result["named"] == effect, result["candidates"][:3]
     assert result["parameter"]["key"] == key
     assert result["parameter"]["value"] == pytest.approx(float(value), rel=tolerance)
-    # The fit is on the length steps; the held-out cycles, chirp and tension steps close their gap.
+    # The fit is on the length steps; held out, the score falls by the gain a name needs (or to
+    # the noise level), and the length loops' cycles and chirp close the tip and tension gaps
+    # the effect opened beyond the noise level.
+    # (The tension steps need not: with motor friction their loop hunts as the load-cell noise
+    # drives it, a motion no replay follows.)
     assert result["training"] == ["length_steps"]
+    fit = result["candidates"][0]
+    before_score = result["score_before"]["heldout"]
+    assert fit["heldout_score"] < min(before_score, max(result["noise_score"], before_score / result["min_gain"]))
     before, after = result["heldout_rms_before"], result["heldout_rms_after"]
-    assert np.linalg.norm(after["tip"]["rms"]) < np.linalg.norm(before["tip"]["rms"])
-    assert max(after["tensions"]["rms"]) < max(before["tensions"]["rms"])
+    opened = 0
+    for name in ("pull_release", "chirp"):
+        for group in ("tip", "tensions"):
+            gap = np.linalg.norm(before[group]["by_experiment"][name])
+            noise = result["noise"][name][group] * np.sqrt(len(before[group]["by_experiment"][name]))
+            if gap > 1.5 * noise:
+                opened += 1
+                assert np.linalg.norm(after[group]["by_experiment"][name]) < gap, (name, group)
+    assert opened
     fitted = load_params(result["fitted_params"])
     assert fitted.get(key) == pytest.approx(result["parameter"]["value"])
     assert fitted.source(key).startswith("fitted")
@@ -282,5 +296,6 @@ def test_a_static_effect_the_dynamic_library_lacks_is_unexplained(tmp_path, caps
     result = json.loads(out)
     assert result["verdict"] == "unexplained" and result["named"] is None and result["fitted_params"] is None
     assert result["score_before"]["heldout"] > result["noise_score"]
-    assert all(c["heldout_score"] > result["score_before"]["heldout"] / result["min_gain"] for c in result["candidates"])
+    assert all(c["heldout_score"] > max(result["score_before"]["heldout"] / result["min_gain"], result["noise_score"])
+               for c in result["candidates"])
     assert not (folder / "fitted_dynamics.toml").exists()

@@ -21,8 +21,9 @@ The rule (the verdicts are the static workflow's, :mod:`twin.discrepancy.naming`
   loop near stick-slip or its stability limit change by orders of magnitude over a few per cent
   of a friction or a latency: the strict score alone has narrow basins between which a grid
   steps, the broad one alone cannot place the value to a few per cent.
-* **effect** when the best candidate's held-out score is at most the current model's over
-  :data:`MIN_GAIN` and no other candidate comes within :data:`TIE_FACTOR` of it there;
+* **effect** when the best candidate lowers the current model's held-out score to below
+  :data:`NOISE_SCORE` or by :data:`MIN_GAIN` at least, and no other candidate comes within
+  :data:`TIE_FACTOR` of it there;
   **ambiguous** when one does (the held-out data cannot tell them apart); **unexplained** when
   no candidate explains that much of the held-out gap. The statement says how far above
   :data:`NOISE_SCORE` the named effect leaves the held-out gap: a twin replays its own hidden
@@ -159,7 +160,8 @@ class DynamicResult:
         best = self.fits[0] if self.fits else None
         where = ", ".join(f"{g} {self.before.group_rms(g):.3g}" for g in GROUPS)
         return (f"unexplained: no candidate explains the held-out gap (best {best.effect}: score "
-                f"{self.score_before[1]:.3g} -> {best.heldout_score:.3g}, a gain under {MIN_GAIN:g}); "
+                f"{self.score_before[1]:.3g} -> {best.heldout_score:.3g}, above {NOISE_SCORE:g} and a gain under "
+                f"{MIN_GAIN:g}); "
                 f"held-out RMS gaps {where}")
 
     def to_dict(self) -> dict:
@@ -335,7 +337,9 @@ def calibrate(measured: list[Series], params: Params, base_rotation, *, training
                 bar.update(1)
     fits.sort(key=lambda f: f.heldout_score)
     best = fits[0]
-    if best.heldout_score > score_before[1] / MIN_GAIN:
+    explains = best.heldout_score < score_before[1] and (best.heldout_score < NOISE_SCORE
+                                                        or best.heldout_score <= score_before[1] / MIN_GAIN)
+    if not explains:
         return DynamicResult("unexplained", None, [], fits, after=None, params_after=None,
                              wall_s=time.perf_counter() - start, **common)
     tied = [f.effect for f in fits if f.heldout_score < TIE_FACTOR * best.heldout_score]

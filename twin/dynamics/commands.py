@@ -18,7 +18,8 @@ EXIT_STOPPED = 4
 FITTED_PARAMS = "fitted_dynamics.toml"
 
 _CALIBRATE_EPILOG = """verdicts and exit codes:
-  effect       0  one effect of the library explains the held-out experiments' gap
+  effect       0  one effect of the library explains the held-out experiments' gap (to the
+                  noise level, or most of it)
   none         0  the replay gap is at the noise level
   ambiguous    3  two or more effects explain the held-out experiments equally (listed)
   unexplained  3  no effect of the library explains the held-out gap (the gaps shown)

@@ -31,7 +31,7 @@ NOISE_FLOORS = {"lengths": 2e-6, "tensions": 5e-4, "tip": 1e-6}
 UNITS = {"lengths": "m", "tensions": "N", "tip": "m"}
 # Share of the samples with the largest gaps a score leaves out (:func:`trimmed_mean_square`):
 # the two-segment robot's clean chirp has 3 of its 104 samples at engagement spikes of 0.2-0.3 N.
-TRIM = 0.05
+TRIM = 0.03
 
 
 def replay_params(params: Params, base_rotation, *, noiseless: bool = True) -> Params:
@@ -112,7 +112,11 @@ class Comparison:
                          for r, n in zip(self.residuals, noise)])
 
     def to_dict(self) -> dict:
-        return {g: {"rms": self.rms(g).tolist(), "unit": UNITS[g]} for g in GROUPS}
+        """Per group: the per-channel RMS gaps over every experiment (``rms``), their unit, and
+        each experiment's (``by_experiment``: name → per-channel RMS; empty for a tip never tracked)."""
+        return {g: {"rms": self.rms(g).tolist(), "unit": UNITS[g],
+                    "by_experiment": {name: np.sqrt(np.mean(r[g] ** 2, axis=0)).tolist() if r[g].size else []
+                                      for name, r in zip(self.names, self.residuals)}} for g in GROUPS}
 
 
 def trimmed_mean_square(gaps: np.ndarray) -> float:
