@@ -120,11 +120,13 @@ def _random_message(cls: type[c.Message], rng: np.random.Generator) -> c.Message
     """A message of ``cls`` with random fields; one sized by the channel count gets a random count."""
     channels = int(rng.integers(1, c.MAX_CHANNELS + 1))
     ranges = {"B": (0, 2**8), "H": (0, 2**16), "I": (0, 2**32), "Q": (0, 2**64), "i": (-(2**31), 2**31),
-              "m": (0, 2**channels)}
+              "h": (-(2**15), 2**15), "m": (0, 2**channels)}
     fields = {}
     for name, code in cls.LAYOUT:
         if code[0] == "*":
             count, kind = channels, code[1:]
+        elif code[0] == "#":
+            count, kind = c.TELEMETRY_TICKS * channels, code[1:]
         else:
             count, kind = (int(code[:-1]), code[-1]) if code[0].isdigit() else (None, code)
         if name == "channels" and cls.TYPE != c.MsgType.HELLO_REPLY:
@@ -251,9 +253,12 @@ def test_a_sized_message_is_decoded_by_the_count_it_carries():
                                      lengths_m=(0.5,) * channels, raw_counts=(-1,) * channels,
                                      tensions_n=(0.25,) * channels, targets=(0.0,) * channels,
                                      duty=(-1.0,) * channels, drive_modes=(c.Drive.BRAKE,) * channels,
-                                     stale_mask=1 << (channels - 1))
+                                     stale_mask=1 << (channels - 1),
+                                     encoder_history=tuple(range(-c.TELEMETRY_TICKS * channels, 0)))
         payload = c.encode_payload(message)
-        assert len(payload) == c.payload_size(c.MsgType.TELEMETRY, channels) == 27 + 25 * channels + c.mask_bytes(channels)
+        # PROTOCOL.md's sizes: 27 + 25 N + M, and 2 bytes per tick and channel of the encoder history.
+        assert len(payload) == c.payload_size(c.MsgType.TELEMETRY, channels) == (
+            27 + 25 * channels + c.mask_bytes(channels) + 2 * c.TELEMETRY_TICKS * channels)
         assert c.decode_payload(c.MsgType.TELEMETRY, payload) == message
         assert message.drives() == (c.Drive.BRAKE,) * channels
     # The longest payload is the telemetry of the most channels.
@@ -271,7 +276,7 @@ def test_a_count_beyond_the_protocols_or_one_its_length_does_not_fit_is_a_bad_me
         c.decode_payload(c.MsgType.TARE, bytes(payload))
     telemetry = bytearray(c.encode_payload(c.TelemetryMessage()))
     telemetry[0] = 3
-    with pytest.raises(c.MessageError, match="payload is 128 bytes, expected 103 for 3 channels"):
+    with pytest.raises(c.MessageError, match="payload is 168 bytes, expected 133 for 3 channels"):
         c.decode_payload(c.MsgType.TELEMETRY, bytes(telemetry))
     with pytest.raises(c.CodecError, match="channels = 13: must be in 1..12"):
         c.encode_payload(c.SetSetpoints(values=(0.0,) * 13, channels=13))

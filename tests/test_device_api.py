@@ -205,7 +205,7 @@ def test_twin_emulate_prints_a_port_that_the_driver_connects_to():
         url = process.stdout.readline().split(":", 1)[1].strip()
         assert url == f"serial://{port}"
         with open_device(url) as device:
-            assert device.info.protocol_version == 2
+            assert device.info.protocol_version == 3
             assert device.wait_next().state is State.DISABLED
     finally:
         # SIGTERM, not SIGINT: a child started while another thread of this process is inside

@@ -71,8 +71,8 @@ BAD_FRAMES: list[tuple[str, Callable[[c.TelemetryMessage], bytes], str]] = [
     ("infinite tension", lambda m: c.encode_frame(dataclasses.replace(m, tensions_n=(0.0, math.inf, 0.0, 0.0)), 1),
      "tensions_n"),
     ("duty beyond 1", lambda m: c.encode_frame(dataclasses.replace(m, duty=(1.5, 0.0, 0.0, 0.0)), 1), "duty"),
-    ("short payload", lambda m: raw_frame(c.MsgType.TELEMETRY, 1, c.encode_payload(m)[:-1]), "127 bytes, expected 128"),
-    ("long payload", lambda m: raw_frame(c.MsgType.TELEMETRY, 1, c.encode_payload(m) + b"\x01"), "129 bytes"),
+    ("short payload", lambda m: raw_frame(c.MsgType.TELEMETRY, 1, c.encode_payload(m)[:-1]), "167 bytes, expected 168"),
+    ("long payload", lambda m: raw_frame(c.MsgType.TELEMETRY, 1, c.encode_payload(m) + b"\x01"), "169 bytes"),
     ("unknown type", lambda m: raw_frame(0x99, 1, c.encode_payload(m)), "unknown message type 0x99"),
     ("host message echoed", lambda m: c.encode_frame(c.Enable(), 1), "host → board message"),
 ]

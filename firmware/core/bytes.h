@@ -63,6 +63,7 @@ class ByteWriter {
   void operator()(uint32_t v) { put(v, 4); }
   void operator()(uint64_t v) { put(v, 8); }
   void operator()(int32_t v) { put(static_cast<uint32_t>(v), 4); }
+  void operator()(int16_t v) { put(static_cast<uint16_t>(v), 2); }
   void operator()(float v) {
     uint32_t bits;
     std::memcpy(&bits, &v, sizeof bits);
@@ -114,6 +115,7 @@ class ByteReader {
   void operator()(uint32_t& v) { v = static_cast<uint32_t>(get(4)); }
   void operator()(uint64_t& v) { v = get(8); }
   void operator()(int32_t& v) { v = static_cast<int32_t>(static_cast<uint32_t>(get(4))); }
+  void operator()(int16_t& v) { v = static_cast<int16_t>(static_cast<uint16_t>(get(2))); }
   void operator()(float& v) {
     const uint32_t bits = static_cast<uint32_t>(get(4));
     std::memcpy(&v, &bits, sizeof v);

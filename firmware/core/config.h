@@ -20,9 +20,9 @@ using ChannelMask = uint16_t;
 static_assert(kMaxChannels <= 8 * sizeof(ChannelMask), "a ChannelMask holds a bit per channel");
 
 // Protocol version: bumped on any change of a byte layout in firmware/PROTOCOL.md.
-constexpr uint16_t kProtocolVersion = 2;
+constexpr uint16_t kProtocolVersion = 3;
 constexpr uint8_t kFirmwareVersionMajor = 0;
-constexpr uint8_t kFirmwareVersionMinor = 2;
+constexpr uint8_t kFirmwareVersionMinor = 3;
 constexpr uint8_t kFirmwareVersionPatch = 0;
 
 // Encoder → tendon: 4 × 1024 quadrature counts per motor revolution, 5.3:1 gearbox, spool
@@ -39,6 +39,14 @@ constexpr float kTendonMPerCount =
 constexpr uint32_t kControlPeriodUs = 10000;
 constexpr uint32_t kTelemetryPeriodUs = 25000;
 constexpr float kControlPeriodS = kControlPeriodUs * 1e-6f;
+// The board's tick (µs): the Teensy sketch's IntervalTimer period, which the emulated board
+// (twin/device/board.py, TICK_S) ticks at too.
+constexpr uint32_t kTickPeriodUs = 5000;
+static_assert(kControlPeriodUs % kTickPeriodUs == 0 && kTelemetryPeriodUs % kTickPeriodUs == 0,
+              "control and telemetry fall on ticks");
+// Encoder counts a TELEMETRY frame carries per channel: one per tick since the frame before
+// (25 ms / 5 ms = 5), so that the host sees the spools' motion between frames.
+constexpr size_t kTelemetryTicks = kTelemetryPeriodUs / kTickPeriodUs;
 
 // HX711 at 80 Hz: a channel is stale after three missed periods.
 constexpr uint32_t kLoadcellPeriodUs = 12500;

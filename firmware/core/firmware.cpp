@@ -50,7 +50,15 @@ const Outputs& Firmware::tick(uint32_t now_us, const Inputs& inputs) {
   }
   set_outputs(may_move);
   guard_.applied(outputs_.drive);
-  if (due(next_telemetry_us_, kTelemetryPeriodUs)) send_telemetry(now, stale);
+  // The encoders are recorded every kTickPeriodUs (each tick of the Teensy and the emulated
+  // board) and at each frame, whose own counts are so always its history's last row; the
+  // schedule restarts from the frame.
+  const bool telemetry_due = due(next_telemetry_us_, kTelemetryPeriodUs);
+  if (due(next_history_us_, kTickPeriodUs) || telemetry_due) record_history();
+  if (telemetry_due) {
+    next_history_us_ = time_us_ + kTickPeriodUs;
+    send_telemetry(now, stale);
+  }
   return outputs_;
 }
 
@@ -135,6 +143,25 @@ ChannelMask Firmware::stale_mask() const {
   return mask;
 }
 
+void Firmware::record_history() {
+  if (!history_started_) {
+    for (auto& row : history_) {
+      for (size_t i = 0; i < channels_; ++i) row[i] = counts_[i];
+    }
+    history_started_ = true;
+    return;
+  }
+  for (size_t i = 0; i < channels_; ++i) history_[history_head_][i] = counts_[i];
+  history_head_ = (history_head_ + 1) % kTelemetryTicks;
+}
+
+// A count's difference from `reference`, saturated to the int16 range (±32767 counts, 31 mm of
+// tendon: more than an unloaded spool, 0.51 m/s, travels in a 25 ms frame period).
+static int16_t count_difference(int32_t count, int32_t reference) {
+  const int64_t d = static_cast<int64_t>(count) - static_cast<int64_t>(reference);
+  return static_cast<int16_t>(d > INT16_MAX ? INT16_MAX : (d < INT16_MIN ? INT16_MIN : d));
+}
+
 void Firmware::send_telemetry(const Measurements& now, ChannelMask stale_mask) {
   msg::TelemetryMessage t{};
   t.channels = static_cast<uint8_t>(channels_);
@@ -155,6 +182,10 @@ void Firmware::send_telemetry(const Measurements& now, ChannelMask stale_mask) {
   t.stale_mask = stale_mask;
   t.rx_bad_frames = rx_.bad_frames();
   t.tx_dropped_frames = tx_.dropped();
+  for (size_t k = 0; k < kTelemetryTicks; ++k) {
+    const int32_t* row = history_[(history_head_ + k) % kTelemetryTicks];
+    for (size_t i = 0; i < channels_; ++i) t.encoder_history[k][i] = count_difference(row[i], counts_[i]);
+  }
   send(t);
 }
 

@@ -74,6 +74,7 @@ class Firmware {
   template <class T>
   void send(const T& message);
   void send_telemetry(const Measurements& now, ChannelMask stale_mask);
+  void record_history();
 
   void advance_clock(uint32_t now_us);
   bool due(uint64_t& deadline_us, uint32_t period_us) const;
@@ -101,6 +102,12 @@ class Firmware {
   uint64_t next_telemetry_us_ = 0;
 
   int32_t counts_[kMaxChannels] = {};
+  // The encoder counts of the last kTelemetryTicks recorded ticks, a ring whose oldest row is
+  // history_head_; filled with the first tick's counts at the first tick.
+  int32_t history_[kTelemetryTicks][kMaxChannels] = {};
+  size_t history_head_ = 0;
+  bool history_started_ = false;
+  uint64_t next_history_us_ = 0;
   int32_t origin_counts_[kMaxChannels] = {};
   int32_t raw_counts_[kMaxChannels] = {};
   uint64_t last_sample_us_[kMaxChannels] = {};

@@ -12,8 +12,10 @@ namespace twinfw {
 
 constexpr size_t kFrameHeaderBytes = 3;
 constexpr size_t kFrameCrcBytes = 2;
-// The longest payload: TELEMETRY of kMaxChannels channels, 27 + 25 per channel + the stale mask.
-constexpr size_t kMaxPayloadBytes = 27 + 25 * kMaxChannels + mask_bytes(kMaxChannels);
+// The longest payload: TELEMETRY of kMaxChannels channels, 27 + 25 per channel + the stale mask
+// + the encoder history (2 bytes per tick and channel).
+constexpr size_t kMaxPayloadBytes =
+    27 + 25 * kMaxChannels + mask_bytes(kMaxChannels) + 2 * kTelemetryTicks * kMaxChannels;
 constexpr size_t kMaxRawFrameBytes = kFrameHeaderBytes + kMaxPayloadBytes + kFrameCrcBytes;
 // Encoded frame including its 0x00 delimiter.
 constexpr size_t kMaxEncodedFrameBytes = cobs_max_encoded_size(kMaxRawFrameBytes) + 1;

@@ -153,6 +153,10 @@ struct TelemetryMessage {
   ChannelMask stale_mask;                // bit i: load cell i stale
   uint32_t rx_bad_frames;                // frames dropped for framing or CRC errors
   uint32_t tx_dropped_frames;   // frames not sent because the TX queue was full
+  // Encoder counts at each of the last kTelemetryTicks ticks, oldest first, the last being this
+  // frame's own (0), as differences from encoder_counts saturated to the int16 range:
+  // [tick][channel], each tick's row holding `channels` entries.
+  int16_t encoder_history[kTelemetryTicks][kMaxChannels];
 };
 
 }  // namespace msg
@@ -222,6 +226,7 @@ template <class V> void visit_fields(V& v, msg::TelemetryMessage& m) {
   v(bits_of(m.stale_mask, m.channels, kMaxChannels));
   v(m.rx_bad_frames);
   v(m.tx_dropped_frames);
+  for (auto& row : m.encoder_history) v(first(row, m.channels));
 }
 
 // Writes the payload of `message` and its size; false if `capacity` is too small.

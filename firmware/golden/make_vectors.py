@@ -35,7 +35,7 @@ VALID: list[tuple[str, int, c.Message]] = [
     ("set_calibration", 11, c.SetCalibration((2.0**-15, 2.0**-15, -(2.0**-16), 2.0**-14), (8200.0, -5100.0, 3300.0, -900.0),
                                              channels=4)),
     ("set_limits", 12, c.SetLimits(tension_limit_n=6.0, watchdog_timeout_ms=250)),
-    ("hello_reply", 0, c.HelloReply(c.PROTOCOL_VERSION, (0, 2, 0), 4, 10000, 25000, 2.0**-20)),
+    ("hello_reply", 0, c.HelloReply(c.PROTOCOL_VERSION, (0, 3, 0), 4, 10000, 25000, 2.0**-20)),
     ("ack", 13, c.Ack(acked_seq=0x1234, acked_type=c.MsgType.ENABLE)),
     ("nack", 14, c.Nack(acked_seq=0xFF00, acked_type=c.MsgType.SET_SETPOINTS, error=c.NackError.WRONG_MODE)),
     (
@@ -58,10 +58,13 @@ VALID: list[tuple[str, int, c.Message]] = [
             rx_bad_frames=3,
             tx_dropped_frames=0,
             channels=4,
+            # Tick by tick, oldest first: a spool paying out, one winding in, one still, one
+            # beyond the int16 range (saturated); the last row is the frame's own tick.
+            encoder_history=(-40, 12, 0, -32768, -30, 9, 0, -32768, -20, 6, 0, -32768, -10, 3, 0, 32767, 0, 0, 0, 0),
         ),
     ),
     # Three tendons (models/three-tendon): no pairs.
-    ("hello_reply_3", 0, c.HelloReply(c.PROTOCOL_VERSION, (0, 2, 0), 3, 10000, 25000, 2.0**-20)),
+    ("hello_reply_3", 0, c.HelloReply(c.PROTOCOL_VERSION, (0, 3, 0), 3, 10000, 25000, 2.0**-20)),
     ("tare_3", 15, c.Tare(loadcell_mask=0b101, length_mask=0b111, channels=3)),
     ("set_setpoints_lengths_3", 16, c.SetSetpoints.lengths([0.001953125, -0.0009765625, 0.0078125], channels=3)),
     ("set_calibration_3", 17, c.SetCalibration((2.0**-15, -(2.0**-16), 2.0**-14), (8200.0, -5100.0, 0.0), channels=3)),
@@ -85,10 +88,11 @@ VALID: list[tuple[str, int, c.Message]] = [
             rx_bad_frames=0,
             tx_dropped_frames=65_536,
             channels=3,
+            encoder_history=(1, -1, 255, 256, -256, 0, 0, 0, -255, 32767, -32768, 1, 0, 0, 0),
         ),
     ),
     # Eight tendons, the Teensy sketch's pin map (firmware/teensy/twin_rig/pins.h): pairs k, k + 4.
-    ("hello_reply_8", 0, c.HelloReply(c.PROTOCOL_VERSION, (0, 2, 0), 8, 10000, 25000, 2.0**-20)),
+    ("hello_reply_8", 0, c.HelloReply(c.PROTOCOL_VERSION, (0, 3, 0), 8, 10000, 25000, 2.0**-20)),
     ("tare_8", 18, c.Tare(loadcell_mask=0xFF, length_mask=0x81, channels=8)),
     ("set_setpoints_pairs_8", 19, c.SetSetpoints.pairs([0.00390625, -0.001953125, 0.0, 0.0009765625], channels=8)),
     ("set_setpoints_tensions_8", 20, c.SetSetpoints.tensions([1.25, 1.5, 0.75, 2.0, 0.0, 6.0, 0.5, 0.25], channels=8)),
@@ -114,6 +118,7 @@ VALID: list[tuple[str, int, c.Message]] = [
             rx_bad_frames=0xFFFF_FFFF,
             tx_dropped_frames=7,
             channels=8,
+            encoder_history=tuple(range(-20, 12)) + (0,) * 8,
         ),
     ),
 ]
@@ -145,7 +150,7 @@ def _invalid(valid: dict[str, str]) -> list[dict]:
         {"name": "truncated", "hex": (setpoints[:-3] + b"\x00").hex(), "expect": "bad_frame"},
         {"name": "cobs_block_past_end", "hex": "0a0102030000", "expect": "bad_frame"},
         {"name": "too_short", "hex": "03010200", "expect": "bad_frame"},
-        {"name": "over_long", "hex": "01" * 400 + "00", "expect": "bad_frame"},
+        {"name": "over_long", "hex": "01" * (c.MAX_RAW_FRAME_BYTES + 8) + "00", "expect": "bad_frame"},
         {"name": "garbage", "hex": bytes(range(1, 40)).hex() + "00", "expect": "bad_frame"},
         {
             "name": "short_payload",

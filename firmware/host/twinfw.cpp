@@ -73,16 +73,17 @@ TWINFW_EXPORT size_t twinfw_decoder_feed(twinfw_decoder* decoder, const uint8_t*
   for (size_t i = 0; i < size; ++i) {
     if (!decoder->decoder.push(data[i])) continue;
     const twinfw::RawFrame& f = decoder->decoder.frame();
-    const size_t record = 1 + twinfw::kFrameHeaderBytes + f.payload_size;
+    const size_t record = 2 + twinfw::kFrameHeaderBytes + f.payload_size;
     if (written + record > capacity) {
       ++decoder->overflows;
       continue;
     }
-    out[written] = static_cast<uint8_t>(record - 1);
-    out[written + 1] = f.type;
-    out[written + 2] = static_cast<uint8_t>(f.seq);
-    out[written + 3] = static_cast<uint8_t>(f.seq >> 8);
-    std::memcpy(out + written + 4, f.payload, f.payload_size);
+    out[written] = static_cast<uint8_t>(record - 2);
+    out[written + 1] = static_cast<uint8_t>((record - 2) >> 8);
+    out[written + 2] = f.type;
+    out[written + 3] = static_cast<uint8_t>(f.seq);
+    out[written + 4] = static_cast<uint8_t>(f.seq >> 8);
+    std::memcpy(out + written + 5, f.payload, f.payload_size);
     written += record;
   }
   return written;

@@ -12,7 +12,7 @@
 extern "C" {
 #endif
 
-#define TWINFW_ABI_VERSION 2
+#define TWINFW_ABI_VERSION 3
 #define TWINFW_MAX_CHANNELS 12
 
 typedef struct twinfw_board twinfw_board;
@@ -50,7 +50,7 @@ size_t twinfw_take_tx(twinfw_board* fw, uint8_t* out, size_t capacity);
 twinfw_decoder* twinfw_decoder_create(void);
 void twinfw_decoder_destroy(twinfw_decoder* decoder);
 /* Feeds bytes; each frame that passes COBS and CRC is written to out as one record
- * [length u8][type u8][seq u16 LE][payload], records back to back. Returns the bytes written;
+ * [length u16 LE][type u8][seq u16 LE][payload] (length: the bytes after it), records back to back. Returns the bytes written;
  * a record that does not fit in capacity is dropped and counted in twinfw_decoder_overflows. */
 size_t twinfw_decoder_feed(twinfw_decoder* decoder, const uint8_t* data, size_t size, uint8_t* out,
                            size_t capacity);

@@ -127,7 +127,7 @@ void golden_vectors() {
 size_t encode_ping(uint16_t seq, uint8_t* out) { return encode_message(msg::Ping{}, seq, out, kMaxEncodedFrameBytes); }
 
 void resynchronises_after_garbage() {
-  uint8_t stream[600];
+  uint8_t stream[2 * kMaxEncodedFrameBytes + 100];
   size_t n = 0;
   // Garbage runs into the next frame up to its delimiter: that frame is lost (a sender that
   // may have left a partial frame on the line leads with 0x00).
@@ -135,7 +135,7 @@ void resynchronises_after_garbage() {
   n += encode_ping(1, stream + n);
   stream[n++] = 0x00;  // an empty frame is ignored, not counted
   n += encode_ping(2, stream + n);
-  for (int i = 0; i < 400; ++i) stream[n++] = 0x55;  // an over-long run
+  for (size_t i = 0; i < kMaxEncodedFrameBytes + 10; ++i) stream[n++] = 0x55;  // an over-long run
   stream[n++] = 0x00;
   uint8_t truncated[kMaxEncodedFrameBytes];
   const size_t t = encode_ping(3, truncated);

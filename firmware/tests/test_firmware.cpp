@@ -53,6 +53,55 @@ void telemetry_schedule() {
   }
 }
 
+// Tendon 1 pays out 7 counts a tick, tendon 2 winds in ever faster, tendon 3 stands, tendon 4
+// jumps beyond the int16 range once (its differences saturate).
+int32_t history_count(size_t channel, int tick) {
+  switch (channel) {
+    case 0: return 7 * tick;
+    case 1: return -tick * tick;
+    case 2: return 0;
+    default: return tick >= 30 ? 40000 : 0;
+  }
+}
+
+int16_t saturated(int32_t d) { return static_cast<int16_t>(d > 32767 ? 32767 : (d < -32768 ? -32768 : d)); }
+
+void telemetry_carries_every_ticks_encoder_counts() {
+  static_assert(kTelemetryTicks == 5, "25 ms frames of 5 ms ticks");
+  Bench b;
+  int frames = 0;
+  bool all_match = true;
+  for (int tick = 1; tick <= 60; ++tick) {
+    for (size_t i = 0; i < 4; ++i) b.counts[i] = history_count(i, tick);
+    const int before = b.replies.telemetry;
+    b.run(0.005, 5000);
+    if (b.replies.telemetry == before) continue;
+    ++frames;
+    const msg::TelemetryMessage& t = b.replies.last;
+    for (size_t k = 0; k < kTelemetryTicks; ++k) {
+      // Oldest first; before the first tick the history holds the first tick's counts.
+      const int at = tick - static_cast<int>(kTelemetryTicks - 1 - k);
+      for (size_t i = 0; i < 4; ++i) {
+        const int32_t expected = saturated(history_count(i, at < 1 ? 1 : at) - t.encoder_counts[i]);
+        all_match = all_match && t.encoder_history[k][i] == expected;
+      }
+    }
+    all_match = all_match && t.encoder_counts[0] == history_count(0, tick);
+  }
+  CHECK(frames == 12);
+  CHECK(all_match);
+  CHECK(b.replies.last.sample_seq == 11 && b.replies.last.encoder_history[0][1] == -(52 * 52) + 56 * 56);
+  // Ticked every 1 ms, the board records every 5 ms: the frame's own tick and 5, 10, 15, 20 ms before.
+  Bench fast;
+  for (int ms = 1; ms <= 100; ++ms) {
+    fast.counts[0] = ms;
+    fast.run(0.001, 1000);
+  }
+  const msg::TelemetryMessage& t = fast.replies.last;
+  CHECK(t.encoder_history[0][0] == -20 && t.encoder_history[1][0] == -15 && t.encoder_history[2][0] == -10 &&
+        t.encoder_history[3][0] == -5 && t.encoder_history[4][0] == 0);
+}
+
 void control_runs_at_100_hz() {
   Bench b;
   CHECK(b.start());
@@ -264,6 +313,7 @@ void test_firmware() {
   handshake();
   setpoint_gives_pwm_sign();
   telemetry_schedule();
+  telemetry_carries_every_ticks_encoder_counts();
   control_runs_at_100_hz();
   corrupted_command_is_not_acted_on();
   garbage_is_counted_and_ignored();

@@ -30,6 +30,7 @@ __all__ = [
     "PROTOCOL_VERSION",
     "MAX_CHANNELS",
     "DEFAULT_CHANNELS",
+    "TELEMETRY_TICKS",
     "pairs_possible",
     "MAX_PAYLOAD_BYTES",
     "MAX_RAW_FRAME_BYTES",
@@ -73,15 +74,19 @@ __all__ = [
     "decode_frame",
 ]
 
-PROTOCOL_VERSION = 2
+PROTOCOL_VERSION = 3
 # Most channels a board may have: the firmware's kMaxChannels (firmware/core/config.h), which
 # the TELEMETRY fault flags have a tension and an implausible bit each for.
 MAX_CHANNELS = 12
 # The thesis endoscope's four tendons (models/endoscope/endoscope.toml, tendons.count): the
 # count of a message built without one.
 DEFAULT_CHANNELS = 4
-# The longest payload: TELEMETRY of MAX_CHANNELS channels (27 bytes, 25 per channel, the stale mask).
-MAX_PAYLOAD_BYTES = 27 + 25 * MAX_CHANNELS + (MAX_CHANNELS + 7) // 8
+# Board ticks per TELEMETRY frame, whose encoder counts each frame carries: the firmware's
+# kTelemetryTicks, its 25 ms telemetry period over its 5 ms tick (firmware/core/config.h).
+TELEMETRY_TICKS = 5
+# The longest payload: TELEMETRY of MAX_CHANNELS channels (27 bytes, 25 per channel, the stale
+# mask, 2 per channel and tick of the encoder history).
+MAX_PAYLOAD_BYTES = 27 + 25 * MAX_CHANNELS + (MAX_CHANNELS + 7) // 8 + 2 * TELEMETRY_TICKS * MAX_CHANNELS
 _HEADER = struct.Struct("<BH")
 _CRC = struct.Struct("<H")
 MAX_RAW_FRAME_BYTES = _HEADER.size + MAX_PAYLOAD_BYTES + _CRC.size
@@ -181,9 +186,10 @@ class MessageError(CodecError):
 @dataclasses.dataclass(frozen=True)
 class Message:
     """Base of all messages. ``LAYOUT`` lists (field, struct code) in wire order; a code with a
-    count (``"3B"``) is a tuple field, ``"*f"`` a tuple of one entry per channel and ``"m"`` a
-    bit per channel in ceil(channels / 8) bytes. A message with per-channel fields starts with
-    ``channels`` (``"B"``)."""
+    count (``"3B"``) is a tuple field, ``"*f"`` a tuple of one entry per channel, ``"#h"`` one
+    of :data:`TELEMETRY_TICKS` × channels entries (tick by tick, each tick's channels in order)
+    and ``"m"`` a bit per channel in ceil(channels / 8) bytes. A message with per-channel fields
+    starts with ``channels`` (``"B"``)."""
 
     TYPE: ClassVar[MsgType]
     LAYOUT: ClassVar[tuple[tuple[str, str], ...]] = ()
@@ -347,7 +353,10 @@ class Nack(Message):
 class TelemetryMessage(Message):
     """One 40 Hz sample. ``targets`` are per motor, in m (length modes) or N (tension);
     ``duty`` in [-1, 1], positive pays tendon out; ``drive_modes`` holds a Drive per motor;
-    ``stale_mask`` bit i = load cell i stale."""
+    ``stale_mask`` bit i = load cell i stale. ``encoder_history`` holds the encoder counts at
+    each of the :data:`TELEMETRY_TICKS` board ticks since the frame before, oldest first and
+    the last this frame's own (all 0), tick by tick with each tick's channels in order, as
+    differences from ``encoder_counts`` (counts) saturated to the int16 range."""
 
     TYPE = MsgType.TELEMETRY
     LAYOUT = (
@@ -367,6 +376,7 @@ class TelemetryMessage(Message):
         ("stale_mask", "m"),
         ("rx_bad_frames", "I"),
         ("tx_dropped_frames", "I"),
+        ("encoder_history", "#h"),
     )
     time_us: int = 0
     sample_seq: int = 0
@@ -384,6 +394,7 @@ class TelemetryMessage(Message):
     rx_bad_frames: int = 0
     tx_dropped_frames: int = 0
     channels: int = DEFAULT_CHANNELS
+    encoder_history: tuple[int, ...] = (0,) * (TELEMETRY_TICKS * DEFAULT_CHANNELS)
 
     def drives(self) -> tuple[Drive, ...]:
         """The Drive of each motor."""
@@ -406,7 +417,7 @@ def _floats(name: str, values: Iterable[float], count: int) -> tuple[float, ...]
 
 def _sized(cls: type[Message]) -> bool:
     """Whether ``cls``'s layout depends on the channel count (it then starts with ``channels``)."""
-    return any(code[0] == "*" or code == "m" for _, code in cls.LAYOUT)
+    return any(code[0] in "*#" or code == "m" for _, code in cls.LAYOUT)
 
 
 _SIZED = frozenset(t for t, cls in MESSAGE_TYPES.items() if _sized(cls))
@@ -427,6 +438,8 @@ def _codes(cls: type[Message], channels: int) -> list[tuple[str, str, int | None
     for name, code in cls.LAYOUT:
         if code[0] == "*":
             out.append((name, f"{channels}{code[1:]}", channels))
+        elif code[0] == "#":
+            out.append((name, f"{TELEMETRY_TICKS * channels}{code[1:]}", TELEMETRY_TICKS * channels))
         elif code == "m":
             out.append((name, _MASK_CODES[mask_bytes(channels)], None))
         elif code[0].isdigit():

@@ -42,7 +42,7 @@ __all__ = [
 
 FIRMWARE_DIR = resource_path("firmware")
 LIB_NAME = "libtwinfw.so"
-ABI_VERSION = 2
+ABI_VERSION = 3
 
 
 class FirmwareBuildError(NativeBuildError):
@@ -278,10 +278,10 @@ class FirmwareFrameDecoder:
             raise RuntimeError(f"twinfw_decoder_feed dropped records with capacity {capacity} for {len(data)} bytes")
         records, raw, i = [], out.raw[:n], 0
         while i < n:
-            size = raw[i]
-            record = raw[i + 1 : i + 1 + size]
+            size = int.from_bytes(raw[i : i + 2], "little")
+            record = raw[i + 2 : i + 2 + size]
             records.append((record[0], int.from_bytes(record[1:3], "little"), bytes(record[3:])))
-            i += 1 + size
+            i += 2 + size
         return records
 
     @property

@@ -63,6 +63,13 @@ class SimTwin:
         """(N,) true tension at the spool end of each tendon (N): what a perfect load cell reads."""
         return self._board.plant.true_tensions_n()
 
+    @property
+    def sliding_state(self) -> np.ndarray | None:
+        """(N,) ground truth: the sliding state σ the twin's tendon friction is in (+1 pulled …
+        −1 released), or None when the twin has no friction; what a rig's record of it
+        (:class:`twin.effects.SlidingState`) is checked against."""
+        return self._board.plant.sliding_state
+
     def peak_tensions_n(self) -> np.ndarray:
         """(N,) largest true tension of each tendon (N) at any physics step since
         :meth:`clear_peak_tensions` or :meth:`reset`: what a bound on tension must hold, including

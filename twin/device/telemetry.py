@@ -24,6 +24,10 @@ class Telemetry:
             ``sim://``, the board's clock on ``serial://``.
         seq: the board's sample counter; a gap means samples were lost on the way.
         encoder_counts: (N,) int64 raw quadrature counts (no origin applied).
+        encoder_history_counts: (K, N) int64 raw counts at each of the K board ticks since the
+            sample before (:data:`codec.TELEMETRY_TICKS`, 5 ms apart), oldest first, the last
+            this sample's own ``encoder_counts``; a tick more than 32767 counts (31 mm) away
+            from this sample reads that far.
         tendon_lengths_m: (N,) relative tendon lengths (m, from the last tare; positive = paid out).
         raw_counts: (N,) int64 latest HX711 readings (counts).
         tensions_n: (N,) calibrated tensions (N).
@@ -56,14 +60,18 @@ class Telemetry:
     rx_bad_frames: int
     tx_dropped_frames: int
     received_s: float
+    encoder_history_counts: np.ndarray
 
     @classmethod
     def from_message(cls, message: codec.TelemetryMessage, received_s: float) -> "Telemetry":
         """The host view of a decoded TELEMETRY message received at ``received_s``."""
+        counts = np.array(message.encoder_counts, dtype=np.int64)
+        history = np.array(message.encoder_history, dtype=np.int64).reshape(codec.TELEMETRY_TICKS, -1)
+        history += counts
         return cls(
             time_s=message.time_us / 1e6,
             seq=message.sample_seq,
-            encoder_counts=np.array(message.encoder_counts, dtype=np.int64),
+            encoder_counts=counts,
             tendon_lengths_m=np.array(message.lengths_m, dtype=float),
             raw_counts=np.array(message.raw_counts, dtype=np.int64),
             tensions_n=np.array(message.tensions_n, dtype=float),
@@ -77,6 +85,7 @@ class Telemetry:
             rx_bad_frames=message.rx_bad_frames,
             tx_dropped_frames=message.tx_dropped_frames,
             received_s=received_s,
+            encoder_history_counts=history,
         )
 
     @property

@@ -82,14 +82,24 @@ class SlidingState:
         self._counts: np.ndarray | None = None
 
     def follow(self, samples) -> np.ndarray | None:
-        """Advance over telemetry samples (oldest first; each with ``encoder_counts``); returns σ."""
+        """Advance over telemetry samples (oldest first) and, within each, over the counts of
+        every board tick it carries (``encoder_history_counts``, (K, N), oldest first; a sample
+        without them, ``encoder_counts``, (N,)): the spool's motion between 40 Hz samples (a
+        length controller's settling dither of a few µm) moves σ as the twin's friction sees it.
+
+        Returns:
+            σ per tendon, or None before the first sample.
+        """
         for sample in samples:
-            counts = np.asarray(sample.encoder_counts, dtype=float)
-            if self._counts is None:
-                self.state = np.zeros(counts.shape)
-            else:
-                self.state = slide(self.state, -(counts - self._counts) * self.tendon_m_per_count)
-            self._counts = counts
+            ticks = getattr(sample, "encoder_history_counts", None)
+            if ticks is None:
+                ticks = (sample.encoder_counts,)
+            for counts in np.asarray(ticks, dtype=float):
+                if self._counts is None:
+                    self.state = np.zeros(counts.shape)
+                else:
+                    self.state = slide(self.state, -(counts - self._counts) * self.tendon_m_per_count)
+                self._counts = counts
         return self.state
 
 

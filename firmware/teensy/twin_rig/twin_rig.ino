@@ -19,7 +19,7 @@
 
 namespace {
 
-constexpr uint32_t kTickPeriodUs = 5000;
+using twinfw::kTickPeriodUs;
 
 // Named objects, not an array of temporaries: each Encoder hands `this` to its pin interrupts
 // in its constructor, so it must be built in place. All eight are built (their pins pulled up,
