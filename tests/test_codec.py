@@ -10,13 +10,16 @@ import binascii
 import dataclasses
 import importlib.util
 import json
+import re
 import struct
 
 import numpy as np
 import pytest
 
 from twin.device import codec as c
+from twin.device.board import TICK_S
 from twin.device.firmware_lib import FIRMWARE_DIR, FirmwareFrameDecoder
+from twin.device.telemetry import Telemetry
 
 VECTORS_PATH = FIRMWARE_DIR / "golden" / "vectors.json"
 VECTORS = json.loads(VECTORS_PATH.read_text())
@@ -298,3 +301,26 @@ def test_pairs_couple_tendon_k_with_k_plus_half():
     assert [c.pairs_possible(n) for n in (1, 2, 3, 4, 5, 6)] == [False, True, False, True, False, True]
     with pytest.raises(c.CodecError, match="pair_lengths_m"):
         c.SetSetpoints.pairs([0.001], channels=4)
+
+
+def test_a_telemetry_frame_carries_the_ticks_of_one_telemetry_period():
+    config = (FIRMWARE_DIR / "core" / "config.h").read_text()
+
+    def us(name):
+        return int(re.search(rf"constexpr uint32_t {name} = (\d+);", config).group(1))
+
+    assert c.TELEMETRY_TICKS == us("kTelemetryPeriodUs") // us("kTickPeriodUs") == 5
+    assert us("kTickPeriodUs") * 1e-6 == TICK_S
+
+
+def test_the_host_sees_the_encoder_history_as_counts_of_each_tick():
+    vector = next(v for v in VECTORS["valid"] if v["name"] == "telemetry")
+    message = c.decode_frame(bytes.fromhex(vector["hex"])[:-1]).message
+    sample = Telemetry.from_message(message, received_s=0.0)
+    counts = np.array(vector["fields"]["encoder_counts"])
+    differences = np.array(vector["fields"]["encoder_history"]).reshape(c.TELEMETRY_TICKS, 4)
+    assert sample.encoder_history_counts.shape == (5, 4) and sample.encoder_history_counts.dtype == np.int64
+    assert np.array_equal(sample.encoder_history_counts, counts + differences)
+    assert np.array_equal(sample.encoder_history_counts[-1], sample.encoder_counts)
+    # Channel 4 (−2,000,000 counts) beyond the int16 range at the oldest ticks: saturated.
+    assert sample.encoder_history_counts[0].tolist() == [21709 - 40, -1 + 12, 0, -2_000_000 - 32768]
