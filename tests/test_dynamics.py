@@ -160,6 +160,13 @@ def test_clean_data_give_none(clean_run, capsys):
     assert not (clean_run / "fitted_dynamics.toml").exists()
 
 
+def test_clean_data_with_another_seed_and_twice_the_sensor_noise_give_none(tmp_path, capsys):
+    folder = record(capsys, tmp_path, "sensors.loadcell_noise_n=0.01", "sensors.tracker_noise_m=0.0004", seed=3)
+    code, out, err = run(capsys, "dynamics", "calibrate", folder, "--json")
+    assert code == 0, err
+    assert json.loads(out)["verdict"] == "none"
+
+
 @pytest.mark.parametrize("effect", sorted(HIDDEN))
 def test_a_hidden_dynamic_effect_is_named_and_fitted_near_the_truth(tmp_path, capsys, effect):
     setting, tolerance = HIDDEN[effect]
