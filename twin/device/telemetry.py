@@ -8,6 +8,7 @@
 from __future__ import annotations
 
 import dataclasses
+import functools
 
 import numpy as np
 
@@ -27,7 +28,9 @@ class Telemetry:
         encoder_history_counts: (K, N) int64 raw counts at each of the K board ticks since the
             sample before (:data:`codec.TELEMETRY_TICKS`, 5 ms apart), oldest first, the last
             this sample's own ``encoder_counts``; a tick more than 32767 counts (31 mm) away
-            from this sample reads that far.
+            from this sample reads that far. Computed on first use.
+        encoder_history_deltas: the same as the board sends them: K·N differences (counts)
+            from ``encoder_counts``, tick by tick.
         tendon_lengths_m: (N,) relative tendon lengths (m, from the last tare; positive = paid out).
         raw_counts: (N,) int64 latest HX711 readings (counts).
         tensions_n: (N,) calibrated tensions (N).
@@ -60,18 +63,22 @@ class Telemetry:
     rx_bad_frames: int
     tx_dropped_frames: int
     received_s: float
-    encoder_history_counts: np.ndarray
+    encoder_history_deltas: tuple[int, ...]
+
+    @functools.cached_property
+    def encoder_history_counts(self) -> np.ndarray:
+        # Built on first use: the env and the controllers read only the sample's own counts.
+        history = np.array(self.encoder_history_deltas, dtype=np.int64).reshape(codec.TELEMETRY_TICKS, -1)
+        history += self.encoder_counts
+        return history
 
     @classmethod
     def from_message(cls, message: codec.TelemetryMessage, received_s: float) -> "Telemetry":
         """The host view of a decoded TELEMETRY message received at ``received_s``."""
-        counts = np.array(message.encoder_counts, dtype=np.int64)
-        history = np.array(message.encoder_history, dtype=np.int64).reshape(codec.TELEMETRY_TICKS, -1)
-        history += counts
         return cls(
             time_s=message.time_us / 1e6,
             seq=message.sample_seq,
-            encoder_counts=counts,
+            encoder_counts=np.array(message.encoder_counts, dtype=np.int64),
             tendon_lengths_m=np.array(message.lengths_m, dtype=float),
             raw_counts=np.array(message.raw_counts, dtype=np.int64),
             tensions_n=np.array(message.tensions_n, dtype=float),
@@ -85,7 +92,7 @@ class Telemetry:
             rx_bad_frames=message.rx_bad_frames,
             tx_dropped_frames=message.tx_dropped_frames,
             received_s=received_s,
-            encoder_history_counts=history,
+            encoder_history_deltas=message.encoder_history,
         )
 
     @property
