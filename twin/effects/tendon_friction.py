@@ -28,7 +28,7 @@ import numpy as np
 from twin.effects.base import BodySpec, Candidate, Effect, FitParameter, Key, Params
 
 __all__ = ["EFFECT", "FRICTION_MAX_STEP_S", "PRESLIDING_M", "SlidingState", "TendonFriction", "friction_direction",
-           "slide"]
+           "slide", "slide_path"]
 
 # Tendon travel over which the friction turns from one direction to the other (m): the
 # presliding (Dahl) displacement of a braided line in a printed hole, an assumption of a few
@@ -55,7 +55,20 @@ def slide(state, pull_m) -> np.ndarray:
     out): σ moves towards +1 while pulled and −1 while released, over :data:`PRESLIDING_M` of
     travel, and holds while the tendon stands. The twin's friction and the host's record of a
     rig's (:class:`SlidingState`) both advance it so."""
-    return np.clip(np.asarray(state, dtype=float) + np.asarray(pull_m, dtype=float) / PRESLIDING_M, -1.0, 1.0)
+    return slide_path(state, np.asarray(pull_m, dtype=float).reshape(1, -1))
+
+
+def slide_path(state, pulls_m) -> np.ndarray:
+    """The Dahl sliding state after the rows of ``pulls_m`` ((T, n) m, oldest first), each as
+    :func:`slide`. A plain loop over numbers: a record of a whole run is thousands of rows of a
+    few tendons each, mostly standing still."""
+    sigma = np.asarray(state, dtype=float).reshape(-1).tolist()
+    for row in (np.asarray(pulls_m, dtype=float) / PRESLIDING_M).tolist():
+        for i, step in enumerate(row):
+            if step:
+                value = sigma[i] + step
+                sigma[i] = 1.0 if value > 1.0 else -1.0 if value < -1.0 else value
+    return np.array(sigma)
 
 
 class SlidingState:
@@ -90,16 +103,18 @@ class SlidingState:
         Returns:
             σ per tendon, or None before the first sample.
         """
+        rows = []
         for sample in samples:
             ticks = getattr(sample, "encoder_history_counts", None)
-            if ticks is None:
-                ticks = (sample.encoder_counts,)
-            for counts in np.asarray(ticks, dtype=float):
-                if self._counts is None:
-                    self.state = np.zeros(counts.shape)
-                else:
-                    self.state = slide(self.state, -(counts - self._counts) * self.tendon_m_per_count)
-                self._counts = counts
+            rows.append(np.atleast_2d(np.asarray(sample.encoder_counts if ticks is None else ticks, dtype=float)))
+        if not rows:
+            return self.state
+        counts = np.concatenate(rows)
+        if self._counts is None:
+            self.state, self._counts = np.zeros(counts.shape[1]), counts[0]
+        path = np.concatenate([self._counts[None, :], counts])
+        self.state = slide_path(self.state, -np.diff(path, axis=0) * self.tendon_m_per_count)
+        self._counts = counts[-1]
         return self.state
 
 
