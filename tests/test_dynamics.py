@@ -321,3 +321,10 @@ def test_two_hidden_dynamic_effects_at_once_are_named_as_a_pair(tmp_path, capsys
     assert result["pair"][0]["heldout_score"] < result["score_before"]["heldout"] / result["min_gain"]
     fitted = load_params(folder / "fitted_dynamics.toml")
     assert fitted.effects.actuation_latency_s > 0 and fitted.effects.loadcell_lag_s > 0
+
+
+def test_a_record_that_measures_nothing_leaves_no_run_folder(tmp_path, capsys):
+    # A tension limit below the pretension: the board faults before the first experiment.
+    code, out, err = run(capsys, "dynamics", "record", "--quick", "--out", tmp_path, "--set", "rig.tension_limit_n=0.5")
+    assert code != 0 and "nothing was recorded" in err
+    assert list(tmp_path.iterdir()) == []

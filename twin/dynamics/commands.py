@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import shutil
 import sys
 from pathlib import Path
 
@@ -119,6 +120,7 @@ def run_record(args: argparse.Namespace) -> int:
         write_atomic(folder / TWIN_TRUTH, json.dumps({"twin_set": args.twin_overrides}, indent=1))
     print(f"twin dynamics record: {len(experiments)} experiments on {args.device}, run folder {folder}",
           file=sys.stderr)
+    recorded = 0
     try:
         device.connect()
         if args.calibration:
@@ -134,9 +136,15 @@ def run_record(args: argparse.Namespace) -> int:
                               planned=[e.name for e in experiments], quick=args.quick)
         for experiment in tqdm(experiments, desc="dynamic experiments", unit="experiment"):
             writer.write(run_experiment(device, experiment, params))
+            recorded += 1
     except (ProtocolError, DeviceError, SimulationError) as exc:
-        print(f"twin dynamics record: stopped: {type(exc).__name__}: {exc}; the experiments completed so far are in "
-              f"{folder / DYNAMICS_FOLDER}", file=sys.stderr)
+        if not recorded:
+            # Nothing measured: no run folder that looks like a run.
+            shutil.rmtree(folder, ignore_errors=True)
+            print(f"twin dynamics record: stopped: {type(exc).__name__}: {exc}; nothing was recorded", file=sys.stderr)
+        else:
+            print(f"twin dynamics record: stopped: {type(exc).__name__}: {exc}; the experiments completed so far are "
+                  f"in {folder / DYNAMICS_FOLDER}", file=sys.stderr)
         return EXIT_STOPPED
     finally:
         device.close()
