@@ -14,7 +14,7 @@ from typing import Iterator
 import numpy as np
 
 from twin.params import ParameterError, Params, load_params
-from twin.robots import robot_path
+from twin.robots import DEFAULT_ROBOT, robot_path
 from twin.pose import base_rotation_from, matrix_to_quat
 
 __all__ = ["UsageError", "add_param_args", "add_pose_args", "count", "new_run_folder", "params_from_args", "pose_overrides",
@@ -150,6 +150,14 @@ def pose_overrides(args: argparse.Namespace) -> dict:
     if quat is None and getattr(args, "pose", None) is not None:
         quat = matrix_to_quat(base_rotation_from(pose=args.pose))
     return {} if quat is None else {"rig.base_quat": [float(q) for q in quat]}
+
+
+def robot_name(args: argparse.Namespace) -> str:
+    """The name of the robot a command runs with: ``--robot``, else the ``--params`` file's
+    name, else the default robot."""
+    if getattr(args, "robot", None):
+        return args.robot
+    return Path(args.params).stem if getattr(args, "params", None) else DEFAULT_ROBOT
 
 
 def params_from_args(args: argparse.Namespace) -> Params:

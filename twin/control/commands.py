@@ -8,7 +8,7 @@ import json
 import time
 from pathlib import Path
 
-from twin.cliargs import add_param_args, count, new_run_folder, params_from_args
+from twin.cliargs import add_param_args, count, new_run_folder, params_from_args, robot_name
 from twin.device.commands import open_device_arg
 
 __all__ = ["register"]
@@ -45,7 +45,7 @@ def run_compensate(args: argparse.Namespace) -> int:
 
     params = params_from_args(args)
     start = time.perf_counter()
-    with open_device_arg(args.device, params=params) as device:
+    with open_device_arg(args.device, params=params, robot=robot_name(args)) as device:
         trial = run_compensation_trial(device, params, configs=QUICK_CONFIGS if args.quick else None,
                                        floor_n=args.floor, limit_n=args.ceiling, corrections=args.corrections,
                                        progress=print)
@@ -60,7 +60,7 @@ def run_cocontraction(args: argparse.Namespace) -> int:
     from twin.control.cocontraction import run_cocontraction_study
 
     params = params_from_args(args)
-    with open_device_arg(args.device, params=params) as device:
+    with open_device_arg(args.device, params=params, robot=robot_name(args)) as device:
         study = run_cocontraction_study(device, params)
     path = study.write_report(Path(args.out or new_run_folder("runs", "cocontraction")))
     print(json.dumps(study.summary(), indent=1))

@@ -146,7 +146,7 @@ def _decide(args, result, dataset, params, workflow):
     twin = params.replace(dict(parse_override(o) for o in args.twin_overrides), source="twin-set (hidden)") \
         if args.twin_overrides else params
     try:
-        device = open_device_arg(args.device, params=twin, seed=args.device_seed)
+        device = open_device_arg(args.device, params=twin, seed=args.device_seed, robot=dataset.robot)
     except UsageError as exc:
         raise ValueError(str(exc)) from None
     with device:

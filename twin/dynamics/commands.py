@@ -8,7 +8,8 @@ import shutil
 import sys
 from pathlib import Path
 
-from twin.cliargs import UsageError, add_param_args, add_pose_args, count, new_run_folder, params_from_args
+from twin.cliargs import (UsageError, add_param_args, add_pose_args, count, new_run_folder, params_from_args,
+                          robot_name)
 from twin.params import ParameterError, parse_override
 
 __all__ = ["register"]
@@ -109,7 +110,7 @@ def run_record(args: argparse.Namespace) -> int:
             calibration_file = load_calibration(args.calibration)
         except (OSError, CalibrationFileError) as exc:
             raise UsageError(f"--calibration {args.calibration}: {exc}") from None
-    device = open_device_arg(args.device, params=twin_params, seed=args.seed)
+    device = open_device_arg(args.device, params=twin_params, seed=args.seed, robot=robot_name(args))
     folder = new_run_folder(args.out, "dynamics")
     write_atomic(folder / RUN_RECORD, json.dumps({"command": "dynamics record", "device": args.device,
                                                   "seed": args.seed, "quick": args.quick, "params": args.params,

@@ -9,7 +9,8 @@ import sys
 import time
 from pathlib import Path
 
-from twin.cliargs import UsageError, add_param_args, add_pose_args, count, new_run_folder, params_from_args
+from twin.cliargs import (UsageError, add_param_args, add_pose_args, count, new_run_folder, params_from_args,
+                          robot_name)
 from twin.device.commands import open_device_arg
 from twin.live import add_live_argument
 from twin.params import parse_override
@@ -75,16 +76,6 @@ class RunRefused(Exception):
     """A run cannot start or resume as asked (the message says why, naming each difference)."""
 
 
-def _robot_name(args) -> str:
-    """The name of the robot a command runs with: ``--robot``, else the ``--params`` file's
-    name, else the default robot."""
-    from twin.robots import DEFAULT_ROBOT
-
-    if getattr(args, "robot", None):
-        return args.robot
-    return Path(args.params).stem if args.params else DEFAULT_ROBOT
-
-
 def _twin_params(args, params):
     """The parameter set the device is built with: on sim://, the model's with ``--twin-set``."""
     if not args.twin_overrides:
@@ -110,7 +101,7 @@ def _twin_warnings(args, params) -> list[str]:
 def _open(args, params):
     twin_params = _twin_params(args, params)
     try:
-        device = open_device_arg(args.device, params=twin_params, seed=args.seed)
+        device = open_device_arg(args.device, params=twin_params, seed=args.seed, robot=robot_name(args))
     except UsageError as exc:  # a bad URL or option: nothing was opened
         raise RunRefused(str(exc)) from None
     device.connect()
@@ -236,7 +227,7 @@ def _check_resume(args, command: str, experiment: str, params) -> Path:
             raise RunRefused(f"{where}: the run's parameter set does not load today ({exc})") from None
         if recorded_set.tendons.count != params.tendons.count:
             raise RunRefused(f"{where}: dataset {dataset} has {recorded_set.tendons.count} tendons; robot "
-                             f"{_robot_name(args)!r} has {params.tendons.count}")
+                             f"{robot_name(args)!r} has {params.tendons.count}")
         recorded = recorded_set.to_dict()
         changed = [(f"{section}.{key}", entry["value"], recorded.get(section, {}).get(key, {}).get("value"))
                    for section, entries in params.to_dict().items() for key, entry in entries.items()]
@@ -350,7 +341,7 @@ def _check_channels(args, cal, params) -> None:
     """
     if len(cal.channels) != params.tendons.count:
         raise RunRefused(f"--calibration {args.calibration}: {len(cal.channels)} channels; robot "
-                         f"{_robot_name(args)!r} has {params.tendons.count} tendons")
+                         f"{robot_name(args)!r} has {params.tendons.count} tendons")
 
 
 def _run(args, command: str, experiment: str, body) -> int:
@@ -405,7 +396,7 @@ def _validate(args, folder: Path, params) -> int:
           file=sys.stderr)
     if left_out:
         print(f"twin validate: {len(left_out)} of the grid's {len(grid)} configurations left out: robot "
-              f"{_robot_name(args)!r} cannot realise them, {left_out[0]['reason']}: "
+              f"{robot_name(args)!r} cannot realise them, {left_out[0]['reason']}: "
               f"{_configurations(left_out)}", file=sys.stderr)
     start = time.perf_counter()
     device = _open(args, params)
@@ -413,7 +404,7 @@ def _validate(args, folder: Path, params) -> int:
     try:
         calibration = _calibration(args, params, device)
         run_validation(device if view is None else LiveDevice(device, view), folder / RUN_DATASET, params,
-                       grid=grid, calibration=calibration, robot=_robot_name(args))
+                       grid=grid, calibration=calibration, robot=robot_name(args))
         pose = device.base_rotation
     finally:
         device.close()
@@ -425,13 +416,13 @@ def _validate(args, folder: Path, params) -> int:
     picture = _picture(args, params, folder, pose)
     path = write_validation_report(result, folder, picture=picture, warnings=_twin_warnings(args, params),
                                    facts={"sweep_wall_time_s": sweep_s, "device": args.device,
-                                          "robot": _robot_name(args)})
+                                          "robot": robot_name(args)})
     s = result.summary()
     print(f"sweep {sweep_s:.1f} s wall; {s['rows']} configurations, {s['failed_predictions']} failed predictions; "
           f"prediction error median {s['median_error_mm']:.3f} mm, RMS {s['rms_error_mm']:.3f} mm, "
           f"worst {s['worst_error_mm']:.3f} mm")
     if left_out:
-        print(f"left out: {len(left_out)} configurations robot {_robot_name(args)!r} cannot realise (listed in the "
+        print(f"left out: {len(left_out)} configurations robot {robot_name(args)!r} cannot realise (listed in the "
               "report and the dataset's metadata)")
     print(f"report: {path}")
     return 0
@@ -484,7 +475,7 @@ def _stiffness(args, folder: Path, params) -> int:
     device = _open(args, params)
     try:
         _calibration(args, params, device)
-        run_stiffness(device, folder / RUN_DATASET, params, robot=_robot_name(args))
+        run_stiffness(device, folder / RUN_DATASET, params, robot=robot_name(args))
     finally:
         device.close()
     dataset = read_dataset(folder / RUN_DATASET)
@@ -543,7 +534,7 @@ def run_calibrate_cmd(args: argparse.Namespace) -> int:
         if args.check:
             cal = load_calibration(path)
             if len(cal.channels) != params.tendons.count:
-                print(f"twin calibrate: --file {path}: {len(cal.channels)} channels; robot {_robot_name(args)!r} has "
+                print(f"twin calibrate: --file {path}: {len(cal.channels)} channels; robot {robot_name(args)!r} has "
                       f"{params.tendons.count} tendons", file=sys.stderr)
                 return 2
             masses = (0.0, 50.0, 150.0, 250.0)
