@@ -136,3 +136,13 @@ def test_a_missing_parameter_file_is_one_line(clean, tmp_path, capsys):
     code, out, err = run(capsys, "discrepancy", clean, "--params", tmp_path / "nowhere.toml")
     assert code == 2 and out == "" and len(err.strip().splitlines()) == 1
     assert "nowhere.toml" in err and "no such file" in err
+
+
+def test_a_parameter_file_of_another_tendon_count_is_refused_naming_it(tmp_path, capsys):
+    from twin.robots import robot_path
+
+    data = synthetic_validation_dataset(tmp_path / "data", load_params(), load_params(),
+                                        grid=[g for g in validation_grid()][:12])
+    code, out, err = run(capsys, "discrepancy", data.path, "--params", robot_path("three-tendon"))
+    assert code == 2 and len(err.strip().splitlines()) == 1
+    assert "has 4 tendons; robot 'three-tendon' has 3" in err

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+from pathlib import Path
 
 from twin.params import ParameterError, load_params, parse_override
 
@@ -76,6 +77,7 @@ def run_discrepancy_command(args: argparse.Namespace) -> int:
             params = dataset.params
             if args.overrides:
                 params = params.replace(dict(parse_override(o) for o in args.overrides))
+        dataset.check_robot(params, robot=Path(args.params).stem if args.params else dataset.robot)
     except (DatasetError, ParameterError) as exc:
         return refuse(str(exc))
     except FileNotFoundError:
