@@ -80,25 +80,25 @@ def _groups(dataset: Dataset, count: int = _GROUPS) -> list[tuple[float, float]]
     kappa = np.asarray(dataset["kappa_cmd_per_m"], dtype=float)
     phi = np.asarray(dataset["phi_cmd_deg"], dtype=float)
     pairs = sorted({(float(k), float(p)) for k, p in zip(kappa, phi) if k > 0}, key=lambda g: (-g[0], g[1]))
-    if len(pairs) <= count:
-        return pairs
-    # Every other curvature level from the top, evenly through each level's planes.
-    picked = pairs[::max(1, len(pairs) // count)][:count]
-    return picked
+    # An even stride through the list, which runs from the most bent level through its planes.
+    return pairs if len(pairs) <= count else pairs[::len(pairs) // count][:count]
 
 
 def _masses(dataset: Dataset) -> list[float]:
     return sorted({float(m) for m in dataset["tip_mass_kg"]})
 
 
+def _again(dataset: Dataset) -> list[tuple[float, float, float]]:
+    """The :func:`_groups` configurations with every tip mass the dataset has."""
+    return [(k, p, m) for k, p in _groups(dataset) for m in _masses(dataset)]
+
+
 def _reapproach(dataset: Dataset, params: Params):
-    grid = [(k, p, m) for k, p in _groups(dataset) for m in _masses(dataset)]
-    return grid, {"overshoot": _OVERSHOOT, "min_overshoot_m": _MIN_OVERSHOOT_M}
+    return _again(dataset), {"overshoot": _OVERSHOOT, "min_overshoot_m": _MIN_OVERSHOOT_M}
 
 
 def _pretension(dataset: Dataset, params: Params):
-    grid = [(k, p, m) for k, p in _groups(dataset) for m in _masses(dataset)]
-    return grid, {"pretension_n": params.tendons.pretension_n * _PRETENSION_FACTOR}
+    return _again(dataset), {"pretension_n": params.tendons.pretension_n * _PRETENSION_FACTOR}
 
 
 def _tip_load(dataset: Dataset, params: Params):
@@ -109,11 +109,10 @@ def _tip_load(dataset: Dataset, params: Params):
 
 
 def _planes(dataset: Dataset, params: Params):
-    groups = _groups(dataset)
-    planes = sorted({p for _, p in groups})
+    # Halfway between neighbouring planes of all the bent rows, not only of the groups re-measured.
+    planes = sorted({float(p) for k, p in zip(dataset["kappa_cmd_per_m"], dataset["phi_cmd_deg"]) if k > 0})
     spacing = min(np.diff(planes + [planes[0] + 360.0])) if len(planes) > 1 else 90.0
-    grid = [(k, (p + spacing / 2) % 360.0, m) for k, p in groups for m in _masses(dataset)]
-    return grid, {}
+    return [(k, (p + spacing / 2) % 360.0, m) for k, p, m in _again(dataset)], {}
 
 
 DESIGNS: dict[str, Design] = {d.name: d for d in (
@@ -129,9 +128,8 @@ DESIGNS: dict[str, Design] = {d.name: d for d in (
 
 
 def designs_for(effect_names: Sequence[str]) -> list[Design]:
-    """The deciding experiments of ``effect_names`` (their union, in the effects' order), those
-    that reveal only one of them included: one that reveals none of the others is what tells it
-    apart."""
+    """The deciding experiments of ``effect_names``: the union of each effect's
+    :attr:`twin.effects.Effect.deciding_experiments`, in the effects' order."""
     names: list[str] = []
     for effect in effect_names:
         entry = effects.EFFECTS.get(effect)
@@ -207,7 +205,6 @@ def decide(result, device, dataset_folder: str | Path, params: Params, *, progre
         designs = [d for d in designs_for(names) if d.name not in ran]
         if not designs:
             break
-        dataset = read_dataset(dataset_folder)
         first = int(np.max(dataset["config"])) + 1
         for design in designs:
             grid, options = design.plan(dataset, params)
@@ -216,7 +213,8 @@ def decide(result, device, dataset_folder: str | Path, params: Params, *, progre
             run_validation(device, dataset_folder, params, grid=rows, experiment=design.experiment,
                            progress=progress, **options)
             ran.append(design.name)
-        result = run(read_dataset(dataset_folder))
+        dataset = read_dataset(dataset_folder)
+        result = run(dataset)
     if not ran:
         return None
-    return Decision(tuple(seen), tuple(ran), len(read_dataset(dataset_folder)) - before, result)
+    return Decision(tuple(seen), tuple(ran), len(dataset) - before, result)
