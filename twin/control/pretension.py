@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from twin.experiments.protocols import nominal_calibration, pretension
+from twin.experiments.protocols import apply_calibration, nominal_calibration, pretension
 from twin.params import Params
 
 __all__ = ["pretension_straight"]
@@ -48,8 +48,7 @@ def pretension_straight(device, params: Params, *, mode: str, tension_n: float |
     calibration = calibration or nominal_calibration(params)
     device.disable()
     device.fixture.hang_tip_mass(0.0)
-    device.set_calibration(gain_counts_per_n=calibration["gain_counts_per_n"],
-                           offset_counts=calibration["offset_counts"])
+    apply_calibration(device, calibration)
     device.set_limits(tension_limit_n=limit)
     pretension(device, params, mode=mode, tension_n=tension, tare_lengths=True)
     device.fixture.release_holder()

@@ -140,6 +140,7 @@ def _decide(args, result, dataset, params, workflow):
     from twin.cliargs import UsageError
     from twin.device.commands import open_device_arg
     from twin.discrepancy.decide import contenders, decide
+    from twin.experiments.protocols import apply_calibration
 
     if not contenders(result):
         print(f"twin discrepancy: --device {args.device}: the static data decide ({result.verdict}); nothing run",
@@ -155,7 +156,7 @@ def _decide(args, result, dataset, params, workflow):
         device.connect()
         cal = dataset.metadata.get("calibration") or {}
         if cal.get("gain_counts_per_n"):
-            device.set_calibration(gain_counts_per_n=cal["gain_counts_per_n"], offset_counts=cal["offset_counts"])
+            apply_calibration(device, cal)
         decision = decide(result, device, dataset.path, params, run_workflow=workflow)
     if decision is None:
         return result, None

@@ -86,7 +86,7 @@ def run_record(args: argparse.Namespace) -> int:
     from twin.dynamics.protocols import experiment_set, run_experiment
     from twin.dynamics.series import DYNAMICS_FOLDER, SeriesWriter
     from twin.experiments.commands import RUN_RECORD, TWIN_TRUTH
-    from twin.experiments.protocols import ProtocolError, nominal_calibration
+    from twin.experiments.protocols import ProtocolError, apply_calibration, nominal_calibration
     from twin.sim.plant import SimulationError
     from tqdm import tqdm
 
@@ -129,8 +129,7 @@ def run_record(args: argparse.Namespace) -> int:
             calibration = {**calibration_file.to_dict(), "file": str(args.calibration)}
         else:
             calibration = nominal_calibration(params)
-            device.set_calibration(gain_counts_per_n=calibration["gain_counts_per_n"],
-                                   offset_counts=calibration["offset_counts"])
+            apply_calibration(device, calibration)
         writer = SeriesWriter(folder / DYNAMICS_FOLDER, params=params, device=args.device,
                               base_rotation=device.base_rotation, calibration=calibration,
                               seed=(args.seed or 0) if sim else None, robot=args.robot,

@@ -56,15 +56,14 @@ def replay(measured: list[Series], params: Params, base_rotation, *, noise_seed:
             parameter set's sensor noise (what a measurement without a missing effect looks like).
     """
     from twin.device import open_device
-    from twin.experiments.protocols import nominal_calibration
+    from twin.experiments.protocols import apply_calibration, nominal_calibration
 
     twin_params = replay_params(params, base_rotation, noiseless=noise_seed is None)
     calibration = nominal_calibration(twin_params)
     device = open_device("sim://", params=twin_params, seed=noise_seed or 0)
     try:
         device.connect()
-        device.set_calibration(gain_counts_per_n=calibration["gain_counts_per_n"],
-                               offset_counts=calibration["offset_counts"])
+        apply_calibration(device, calibration)
         return [run_experiment(device, series.experiment, twin_params) for series in measured]
     finally:
         device.close()

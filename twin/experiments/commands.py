@@ -109,7 +109,7 @@ def _open(args, params):
 
 
 def _calibration(args, params, device) -> dict:
-    from twin.experiments.protocols import nominal_calibration
+    from twin.experiments.protocols import apply_calibration, nominal_calibration
 
     if args.calibration:
         from twin.calibration import load_calibration
@@ -118,7 +118,7 @@ def _calibration(args, params, device) -> dict:
         device.set_calibration(cal)
         return {**cal.to_dict(), "file": str(args.calibration)}
     cal = nominal_calibration(params)
-    device.set_calibration(gain_counts_per_n=cal["gain_counts_per_n"], offset_counts=cal["offset_counts"])
+    apply_calibration(device, cal)
     return cal
 
 

@@ -23,7 +23,7 @@ from twin.pose import matrix_to_quat
 from twin.rod.grid import pcc_realisable
 
 __all__ = ["ProtocolError", "Measurement", "measure", "wait_for_rest", "pretension", "run_validation",
-           "run_stiffness", "calibrate_device", "nominal_calibration", "unrealisable"]
+           "run_stiffness", "calibrate_device", "nominal_calibration", "apply_calibration", "unrealisable"]
 
 
 class ProtocolError(RuntimeError):
@@ -133,6 +133,12 @@ def nominal_calibration(params: Params) -> dict:
     s = params.sensors
     return {"gain_counts_per_n": [s.loadcell_gain_counts_per_n] * params.tendons.count,
             "offset_counts": list(s.loadcell_offset_counts), "source": "nominal (sensors.* of the parameter set)"}
+
+
+def apply_calibration(device, calibration: dict) -> None:
+    """Give ``device`` a recorded load-cell calibration (:func:`nominal_calibration`'s form, as a
+    dataset's metadata keeps it: ``gain_counts_per_n`` and ``offset_counts``)."""
+    device.set_calibration(gain_counts_per_n=calibration["gain_counts_per_n"], offset_counts=calibration["offset_counts"])
 
 
 def pretension(device, params: Params, *, mode: str = "lengths", tension_n: float | None = None,
