@@ -80,6 +80,7 @@ __all__ = [
     "read_dataset",
     "read_metadata",
     "recorded_params",
+    "recorded_rotation",
     "write_atomic",
     "write_dataset",
 ]
@@ -266,7 +267,7 @@ class Dataset:
     @property
     def base_rotation(self) -> np.ndarray:
         """The base pose the data were taken in, 3×3 (body → world), also when recorded as a quaternion."""
-        return _rotation(self.metadata["base_rotation"])
+        return recorded_rotation(self.metadata["base_rotation"])
 
     @property
     def params(self) -> Params:
@@ -375,7 +376,7 @@ def _line(cells: Iterable[str]) -> str:
     return buffer.getvalue()
 
 
-def _rotation(value) -> np.ndarray:
+def recorded_rotation(value) -> np.ndarray:
     """The 3×3 rotation (body → world) of a recorded base pose: a 3×3 rotation matrix or a unit
     quaternion (w, x, y, z).
 
@@ -403,7 +404,7 @@ def _rotation(value) -> np.ndarray:
 def _metadata(*, experiment: str, device: str, params: Params, base_rotation, calibration=None,
               notes: str = "", robot: str | None = None, left_out: Iterable[Mapping[str, Any]] = ()) -> dict:
     try:
-        _rotation(base_rotation)
+        recorded_rotation(base_rotation)
         pose = np.asarray(base_rotation, dtype=float)
     except ValueError as exc:
         raise DatasetError(f"base_rotation {base_rotation!r} is not a 3x3 rotation or a unit quaternion "
@@ -474,7 +475,7 @@ class DatasetWriter:
         self._done: set[int] = set()
         self._left_out_columns: frozenset[str] = frozenset()
         if self.path.exists() and self.path.stat().st_size > 0:
-            existing, complete_bytes = _read(self.folder)
+            existing, complete_bytes, header = _read(self.folder)
             if existing.metadata.get("experiment") != experiment and not append:
                 raise DatasetError(f"{self.folder}: holds a {existing.metadata.get('experiment')!r} dataset; "
                                    f"cannot resume it as {experiment!r}")
@@ -483,8 +484,6 @@ class DatasetWriter:
                                    f"with a robot of {params.tendons.count}")
             self._done = set(int(c) for c in existing["config"])
             # Rows go under the file's header: an optional group it was written without stays out.
-            with open(self.path, "rb") as file:
-                header = tuple(_fields(file.readline().rstrip(b"\n"), self.path, 1))
             kept = tuple(c for c in self._layout.columns if c in header or c in self._layout.required)
             if append and kept != self._layout.columns:
                 # A deciding experiment's rows carry what the file was written without (the
@@ -659,7 +658,7 @@ def read_metadata(folder: str | Path) -> dict:
             raise DatasetError(f"{meta_path}: params section {section!r} is a JSON {_json_type(entries)}, "
                                "expected an object of entries")
     try:
-        _rotation(metadata["base_rotation"])
+        recorded_rotation(metadata["base_rotation"])
     except ValueError as exc:
         raise DatasetError(f"{meta_path}: base_rotation {metadata['base_rotation']!r} is not a 3x3 rotation or a "
                            f"unit quaternion (w, x, y, z): {exc}") from None
@@ -714,8 +713,9 @@ def read_dataset(folder: str | Path) -> Dataset:
     return _read(folder)[0]
 
 
-def _read(folder: str | Path) -> tuple[Dataset, int]:
-    """The dataset and the length (bytes) of its ``measurements.csv`` up to the last complete row."""
+def _read(folder: str | Path) -> tuple[Dataset, int, tuple[str, ...]]:
+    """The dataset, the length (bytes) of its ``measurements.csv`` up to the last complete row,
+    and the file's header."""
     folder = _dataset_folder(folder)
     csv_path = folder / MEASUREMENTS
     metadata = read_metadata(folder)
@@ -769,7 +769,7 @@ def _read(folder: str | Path) -> tuple[Dataset, int]:
     out.setdefault("experiment", np.array([metadata.get("experiment", "")] * n, dtype=str))
     for name in layout.nullable:
         out.setdefault(name, np.full(n, np.nan))
-    return Dataset(out, metadata, folder), complete_bytes
+    return Dataset(out, metadata, folder), complete_bytes, tuple(header)
 
 
 def _fields(line: bytes, path: Path, row: int) -> list[str]:
