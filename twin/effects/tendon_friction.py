@@ -77,7 +77,7 @@ class SlidingState:
     records σ with every measurement and the prediction uses it instead of guessing a direction.
 
     Feed it every telemetry sample in order (:meth:`follow`); it starts at 0 (unknown), as the
-    twin's friction does, and the first move of more than twice :data:`PRESLIDING_M` sets it.
+    twin's friction does, and the first move of more than :data:`PRESLIDING_M` sets it.
 
     Example:
         >>> state = SlidingState(device.info.tendon_m_per_count)

@@ -261,11 +261,10 @@ def run_validation(device, folder: str | Path, params: Params, *, grid: Sequence
                 for config, mass in sorted(configs, key=lambda c: c[1]):
                     device.fixture.hang_tip_mass(mass)
                     wait_for_rest(device, timeout_s=settle_timeout_s)
-                    if config not in done:
-                        m = measure(device)
-                        writer.write(_row(config, kappa, phi, mass, m, zero, sliding=sliding.follow(device.drain())))
-                    else:
-                        sliding.follow(device.drain())
+                    m = measure(device) if config not in done else None
+                    state = sliding.follow(device.drain())  # through the measurement's window
+                    if m is not None:
+                        writer.write(_row(config, kappa, phi, mass, m, zero, sliding=state))
                     bar.update(1)
                 device.fixture.hang_tip_mass(0.0)
                 device.disable()
