@@ -328,3 +328,17 @@ def test_a_record_that_measures_nothing_leaves_no_run_folder(tmp_path, capsys):
     code, out, err = run(capsys, "dynamics", "record", "--quick", "--out", tmp_path, "--set", "rig.tension_limit_n=0.5")
     assert code != 0 and "nothing was recorded" in err
     assert list(tmp_path.iterdir()) == []
+
+
+def test_a_dynamic_dataset_whose_base_pose_is_not_a_rotation_is_refused_in_one_line(tmp_path, clean_run, capsys):
+    import shutil
+
+    shutil.copytree(clean_run, tmp_path / "run")
+    meta_path = tmp_path / "run" / DYNAMICS_FOLDER / "metadata.json"
+    meta = json.loads(meta_path.read_text())
+    meta["base_rotation"] = "up"
+    meta_path.write_text(json.dumps(meta))
+    with pytest.raises(DatasetError, match="base_rotation 'up' is not a 3x3 rotation"):
+        read_run(tmp_path / "run")
+    code, out, err = run(capsys, "dynamics", "calibrate", tmp_path / "run")
+    assert code == 2 and len(err.strip().splitlines()) == 1 and "base_rotation" in err

@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from twin.data.dataset import DatasetError, recorded_params, write_atomic
+from twin.data.dataset import DatasetError, recorded_params, recorded_rotation, write_atomic
 from twin.dynamics.protocols import Command, Experiment, Series
 from twin.params import ParameterError, Params
 
@@ -122,7 +122,8 @@ class DynamicRun:
 
     @property
     def base_rotation(self) -> np.ndarray:
-        return np.asarray(self.metadata["base_rotation"], dtype=float)
+        """The pose the data were taken in (3×3, body → world)."""
+        return recorded_rotation(self.metadata["base_rotation"])
 
     def named(self, names) -> list[Series]:
         """The series of the experiments named, in recorded order."""
@@ -162,6 +163,11 @@ def read_run(folder: str | Path) -> DynamicRun:
         raise DatasetError(f"{path}: unreadable ({exc})") from None
     if not isinstance(metadata, dict) or metadata.get("format") != FORMAT or metadata.get("version") != VERSION:
         raise DatasetError(f"{path}: not a {FORMAT} version {VERSION} dataset")
+    try:
+        recorded_rotation(metadata.get("base_rotation"))
+    except ValueError as exc:
+        raise DatasetError(f"{path}: base_rotation {metadata.get('base_rotation')!r} is not a 3x3 rotation or a "
+                           f"unit quaternion (w, x, y, z): {exc}") from None
     n = int(metadata["tendons"])
     series = []
     for entry in metadata["experiments"]:
