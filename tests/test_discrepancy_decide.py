@@ -91,3 +91,12 @@ def test_when_the_static_data_decide_the_device_is_not_touched(tmp_path, capsys)
 def test_twin_set_without_a_sim_device_is_refused_in_one_line(tmp_path, capsys):
     code, out = run(capsys, "discrepancy", tmp_path, "--twin-set", FRICTION)
     assert code == 2 and len(out.err.strip().splitlines()) == 1
+
+
+def test_a_bad_device_url_or_hidden_setting_is_refused_before_any_work(tmp_path, capsys):
+    _sweep(tmp_path / "d", {})
+    for extra in (["--device", "foo://x"], ["--device", "sim://?bad=1"],
+                  ["--device", "sim://", "--twin-set", "effects.no_such_key=1"]):
+        code, out = run(capsys, "discrepancy", tmp_path / "d", *extra)
+        assert code == 2 and len(out.err.strip().splitlines()) == 1, out.err
+        assert "predicting" not in out.err and out.out == ""

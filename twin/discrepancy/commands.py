@@ -86,21 +86,26 @@ def run_discrepancy_command(args: argparse.Namespace) -> int:
         return refuse(f"--params {args.params}: cannot be read ({exc.strerror})")
     if args.twin_overrides and not (args.device or "").startswith("sim://"):
         return refuse("--twin-set applies to --device sim:// only")
+    # Opened (not connected) before the long work, so a bad URL or --twin-set is refused at once.
+    try:
+        device = _open_device(args, dataset, params) if args.device else None
+    except (ValueError, ParameterError) as exc:
+        return refuse(str(exc))
 
     def workflow(data):
         return run_discrepancy(data, params, holdout_fraction=args.holdout, seed=args.seed,
                                max_effects=args.max_effects, progress=True)
 
+    decision = None
     try:
         result = workflow(dataset)
+        if device is not None:
+            result, decision = _decide(args, device, result, dataset, params, workflow)
     except ValueError as exc:
         return refuse(str(exc))
-    decision = None
-    if args.device:
-        try:
-            result, decision = _decide(args, result, dataset, params, workflow)
-        except ValueError as exc:
-            return refuse(str(exc))
+    finally:
+        if device is not None:
+            device.close()
     if args.out_params:
         result.params_after.save(args.out_params)
     if args.report:
@@ -134,11 +139,27 @@ def run_discrepancy_command(args: argparse.Namespace) -> int:
     return code
 
 
-def _decide(args, result, dataset, params, workflow):
-    """Run the deciding experiments of ``result`` on ``--device`` (twin.discrepancy.decide) and
-    the workflow again; returns (result, decision or None when nothing needed deciding)."""
+def _open_device(args, dataset, params):
+    """``--device``, built with ``--twin-set`` on sim:// (the rig the dataset was taken on), not
+    yet connected.
+
+    Raises:
+        ValueError: a bad URL; ParameterError: a bad ``--twin-set``.
+    """
     from twin.cliargs import UsageError
     from twin.device.commands import open_device_arg
+
+    twin = params.replace(dict(parse_override(o) for o in args.twin_overrides), source="twin-set (hidden)") \
+        if args.twin_overrides else params
+    try:
+        return open_device_arg(args.device, params=twin, seed=args.device_seed, robot=dataset.robot)
+    except UsageError as exc:
+        raise ValueError(str(exc)) from None
+
+
+def _decide(args, device, result, dataset, params, workflow):
+    """Run the deciding experiments of ``result`` on ``device`` (twin.discrepancy.decide) and
+    the workflow again; returns (result, decision or None when nothing needed deciding)."""
     from twin.discrepancy.decide import contenders, decide
     from twin.experiments.protocols import apply_calibration
 
@@ -146,18 +167,11 @@ def _decide(args, result, dataset, params, workflow):
         print(f"twin discrepancy: --device {args.device}: the static data decide ({result.verdict}); nothing run",
               file=sys.stderr)
         return result, None
-    twin = params.replace(dict(parse_override(o) for o in args.twin_overrides), source="twin-set (hidden)") \
-        if args.twin_overrides else params
-    try:
-        device = open_device_arg(args.device, params=twin, seed=args.device_seed, robot=dataset.robot)
-    except UsageError as exc:
-        raise ValueError(str(exc)) from None
-    with device:
-        device.connect()
-        cal = dataset.metadata.get("calibration") or {}
-        if cal.get("gain_counts_per_n"):
-            apply_calibration(device, cal)
-        decision = decide(result, device, dataset.path, params, run_workflow=workflow)
+    device.connect()
+    cal = dataset.metadata.get("calibration") or {}
+    if cal.get("gain_counts_per_n"):
+        apply_calibration(device, cal)
+    decision = decide(result, device, dataset.path, params, run_workflow=workflow)
     if decision is None:
         return result, None
     return decision.result, decision
