@@ -228,3 +228,12 @@ def test_a_new_dataset_records_the_sliding_state_and_reads_it_back(tmp_path):
         w.write(row(0, 4, slide_1=1.0, slide_2=-1.0, slide_3=0.25))
     d = read_dataset(tmp_path / "d")
     assert d.sliding_state[0, :3].tolist() == [1.0, -1.0, 0.25] and np.isnan(d.sliding_state[0, 3])
+
+
+def test_rows_of_another_base_pose_are_refused(tmp_path):
+    shutil.copytree(V1_FIXTURE, tmp_path / "d")
+    for append in (False, True):
+        with pytest.raises(DatasetError, match="recorded in another base pose"):
+            DatasetWriter(tmp_path / "d", experiment="validation" if not append else "decide-planes", device="sim://",
+                          params=load_params(), base_rotation=UP, append=append)
+    assert len(read_dataset(tmp_path / "d")) == 3

@@ -482,6 +482,15 @@ class DatasetWriter:
             if existing.tendons != params.tendons.count:
                 raise DatasetError(f"{self.folder}: holds a dataset of {existing.tendons} tendons; cannot resume it "
                                    f"with a robot of {params.tendons.count}")
+            # Its rows are predicted in the recorded pose: rows taken in another would be wrong.
+            try:
+                same_pose = np.allclose(existing.base_rotation, recorded_rotation(base_rotation), atol=1e-6)
+            except ValueError as exc:
+                raise DatasetError(f"base_rotation {base_rotation!r} is not a 3x3 rotation or a unit quaternion "
+                                   f"(w, x, y, z): {exc}; nothing written") from None
+            if not same_pose:
+                raise DatasetError(f"{self.folder}: was recorded in another base pose ({existing.base_rotation.tolist()}) "
+                                   f"than the device's ({recorded_rotation(base_rotation).tolist()}); cannot add rows")
             self._done = set(int(c) for c in existing["config"])
             # Rows go under the file's header: an optional group it was written without stays out.
             kept = tuple(c for c in self._layout.columns if c in header or c in self._layout.required)
