@@ -100,3 +100,9 @@ def test_a_bad_device_url_or_hidden_setting_is_refused_before_any_work(tmp_path,
         code, out = run(capsys, "discrepancy", tmp_path / "d", *extra)
         assert code == 2 and len(out.err.strip().splitlines()) == 1, out.err
         assert "predicting" not in out.err and out.out == ""
+
+
+def test_a_device_in_another_pose_than_the_dataset_is_refused_before_any_work(tmp_path, capsys):
+    _sweep(tmp_path / "d", {})
+    code, out = run(capsys, "discrepancy", tmp_path / "d", "--device", "sim://?pose=up")
+    assert code == 2 and "another base pose" in out.err and len(out.err.strip().splitlines()) == 1

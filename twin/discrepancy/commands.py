@@ -7,6 +7,8 @@ import json
 import sys
 from pathlib import Path
 
+import numpy as np
+
 from twin.params import ParameterError, load_params, parse_override
 
 __all__ = ["EXIT_CODES", "register"]
@@ -152,9 +154,14 @@ def _open_device(args, dataset, params):
     twin = params.replace(dict(parse_override(o) for o in args.twin_overrides), source="twin-set (hidden)") \
         if args.twin_overrides else params
     try:
-        return open_device_arg(args.device, params=twin, seed=args.device_seed, robot=dataset.robot)
+        device = open_device_arg(args.device, params=twin, seed=args.device_seed, robot=dataset.robot)
     except UsageError as exc:
         raise ValueError(str(exc)) from None
+    if not np.allclose(device.base_rotation, dataset.base_rotation, atol=1e-6):
+        device.close()
+        raise ValueError(f"--device {args.device}: runs in another base pose than {dataset.path} was recorded in "
+                         "(give the same pose=… or base_quat=…)")
+    return device
 
 
 def _decide(args, device, result, dataset, params, workflow):
