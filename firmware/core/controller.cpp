@@ -104,7 +104,8 @@ void Controller::step(const Measurements& now, float dt_s, const float* lowest, 
     // In tension mode the loop runs on −tension: paying out (positive duty) lowers tension.
     const float sign = mode_ == Mode::kTension ? -1.0f : 1.0f;
     const float low = clamp_range(lowest[i], -g.output_limit, g.output_limit);
-    duty[i] = pid_[i].step(g, sign * reference, measured(now, i), dt_s, low, g.output_limit, feedforward);
+    const float lag_s = mode_ == Mode::kTension ? kTensionProportionalLagS : 0.0f;
+    duty[i] = pid_[i].step(g, sign * reference, measured(now, i), dt_s, low, g.output_limit, feedforward, lag_s);
     last_duty_[i] = duty[i];
   }
 }

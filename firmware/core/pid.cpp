@@ -5,18 +5,22 @@ namespace twinfw {
 void Pid::reset(float measurement, float output) {
   integral_ = output;
   last_measurement_ = measurement;
+  // A bumpless start is one at its setpoint: the lag starts from no error.
+  lagged_error_ = 0.0f;
 }
 
 // The integral stays within the output limit; and it does not grow further while the output is
 // held at `lowest` or `highest` in the same direction (conditional integration), so that a range
 // narrowed for a moment neither winds it up nor wipes out the load it holds.
 float Pid::step(const PidGains& gains, float setpoint, float measurement, float dt_s, float lowest, float highest,
-               float feedforward) {
+               float feedforward, float proportional_lag_s) {
   const float error = setpoint - measurement;
+  const float lag = proportional_lag_s > 0.0f ? dt_s / (proportional_lag_s + dt_s) : 1.0f;
+  lagged_error_ = clamp_range(lagged_error_ + lag * (error - lagged_error_), -3.0e38f, 3.0e38f);
   const float derivative = -gains.kd * (measurement - last_measurement_) / dt_s;
   last_measurement_ = measurement;
   const float increment = gains.ki * error * dt_s;
-  const float rest = gains.kp * error + derivative + feedforward;
+  const float rest = gains.kp * lagged_error_ + derivative + feedforward;
   const float unclamped = rest + integral_ + increment;
   const bool held = (unclamped < lowest && increment < 0.0f) || (unclamped > highest && increment > 0.0f);
   if (!held) integral_ = clamp_range(integral_ + increment, -gains.output_limit, gains.output_limit);

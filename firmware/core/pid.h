@@ -1,6 +1,7 @@
 // PID after Beauregard's Arduino PID: fixed sample time, derivative on measurement (no kick
 // when the setpoint steps), integral kept in output units and clamped to the output limit
-// (no windup, and a change of ki does not bump the output), output clamped.
+// (no windup, and a change of ki does not bump the output), output clamped. The proportional
+// term may act on the error through a first-order lag (the tension loop's, see controller.h).
 #pragma once
 
 namespace twinfw {
@@ -34,11 +35,14 @@ class Pid {
 
   // One period with the output in [lowest, highest] (lowest ≤ highest, within the output limit;
   // a NaN output gives 0), the integral not growing past either; `feedforward` is added to the output before it is clamped.
+  // `proportional_lag_s` > 0: kp acts on the error low-passed with that time constant (s); the
+  // integral on the error itself.
   float step(const PidGains& gains, float setpoint, float measurement, float dt_s, float lowest, float highest,
-             float feedforward = 0.0f);
+             float feedforward = 0.0f, float proportional_lag_s = 0.0f);
 
  private:
   float integral_ = 0.0f;
+  float lagged_error_ = 0.0f;  // the error through the proportional lag
   float last_measurement_ = 0.0f;
 };
 

@@ -1,4 +1,5 @@
 #include "bench.h"
+#include "pid.h"
 #include "check.h"
 #include "controller.h"
 #include "suites.h"
@@ -108,6 +109,68 @@ void tension_hold_clamps_to_limit() {
   CHECK_NEAR(c.targets()[1], 6.0, 0.0);
 }
 
+// A motor holding tension on a tendon that friction in the disc holes holds (presliding): the
+// stalled motor pulls with duty × kStallForceN through 2.7 kg of reflected rotor and 300 N·s/m
+// of back-EMF against a 60 kN/m load (the twin's at μ = 0.1: 2 N over 30 µm of spool travel),
+// its load cell sampled at 80 Hz, the loop stepped at 100 Hz with the tuned gains of
+// twin/control/gains.py. `duty_of(tension_n)` is the loop; returns the peak-to-peak tension (N)
+// over the last second of 4 s, and the mean's offset from `setpoint_n` in *offset_n.
+template <class Loop>
+float stiff_load_ripple(Loop duty_of, float setpoint_n, float* offset_n) {
+  constexpr double kMassKg = 2.7;
+  constexpr double kStiffnessNPerM = 60e3;
+  constexpr double kSubstepS = 1e-4;
+  double x_m = 0.0, v_m_s = 0.0;  // spool travel paid out
+  float sampled_n = setpoint_n, duty = 0.0f;
+  float lowest = 1e9f, highest = -1e9f;
+  double sum = 0.0;
+  int count = 0;
+  for (int k = 0; k < 40000; ++k) {
+    const double t_s = k * kSubstepS;
+    const double tension_n = setpoint_n - kStiffnessNPerM * x_m;
+    if (k % 125 == 0) sampled_n = static_cast<float>(tension_n);  // HX711 at 80 Hz
+    if (k % 100 == 0) duty = duty_of(sampled_n);                   // control at 100 Hz
+    const double force_n = tension_n + duty * kStallForceN - kMotorDampingNsPerM * v_m_s;
+    v_m_s += force_n / kMassKg * kSubstepS;
+    x_m += v_m_s * kSubstepS;
+    if (t_s >= 3.0) {
+      const float t = static_cast<float>(tension_n);
+      lowest = t < lowest ? t : lowest;
+      highest = t > highest ? t : highest;
+      sum += t;
+      ++count;
+    }
+  }
+  *offset_n = static_cast<float>(sum / count) - setpoint_n;
+  return highest - lowest;
+}
+
+void tension_hold_settles_on_a_stiff_load() {
+  const PidGains tuned{0.006f, 0.15f, 0.0f, 0.035f};
+  float offset_n = 0.0f;
+  // Without the lag on the proportional term the loop rings up to the duty clamp.
+  Pid pid;
+  pid.reset(-2.0f);
+  const float ringing = stiff_load_ripple([&](float t) { return pid.step(tuned, -2.0f, -t, kControlPeriodS); },
+                                          2.0f, &offset_n);
+  CHECK(ringing > 0.5f);
+  // The controller's tension mode, entered from a stopped motor (duty 0, the tendon pulling the
+  // spool out at first), settles on its setpoint.
+  Controller c(1);
+  c.set_gains(Mode::kTension, tuned);
+  Measurements now{};
+  now.tensions_n[0] = 2.0f;
+  c.set_mode(Mode::kTension, now, 6.0f);
+  const float ripple = stiff_load_ripple([&](float t) {
+    now.tensions_n[0] = t;
+    float duty[1];
+    c.step(now, kControlPeriodS, duty);
+    return duty[0];
+  }, 2.0f, &offset_n);
+  CHECK(ripple < 0.01f);
+  CHECK_NEAR(offset_n, 0.0, 0.005);
+}
+
 void closed_loops_on_the_bench() {
   {
     bench::Bench b;
@@ -152,5 +215,6 @@ void test_controller() {
   tension_mode_sign();
   tension_references_ramp();
   tension_hold_clamps_to_limit();
+  tension_hold_settles_on_a_stiff_load();
   closed_loops_on_the_bench();
 }

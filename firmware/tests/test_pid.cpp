@@ -89,6 +89,30 @@ void asymmetric_clamp_and_feedforward() {
   CHECK_NEAR(pid.step(g, 0.0f, 0.0f, kDt, -0.1f, 1.0f, 0.25f), 0.25, 1e-6);
 }
 
+void proportional_lag() {
+  // kp acts on the error through a first-order lag: after n periods of a unit error it gives
+  // 1 − (1 − a)^n with a = dt / (lag + dt); the integral sees the error itself.
+  const PidGains g{1.0f, 0.0f, 0.0f, 10.0f};
+  const float lag_s = 0.04f;
+  const float a = kDt / (lag_s + kDt);
+  Pid pid;
+  pid.reset(0.0f);
+  CHECK_NEAR(pid.step(g, 1.0f, 0.0f, kDt, -10.0f, 10.0f, 0.0f, lag_s), a, 1e-6);
+  float out = 0.0f;
+  for (int n = 2; n <= 10; ++n) out = pid.step(g, 1.0f, 0.0f, kDt, -10.0f, 10.0f, 0.0f, lag_s);
+  CHECK_NEAR(out, 1.0 - std::pow(1.0 - a, 10), 1e-5);
+  // reset() starts the lag from no error (a bumpless start is at its setpoint).
+  pid.reset(0.0f);
+  CHECK_NEAR(pid.step(g, 1.0f, 0.0f, kDt, -10.0f, 10.0f, 0.0f, lag_s), a, 1e-6);
+  const PidGains integral_only{0.0f, 10.0f, 0.0f, 10.0f};
+  pid.reset(0.0f);
+  CHECK_NEAR(pid.step(integral_only, 1.0f, 0.0f, kDt, -10.0f, 10.0f, 0.0f, lag_s), 0.1, 1e-6);
+  // A NaN measurement does not stay in the lag.
+  pid.reset(0.0f);
+  pid.step(g, 1.0f, NAN, kDt, -10.0f, 10.0f, 0.0f, lag_s);
+  CHECK_NEAR(pid.step(g, 0.0f, 0.0f, kDt, -10.0f, 10.0f, 0.0f, lag_s), 0.0, 1e-6);
+}
+
 }  // namespace
 
 void test_pid() {
@@ -98,4 +122,5 @@ void test_pid() {
   step_response_settles();
   huge_gains_never_give_nan();
   asymmetric_clamp_and_feedforward();
+  proportional_lag();
 }

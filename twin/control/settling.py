@@ -1,0 +1,91 @@
+"""Whether the board's loops settle, friction or not (``twin bench hold``).
+
+Two figures on a ``sim://`` device, the firmware's loops on the twin: length mode bending the
+robot to a configuration of the compensation grid, and then tension mode holding the tensions
+it measures there with a tip mass hung (the start of a compensation trial). Friction in the disc
+holes (``effects.tendon_friction_coeff``) is what used to make the tension loop cycle: the
+figures are meant to be taken with it on, e.g.
+``twin bench hold --set effects.tendon_friction_coeff=0.3``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from twin.control.gains import TUNED_TENSION_GAINS
+from twin.control.pretension import pretension_straight
+from twin.params import Params, load_params
+from twin.pcc import tendon_length_changes_m
+
+__all__ = ["HOLD_KAPPA_PER_M", "HOLD_PHI_DEG", "HOLD_MASS_KG", "hold_figures"]
+
+# The configuration and load of the measurement: a mid bend of the compensation grid
+# (twin.pcc.GRID_KAPPA_PER_M) with the smallest tip mass of the compensation trial, where the
+# tension loop was seen to cycle at μ = 0.1.
+HOLD_KAPPA_PER_M = 8.7
+HOLD_PHI_DEG = 0.0
+HOLD_MASS_KG = 0.005
+
+
+def hold_figures(params: Params | None = None, *, kappa_per_m: float = HOLD_KAPPA_PER_M,
+                 phi_deg: float = HOLD_PHI_DEG, mass_kg: float = HOLD_MASS_KG, length_timeout_s: float = 15.0,
+                 tension_settle_s: float = 3.0, measure_s: float = 2.0, tension_gains: dict | None = None,
+                 seed: int = 0) -> dict:
+    """Settling of length and tension mode on a ``sim://`` twin of ``params``.
+
+    Length mode: from the pretensioned straight robot, the lengths of the constant-curvature bend
+    (``kappa_per_m``, ``phi_deg``); the device time until every tendon is within an encoder count
+    of its target (looked at every 0.25 s, at most ``length_timeout_s``) and each tendon's
+    distance from its target then (encoder counts): where it stuck, if it did. Tension mode: the tip
+    mass hung (1 s to swing out in length mode), then tension mode holding the tensions measured
+    at the switch; after ``tension_settle_s``, each channel's peak-to-peak load-cell tension (N,
+    every telemetry sample over ``measure_s``, load-cell noise included: ~0.03 N without
+    friction) and its mean's offset from the target (N).
+
+    Args:
+        params: the twin's parameter set (default ``models/endoscope/endoscope.toml``).
+        tension_gains: the board's tension gains; default :data:`twin.control.gains.TUNED_TENSION_GAINS`.
+        seed: the twin's sensor-noise seed.
+
+    Returns:
+        ``length_error_counts`` (largest of ``length_errors_counts``, one per channel, absolute),
+        ``length_settle_s``,
+        ``tension_ptp_n`` (largest of ``tension_ptps_n``) and ``tension_offset_n`` (largest
+        absolute of ``tension_offsets_n``, signed per channel).
+    """
+    from twin.device import open_device
+
+    params = params if params is not None else load_params()
+    with open_device("sim://", params=params, seed=seed) as device:
+        device.set_gains("tensions", **(tension_gains or TUNED_TENSION_GAINS))
+        zero = pretension_straight(device, params, mode="lengths")
+        device.set_lengths(zero + tendon_length_changes_m(kappa_per_m, phi_deg, params))
+        start_s = device.time_s
+        while True:
+            device.wait(0.25)
+            sample = device.latest()
+            # Rounded: a length one count off reads 1.000002 counts off (float32 lengths).
+            length_errors = np.round(np.abs(sample.tendon_lengths_m - sample.targets) / device.info.tendon_m_per_count, 2)
+            if length_errors.max() <= 1.0 or device.time_s - start_s >= length_timeout_s:
+                break
+        length_s = device.time_s - start_s
+
+        device.fixture.hang_tip_mass(mass_kg)
+        device.wait(1.0)
+        device.set_mode("tensions")
+        device.wait(tension_settle_s)
+        device.drain()
+        device.wait(measure_s)
+        samples = device.drain()
+        tensions = np.array([s.tensions_n for s in samples])
+        ptps = np.ptp(tensions, axis=0)
+        offsets = tensions.mean(axis=0) - samples[-1].targets
+    return {
+        "length_error_counts": float(length_errors.max()),
+        "length_settle_s": round(float(length_s), 2),
+        "tension_ptp_n": float(ptps.max()),
+        "tension_offset_n": float(np.abs(offsets).max()),
+        "length_errors_counts": [round(float(e), 1) for e in length_errors],
+        "tension_ptps_n": [round(float(p), 4) for p in ptps],
+        "tension_offsets_n": [round(float(o), 4) for o in offsets],
+    }
