@@ -15,8 +15,12 @@ void Pid::reset(float measurement, float output) {
 float Pid::step(const PidGains& gains, float setpoint, float measurement, float dt_s, float lowest, float highest,
                float feedforward, float proportional_lag_s) {
   const float error = setpoint - measurement;
-  const float lag = proportional_lag_s > 0.0f ? dt_s / (proportional_lag_s + dt_s) : 1.0f;
-  lagged_error_ = clamp_range(lagged_error_ + lag * (error - lagged_error_), -3.0e38f, 3.0e38f);
+  if (proportional_lag_s > 0.0f) {
+    const float lag = dt_s / (proportional_lag_s + dt_s);
+    lagged_error_ = clamp_range(lagged_error_ + lag * (error - lagged_error_), -3.0e38f, 3.0e38f);
+  } else {
+    lagged_error_ = error;  // exactly: x + (e − x) need not round to e
+  }
   const float derivative = -gains.kd * (measurement - last_measurement_) / dt_s;
   last_measurement_ = measurement;
   const float increment = gains.ki * error * dt_s;
