@@ -27,7 +27,9 @@ a spool braked under a falling rod), the spike is no tension a rig would see: se
 peaked at 1.2 to 3.8× the limit with 5 ms steps (up to 1.7× with 2.5 ms) peak at 0.66 to 0.95×
 with 1.25 ms, and within 0.02× of that with 0.625 ms. The board still ticks every 5 ms.
 
-``python tests/test_tension_bound.py 2000`` runs that many sequences and prints the worst peaks.
+The properties hold with tendon friction on too (μ = 0.3 per radian: the tension loop used to
+cycle under friction, see tests/test_settling.py). ``python tests/test_tension_bound.py 2000 [SEED
+[MU]]`` runs that many sequences and prints the worst peaks.
 """
 
 from __future__ import annotations
@@ -48,6 +50,11 @@ PROPERTY_PARAMS = PARAMS.replace({"sim.timestep_s": 0.00125})
 BOUND = 1.2
 LIMITS_N = (6.0, 2.0)
 SEQUENCES_PER_LIMIT = 40
+# Tendon friction (μ per radian) the properties are checked with too: the most the control loops
+# are held to settle under (tests/test_settling.py). A friction twin steps ~8x slower, hence
+# fewer sequences with it.
+FRICTION = 0.3
+FRICTION_SEQUENCES_PER_LIMIT = 6
 STEPS_PER_SEQUENCE = 10
 # What a tip mass hung at once is given to come to rest before the bound applies again (s).
 LOAD_SETTLE_S = 0.5
@@ -157,12 +164,14 @@ class Sequence:
             device.enable()
 
 
-def run_sequences(count_per_limit: int, *, seed: int) -> dict:
-    """Worst peak (× limit) per limit over ``count_per_limit`` sequences each, with its history."""
+def run_sequences(count_per_limit: int, *, seed: int, friction: float = 0.0) -> dict:
+    """Worst peak (× limit) per limit over ``count_per_limit`` sequences each, with its history,
+    on the twin with tendon friction μ = ``friction``."""
     rng = np.random.default_rng(seed)
     worst: dict[float, tuple[float, list]] = {limit: (0.0, []) for limit in LIMITS_N}
     load_blow = 0.0
-    with open_device("sim://?seed=0", params=PROPERTY_PARAMS) as device:
+    params = PROPERTY_PARAMS.replace({"effects.tendon_friction_coeff": friction})
+    with open_device("sim://?seed=0", params=params) as device:
         for k in range(count_per_limit * len(LIMITS_N)):
             limit = LIMITS_N[k % len(LIMITS_N)]
             sequence = Sequence(device, rng, limit)
@@ -173,24 +182,27 @@ def run_sequences(count_per_limit: int, *, seed: int) -> dict:
     return {"worst": worst, "load_blow": load_blow}
 
 
-def test_no_accepted_command_sequence_drives_a_tendon_over_1_2_times_the_limit(record_property):
-    result = run_sequences(SEQUENCES_PER_LIMIT, seed=20261201)
+@pytest.mark.parametrize("friction", [0.0, FRICTION])
+def test_no_accepted_command_sequence_drives_a_tendon_over_1_2_times_the_limit(record_property, friction):
+    count = FRICTION_SEQUENCES_PER_LIMIT if friction else SEQUENCES_PER_LIMIT
+    result = run_sequences(count, seed=20261201, friction=friction)
     for limit, (peak, history) in result["worst"].items():
-        record_property(f"worst_peak_over_limit_{limit:g}_n", peak)
-        print(f"limit {limit:g} N: worst true peak {peak:.3f} × limit")
+        record_property(f"worst_peak_over_limit_{limit:g}_n_friction_{friction:g}", peak)
+        print(f"limit {limit:g} N, μ {friction:g}: worst true peak {peak:.3f} × limit")
         assert peak <= BOUND, f"limit {limit} N: true peak {peak:.3f} × limit after {history}"
     # Every sequence did drive the tendons: the property is not met by a board that never moved.
     assert min(peak for peak, _ in result["worst"].values()) > 0.5
 
 
-@pytest.mark.parametrize("step_mm", [2, 5, 10, 25, 50])
-def test_a_length_step_the_board_accepts_stays_within_the_bound(step_mm):
+@pytest.mark.parametrize("step_mm, friction", [(2, 0.0), (5, 0.0), (10, 0.0), (25, 0.0), (50, 0.0), (10, FRICTION)])
+def test_a_length_step_the_board_accepts_stays_within_the_bound(step_mm, friction):
     # Before the bound, these steps gave true peaks of 7.8 to 58 N against the 6 N limit: the
     # spool ran at up to full speed into the tendon and coasted on after the trip.
     from twin.control.pretension import pretension_straight
 
-    with open_device("sim://?seed=0", params=PARAMS) as device:
-        zero = pretension_straight(device, PARAMS, mode="lengths")
+    params = PARAMS.replace({"effects.tendon_friction_coeff": friction})
+    with open_device("sim://?seed=0", params=params) as device:
+        zero = pretension_straight(device, params, mode="lengths")
         device.twin.clear_peak_tensions()
         target = zero.copy()
         target[0] -= step_mm * 1e-3
@@ -207,7 +219,8 @@ def test_a_length_step_the_board_accepts_stays_within_the_bound(step_mm):
         assert sample.state is c.State.FAULT and sample.fault_flags & c.Fault.TENSION_LIMIT
 
 
-def test_a_tip_load_the_limit_cannot_hold_makes_the_motor_yield():
+@pytest.mark.parametrize("friction", [0.0, FRICTION])
+def test_a_tip_load_the_limit_cannot_hold_makes_the_motor_yield(friction):
     # 40 g at the tip asks m·g·L/r = 5.2 N of the upper tendon to hold the segment where it is,
     # 2.6× the 2 N limit: no firmware can hold it within the limit. The motor yields (pulling,
     # then braking, with no more than its cap), the board trips, and once the blow of the mass
@@ -217,8 +230,9 @@ def test_a_tip_load_the_limit_cannot_hold_makes_the_motor_yield():
     limit_n, mass_kg = 2.0, 0.040
     statics_n = mass_kg * PARAMS.environment.gravity_m_s2 * PARAMS.backbone.length_m / PARAMS.tendons.radius_m
     assert statics_n > 2.0 * limit_n
-    with open_device("sim://?seed=0", params=PARAMS) as device:
-        zero = pretension_straight(device, PARAMS, mode="lengths", limit_n=limit_n)
+    params = PARAMS.replace({"effects.tendon_friction_coeff": friction})
+    with open_device("sim://?seed=0", params=params) as device:
+        zero = pretension_straight(device, params, mode="lengths", limit_n=limit_n)
         device.fixture.settle_s = 0.0
         device.fixture.hang_tip_mass(mass_kg)
         device.wait(LOAD_SETTLE_S)
@@ -232,15 +246,17 @@ def test_a_tip_load_the_limit_cannot_hold_makes_the_motor_yield():
     assert (sample.tendon_lengths_m - zero).max() > 2e-3
 
 
-@pytest.mark.parametrize("mode", ["lengths", "tensions"])
-def test_a_load_cell_reading_ten_times_low_cannot_blind_the_limit(mode):
+@pytest.mark.parametrize("mode, friction", [("lengths", 0.0), ("tensions", 0.0), ("lengths", FRICTION),
+                                            ("tensions", FRICTION)])
+def test_a_load_cell_reading_ten_times_low_cannot_blind_the_limit(mode, friction):
     # The calibration is the nominal one and accepted; the cell itself reads a tenth (a wrong
     # cell, or a tendon off its pulley). Before, such a reading held 14 N on the tendon in
     # tension mode with no fault. Now the stalled motor's pull gives it away: the board faults,
     # in tension mode as soon as it is enabled and pulls, in length mode when the pull comes.
     from twin.control.pretension import pretension_straight
 
-    params = PARAMS.replace({"effects.tension_gain_error": [-0.9, 0.0, 0.0, 0.0]})
+    params = PARAMS.replace({"effects.tension_gain_error": [-0.9, 0.0, 0.0, 0.0],
+                             "effects.tendon_friction_coeff": friction})
     with open_device("sim://?seed=0", params=params) as device:
         zero = pretension_straight(device, params, mode=mode, tension_n=1.0)
         device.twin.clear_peak_tensions()
@@ -289,7 +305,8 @@ def test_a_board_that_restarted_drives_with_the_configured_limit_again():
 def main(argv: list[str]) -> int:
     count = int(argv[0]) if argv else 1000
     seed = int(argv[1]) if len(argv) > 1 else 0
-    result = run_sequences(count, seed=seed)
+    friction = float(argv[2]) if len(argv) > 2 else 0.0
+    result = run_sequences(count, seed=seed, friction=friction)
     for limit, (peak, history) in result["worst"].items():
         print(f"limit {limit:g} N: worst true peak {peak:.3f} × limit over {count} sequences")
         for entry in history:

@@ -33,7 +33,8 @@ TARGETS = {
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("bench", help="run a speed benchmark and print its figures (one core)",
+    p = sub.add_parser("bench", help="run a speed benchmark (or hold: the control loops' settling) and print its "
+                                      "figures (one core)",
                        description="Prints each figure beside its goal and exits 1 when a goal is not met; "
                                    "--json prints the figures only (exit 0), for scripts that judge them.")
     p.add_argument("target", choices=sorted(TARGETS), help="what to measure")
