@@ -1,6 +1,7 @@
 """Control on top of the device interface: load compensation from the Cosserat predictor, the
-length-vs-tension study of an antagonistic pair and the tension PID gains (tuned against the env
-by :mod:`twin.tuning`, which sits above the env).
+length-vs-tension study of an antagonistic pair, the tension PID gains (tuned against the env
+by :mod:`twin.tuning`, which sits above the env) and whether the board's loops settle
+(:mod:`twin.control.settling`, ``twin bench hold``).
 
 Example:
     >>> from twin import load_params
