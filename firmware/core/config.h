@@ -108,7 +108,7 @@ constexpr float kTensionRatePerS = 10.0f;
 // and stiff while friction holds it (presliding: a few tens of kN/m against 2.7 kg of reflected
 // rotor, a resonance at 20-40 Hz, where the 80 Hz load cell and the 100 Hz loop lag by ~15 ms).
 // A proportional gain that tracks well on the soft load (the tuned 0.006 /N, ~0.9 of loop gain)
-// rings on the stiff one: on the twin at μ = 0.1 a held tension cycled at 10 Hz, 0.8-2 N peak to
+// rings on the stiff one: on the twin at μ = 0.1-0.3 held tensions cycled at 10 Hz, 0.8-3.4 N peak to
 // peak, with the spool moving by the presliding ~30 µm. At 50 ms (20 rad/s) the lag leaves the
 // soft load's response as it was and takes the loop gain below 0.2 at the stiff one's resonance,
 // so that held tensions settle for μ up to 0.3 with the tuned gains.
