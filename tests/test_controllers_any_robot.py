@@ -120,3 +120,17 @@ def test_friction_on_a_two_segment_twin_agrees_with_the_predictor():
         tips[mu] = plant.tip_pose()[0]
         assert np.linalg.norm(tips[mu] - sol.tip_position_m) < 2e-4
     assert np.linalg.norm(tips[0.3] - tips[0.0]) > 2e-3
+
+
+@pytest.mark.parametrize("n", [5, 8])
+def test_the_tension_step_rollout_runs_on_five_and_eight_tendons(n):
+    from twin.control.gains import TUNED_TENSION_GAINS
+    from twin.params import load_params
+    from twin.tuning import tension_cost
+
+    zeros = [0.0] * n
+    params = load_params(overrides={"tendons.angles_deg": [360.0 * i / n for i in range(n)],
+                                    "sensors.loadcell_offset_counts": zeros, "effects.tension_gain_error": zeros,
+                                    "effects.tension_offset_error_n": zeros})
+    assert antagonistic_pair(params) == ((0, 2) if n == 5 else (0, 4))
+    assert 0 < tension_cost(TUNED_TENSION_GAINS, params=params) < 2.0
