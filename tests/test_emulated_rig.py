@@ -99,3 +99,26 @@ def test_validate_runs_the_quick_grid_unattended_against_twin_emulate(tmp_path, 
     # The same figures as on sim:// (median ~0.1 mm): the tracker and fixture are the twin's.
     median_mm = float(out.split("prediction error median ")[1].split(" mm")[0])
     assert median_mm < 0.5, out
+
+
+def test_twin_emulate_serves_on_the_ports_asked_and_refuses_a_taken_one_in_one_line(tmp_path):
+    import socket
+
+    with socket.create_server(("127.0.0.1", 0)) as taken:
+        port = taken.getsockname()[1]
+        result = subprocess.run([sys.executable, "-m", "twin.cli", "emulate", "--igtl-port", str(port),
+                                 "--fixture-port", "0"], capture_output=True, text=True, timeout=60)
+    assert result.returncode == 1 and "Traceback" not in result.stderr
+    assert "cannot listen: Address already in use" in result.stderr and len(result.stderr.strip().splitlines()) == 1
+    with socket.create_server(("127.0.0.1", 0)) as free:
+        port = free.getsockname()[1]
+    process = subprocess.Popen([sys.executable, "-m", "twin.cli", "emulate", "--igtl-port", str(port),
+                                "--fixture-port", "-1"], stdout=subprocess.PIPE, text=True)
+    try:
+        process.stdout.readline()
+        url = process.stdout.readline().split(":", 1)[1].strip()
+        assert f"igtl=127.0.0.1:{port}&" in url and "fixture" not in url
+    finally:
+        process.send_signal(signal.SIGTERM)
+        process.communicate(timeout=10)
+    assert process.returncode == 0

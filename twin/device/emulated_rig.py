@@ -179,11 +179,15 @@ class EmulatedRig:
         self._ports = (igtl_port, fixture_port)
         self.igtl_server = self.tracker = self.fixture = None
         self._base_rotation = base_rotation
+        self._started = False
 
     def start(self) -> str:
-        """Plug the board and open the tracker and fixture; returns :attr:`url`."""
+        """Plug the board and open the tracker and fixture (once: again does nothing); returns :attr:`url`."""
         from twin.device.igtl_server import OpenIGTLinkServer
 
+        if self._started:
+            return self.url
+        self._started = True
         self.board.plug()
         try:
             igtl_port, fixture_port = self._ports
@@ -217,6 +221,7 @@ class EmulatedRig:
                 part.close()
         self.tracker = self.igtl_server = self.fixture = None
         self.board.close()
+        self._started = False
 
     def __enter__(self) -> "EmulatedRig":
         self.start()
