@@ -32,11 +32,11 @@ def test_the_automatic_fixture_acts_on_the_twin_and_refuses_what_it_cannot_do():
         fixture = RemoteFixture(rig.host, port, settle_s=0.05)
         try:
             fixture.hang_tip_mass(0.010)
-            assert rig.board.call(lambda: rig.board.board.plant.tip_mass_kg) == pytest.approx(0.010)
+            assert rig.board.call(lambda: rig.twin.tip_mass_kg) == pytest.approx(0.010)
             fixture.engage_holder()
-            assert rig.board.call(lambda: rig.board.board.plant.holder_engaged)
+            assert rig.board.call(lambda: rig.twin.holder_engaged)
             fixture.release_holder()
-            assert not rig.board.call(lambda: rig.board.board.plant.holder_engaged)
+            assert not rig.board.call(lambda: rig.twin.holder_engaged)
             with pytest.raises(FixtureUnavailable, match=r"hang_calibration_mass: channels = \(7,\)"):
                 fixture.hang_calibration_mass(100.0, [7])
             fixture.hang_tip_mass(0.0)  # the connection survives a refusal
@@ -57,7 +57,7 @@ def test_the_emulated_tracker_streams_the_twins_tip_as_plus_names_it():
                 if fused.ok:
                     break
             assert fused.ok, fused.reason
-            truth = rig.board.call(lambda: rig.board.board.plant.tip_pose()[0])
+            truth = rig.board.call(lambda: rig.twin.tip_pose()[0])
             # The fused tip against the twin's: the probes' noise (0.2 mm) and a frame of age.
             assert np.linalg.norm(fused.pose.position_m - truth) < 1.5e-3
             assert rig.tracker.frames > 0

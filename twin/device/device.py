@@ -299,10 +299,11 @@ class Device:
             self._transport.close()
             raise
         self._info = info
-        if self.tracker is not None:
-            # The first fusion compiles (numba: about a second): done here, with the board
-            # disabled, not on a run's first tracker reading, when the silent host let the
-            # watchdog stop the enabled board on serial://.
+        if self.tracker is not None and self.clock == "wall":
+            # The first fusion in a process compiles (numba: 1 s to over a minute on a loaded
+            # machine): done here, with the board disabled, not on a run's first tracker reading,
+            # when the silent host let the watchdog stop the enabled board. In simulated time
+            # nothing waits meanwhile.
             from twin.tracking import compile_fusion
 
             with self.attended():

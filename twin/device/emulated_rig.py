@@ -202,6 +202,14 @@ class EmulatedRig:
         return self.url
 
     @property
+    def twin(self):
+        """The twin behind the port (:class:`twin.device.sim_twin.SimTwin`): ground truth for code
+        in this process; read it through :meth:`PtyBoard.call` so as not to see a half-stepped plant."""
+        from twin.device.sim_twin import SimTwin
+
+        return SimTwin(self.board.board)
+
+    @property
     def url(self) -> str:
         """The device URL of the board with the tracker and fixture served here."""
         query = []

@@ -230,6 +230,25 @@ def friction_direction(relative_lengths_m, sense: float = 1.0, sliding_state=Non
     return sense * np.where(lengths > 0, -1.0, 1.0)
 
 
+def _sites_to_anchor(model, params: Params) -> np.ndarray:
+    """(n,) how many of the sites ``t{i}_s1`` … each tendon passes up to its anchor
+    (:meth:`Params.tendon_ends_m`): those at an arc length, measured along the clamp's axis in the
+    straight pose (``qpos0``), not beyond the anchor."""
+    import mujoco
+
+    data = mujoco.MjData(model)
+    mujoco.mj_kinematics(model, data)
+    names = {model.site(k).name for k in range(model.nsite)}
+    along = sum(1 for j in range(1, model.nsite + 1) if f"t0_s{j}" in names)
+    passed = []
+    for i, end_m in enumerate(params.tendon_ends_m()):
+        hole = model.site(f"hole{i}").id
+        axis = data.xmat[model.site_bodyid[hole]].reshape(3, 3)[:, 2]
+        s_m = [(data.site_xpos[model.site(f"t{i}_s{j}").id] - data.site_xpos[hole]) @ axis for j in range(1, along + 1)]
+        passed.append(int(np.count_nonzero(np.asarray(s_m) <= end_m + 1e-7)))
+    return np.array(passed)
+
+
 class TendonFrictionEffect(Effect):
     name = "tendon_friction"
     description = ("capstan friction at the disc holes: tension lost towards the tip while pulled, "
@@ -247,9 +266,7 @@ class TendonFrictionEffect(Effect):
             return None
         passed = None
         if min(params.tendon_ends_m()) < params.backbone.length_m:
-            from twin.sim.model import Layout
-
-            passed = Layout.from_params(params).tendon_site_count
+            passed = _sites_to_anchor(model, params)
         return TendonFriction.in_model(model, coeff, params.tendons.count, passed)
 
     def candidate(self, params: Params) -> Candidate:
