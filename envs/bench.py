@@ -12,16 +12,22 @@ import time
 import numpy as np
 
 from envs.reach import EndoscopeReachEnv
+from twin.control.cocontraction import antagonistic_pair
 from twin.params import Params, load_params
 
 __all__ = ["bench_env"]
+
+# Amplitude of the sway as a fraction of the pretension: 0.5 N of the thesis endoscope's 1.35 N.
+_SWAY_OF_PRETENSION = 0.37
 
 
 def bench_env(params: Params | None = None, *, steps: int = 400, seed: int = 0) -> dict:
     """Time the default env (tension actions, tip loads) on ``sim://``, the best of three runs.
 
-    The actions sway two tendons' tensions ±0.5 N about the pretension at 1 Hz, a motion that
-    neither faults the board nor leaves the twin at rest.
+    The actions sway the robot's antagonistic pair's tensions
+    (:func:`twin.control.cocontraction.antagonistic_pair`) in opposition by 0.37 × the pretension
+    (±0.5 N on the thesis endoscope) at 1 Hz, a motion that neither faults the board nor leaves the
+    twin at rest.
 
     Returns:
         ``steps_per_s`` (env steps per wall second), ``realtime_factor`` (device s per wall s),
@@ -35,7 +41,10 @@ def bench_env(params: Params | None = None, *, steps: int = 400, seed: int = 0) 
         env.reset(seed=seed)
         reset_s = time.perf_counter() - start
         pretension = params.tendons.pretension_n
-        actions = [env.action_for(pretension + 0.5 * np.array([np.sin(w), 0.0, -np.sin(w), 0.0]))
+        a, b = antagonistic_pair(params)
+        sway = np.zeros(params.tendons.count)
+        sway[a], sway[b] = 1.0, -1.0
+        actions = [env.action_for(pretension * (1.0 + _SWAY_OF_PRETENSION * np.sin(w) * sway))
                    for w in 2 * np.pi * np.arange(steps) / 40.0]
         device = env.device
         period_s = device.info.telemetry_period_s

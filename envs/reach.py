@@ -17,7 +17,8 @@ from twin.device.codec import Fault
 from twin.params import Params, load_params
 from twin.pcc import arc_tip_position_m
 
-__all__ = ["ACTION_MODES", "EndoscopeReachEnv"]
+__all__ = ["ACTION_MODES", "EndoscopeReachEnv", "default_curvature_range_per_m", "default_max_length_m",
+           "default_tension_range_n"]
 
 # Env action mode → the board's control mode.
 ACTION_MODES = {"tensions": "tensions", "lengths": "lengths", "pairs": "pairs"}
@@ -30,6 +31,33 @@ _RESET_SETTLE_S = 0.2
 _LENGTH_BOUND_M = 0.1
 _TENSION_BOUND_N = 100.0
 _POSITION_BOUND_M = 0.2
+# The ranges of an env made for a robot, from the robot (the thesis endoscope's values in brackets,
+# the ranges this env was tuned on): the largest target bend κL (1.2 rad: κ ≤ 20 1/m on 60 mm),
+# the tension actions as fractions of the board's tension limit (0.3 … 5 N of 6 N), and a full
+# length action as this multiple of the tendon's length change at the largest bend (8.1 mm for
+# 5.4 mm), headroom for the load and the pretension's stretch.
+TARGET_BEND_RAD = 1.2
+TENSION_RANGE_OF_LIMIT = (0.05, 5.0 / 6.0)
+LENGTH_ACTION_MARGIN = 1.5
+
+
+def default_curvature_range_per_m(params: Params) -> tuple[float, float]:
+    """Target curvatures (1/m) for ``params``'s robot: 0 … :data:`TARGET_BEND_RAD` over its length."""
+    return 0.0, TARGET_BEND_RAD / params.backbone.length_m
+
+
+def default_tension_range_n(params: Params) -> tuple[float, float]:
+    """Tension actions' range (N) for ``params``'s robot: :data:`TENSION_RANGE_OF_LIMIT` of
+    ``rig.tension_limit_n``."""
+    limit = params.rig.tension_limit_n
+    return TENSION_RANGE_OF_LIMIT[0] * limit, TENSION_RANGE_OF_LIMIT[1] * limit
+
+
+def default_max_length_m(params: Params) -> float:
+    """A full length action (m) for ``params``'s robot: :data:`LENGTH_ACTION_MARGIN` × the largest
+    PCC length change of a tendon at the largest target bend (r κ s, s where it is anchored)."""
+    return LENGTH_ACTION_MARGIN * params.tendons.radius_m * TARGET_BEND_RAD / params.backbone.length_m * \
+        max(params.tendon_ends_m())
 
 
 class EndoscopeReachEnv(gym.Env):
@@ -96,9 +124,12 @@ class EndoscopeReachEnv(gym.Env):
         tip_loads: tip masses per episode (default 0/5/10 g, half the episodes change once).
         gains: ``{mode: {"kp": …, "ki": …, "kd": …, "output_limit": …}}`` set on the board at
             reset (default the firmware's).
-        target_curvature_per_m: (low, high) curvature of the target arcs (1/m).
-        tension_range_n: (τ_lo, τ_hi) of tension actions (N).
-        max_length_m: length of a full length action (m).
+        target_curvature_per_m: (low, high) curvature of the target arcs (1/m); default from the
+            robot (:func:`default_curvature_range_per_m`: 0 … 20 1/m on the 60 mm endoscope).
+        tension_range_n: (τ_lo, τ_hi) of tension actions (N); default from the robot's tension
+            limit (:func:`default_tension_range_n`: 0.3 … 5 N of 6 N).
+        max_length_m: length of a full length action (m); default from the robot's tendon radius
+            and length (:func:`default_max_length_m`: 8.1 mm).
         pretension_n: pretension per tendon at reset (N); default ``tendons.pretension_n``.
         tension_weight, effort_weight: w_τ and w_u of the reward.
         fault_penalty: reward subtracted on the faulting step.
@@ -111,8 +142,8 @@ class EndoscopeReachEnv(gym.Env):
 
     def __init__(self, device_url: str = "sim://", *, action_mode: str = "tensions", params: Params | None = None,
                  randomization: Randomization | None = None, tip_loads: TipLoads | None = None,
-                 gains: dict | None = None, target_curvature_per_m: tuple[float, float] = (0.0, 20.0),
-                 tension_range_n: tuple[float, float] = (0.3, 5.0), max_length_m: float = 0.008,
+                 gains: dict | None = None, target_curvature_per_m: tuple[float, float] | None = None,
+                 tension_range_n: tuple[float, float] | None = None, max_length_m: float | None = None,
                  pretension_n: float | None = None, tension_weight: float = 0.1, effort_weight: float = 1.0,
                  fault_penalty: float = 10.0, render_mode: str | None = None, live_port: int | None = None):
         if render_mode not in (None, *self.metadata["render_modes"]):
@@ -124,6 +155,13 @@ class EndoscopeReachEnv(gym.Env):
         if parts.scheme == "sim" and "seed" in urllib.parse.parse_qs(parts.query):
             raise ValueError(f"device_url = {device_url!r}: leave the seed out; reset(seed=...) seeds the twin")
         self.params = params if params is not None else load_params()
+        tension_range_n = tension_range_n or default_tension_range_n(self.params)
+        target_curvature_per_m = target_curvature_per_m or default_curvature_range_per_m(self.params)
+        max_length_m = default_max_length_m(self.params) if max_length_m is None else max_length_m
+        n = self.params.tendons.count
+        if action_mode == "pairs" and n % 2:
+            raise ValueError(f"action_mode = 'pairs': the robot has {n} tendons; pairs need an even count "
+                             "(tendon i and i + n/2 opposed)")
         low, high = tension_range_n
         if not 0 <= low < high <= self.params.rig.tension_limit_n:
             raise ValueError(f"tension_range_n = {tension_range_n!r}: need 0 <= low < high <= "
@@ -141,7 +179,6 @@ class EndoscopeReachEnv(gym.Env):
         self.pretension_n = self.params.tendons.pretension_n if pretension_n is None else float(pretension_n)
         self.tension_weight, self.effort_weight, self.fault_penalty = tension_weight, effort_weight, fault_penalty
 
-        n = self.params.tendons.count
         n_a = n // 2 if action_mode == "pairs" else n
         self.action_space = spaces.Box(-1.0, 1.0, (n_a,), np.float32)
         self.tip_slice = slice(2 * n, 2 * n + 3)

@@ -156,7 +156,7 @@ def test_a_torn_row_in_the_middle_is_an_error_naming_file_row_and_column(tmp_pat
     ("tip_x_m", math.nan, "is not a number"),
     ("tension_2_n", math.inf, "is not finite"),
     ("length_1_m", -math.inf, "is not finite"),
-    ("kappa_cmd_per_m", None, "is not a number"),
+    ("tip_mass_kg", None, "is not a number"),
     ("tip_qw", math.inf, "is not finite"),
     ("config", 2.5, "is not a whole number"),
     ("tip_y_m", "0.1", "is not a number"),
@@ -170,6 +170,21 @@ def test_values_the_reader_would_refuse_are_refused_at_write_time(tmp_path, colu
             w.write({**row(1), column: value})
     assert path.read_bytes() == before
     assert list(read_dataset(tmp_path)["config"]) == [0]
+
+
+def test_a_command_with_half_of_its_bend_is_refused_a_free_pose_has_neither(tmp_path):
+    path = written(tmp_path, [0])
+    with writer(tmp_path) as w:
+        with pytest.raises(ValueError, match=r"row for config 1 has a command κ or φ without the other"):
+            w.write({**row(1), "kappa_cmd_per_m": None})
+        w.write({**row(2), "kappa_cmd_per_m": None, "phi_cmd_deg": math.nan})
+    d = read_dataset(tmp_path)
+    assert d.free.tolist() == [False, True]
+    # A torn edit by hand (one of the two cells emptied) is refused on reading, naming the row.
+    text = path.read_text().replace(",4.5,30.0,", ",,30.0,", 1)
+    path.write_text(text)
+    with pytest.raises(ValueError, match=r"row 2 has a command κ or φ without the other"):
+        read_dataset(tmp_path)
 
 
 def test_an_unmeasured_optional_column_is_still_written_empty(tmp_path):

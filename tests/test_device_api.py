@@ -198,8 +198,8 @@ def test_a_reset_twin_runs_as_a_new_one_of_the_same_seed():
 
 
 def test_twin_emulate_prints_a_port_that_the_driver_connects_to():
-    process = subprocess.Popen([sys.executable, "-m", "twin.cli", "emulate", "--seed", "1"],
-                               stdout=subprocess.PIPE, text=True)
+    process = subprocess.Popen([sys.executable, "-m", "twin.cli", "emulate", "--seed", "1", "--igtl-port", "-1",
+                                "--fixture-port", "-1"], stdout=subprocess.PIPE, text=True)
     try:
         port = process.stdout.readline().split(":", 1)[1].strip()
         url = process.stdout.readline().split(":", 1)[1].strip()

@@ -201,12 +201,14 @@ def test_a_calibration_file_of_another_channel_count_is_refused_before_a_run_fol
     assert not (tmp_path / "runs").exists() or not any((tmp_path / "runs").iterdir())
 
 
-def test_the_cocontraction_study_refuses_a_robot_without_the_antagonistic_pair_before_touching_the_device():
+def test_the_cocontraction_study_refuses_a_robot_without_an_antagonistic_pair_before_touching_the_device():
     from twin.control.cocontraction import run_cocontraction_study
 
-    for robot in ("three-tendon", "two-segment"):
-        with pytest.raises(ValueError, match=r"tendons.angles_deg = .*tendons 1 and 3 to be an antagonistic pair"):
-            run_cocontraction_study(None, load_robot(robot))
+    # Three tendons within a quarter turn: none opposes another.
+    fan = load_robot("three-tendon").replace({"tendons.angles_deg": [0.0, 45.0, 90.0]})
+    with pytest.raises(ValueError, match=r"tendons.angles_deg = \[0.0, 45.0, 90.0\]: no two tendons .* more than "
+                                         r"90 deg apart; the robot has no antagonistic pair"):
+        run_cocontraction_study(None, fan)
 
 
 def test_an_n_tendon_dataset_exports_one_joint_per_tendon(tmp_path):

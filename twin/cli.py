@@ -30,6 +30,7 @@ COMMAND_MODULES = [
     "twin.bench",
     "twin.demo",
     "twin.data.rosbag",
+    "twin.data.importer",
 ]
 
 

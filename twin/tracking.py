@@ -32,6 +32,7 @@ from twin.pose import matrix_to_quat
 __all__ = [
     "CapCalibration",
     "CallableSource",
+    "compile_fusion",
     "FrameStatus",
     "FusionResult",
     "FusionSettings",
@@ -412,6 +413,14 @@ def _cap_geometry(calibration: CapCalibration) -> _CapGeometry:
     distance_m = calibration.probe_distance_m
     body = np.array([calibration.axis_a, calibration.axis_b, (c_b - c_a) / distance_m])
     return _CapGeometry(body, c_a + c_b, distance_m, calibration.axis_angle_rad)
+
+
+def compile_fusion(calibration: CapCalibration = CapCalibration()) -> None:
+    """Compile :func:`fuse`'s kernels (numba) now, by fusing the cap's own probes at the identity
+    pose: the first fusion in a process otherwise takes about a second, which a real-time caller
+    (a host feeding the board's watchdog) cannot spend on its first tracker reading."""
+    fuse(ProbeReading(calibration.position_a_m, calibration.axis_a, 0.0),
+         ProbeReading(calibration.position_b_m, calibration.axis_b, 0.0), calibration)
 
 
 def fuse_frame(

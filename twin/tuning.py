@@ -34,7 +34,7 @@ from typing import Sequence
 import numpy as np
 from scipy.optimize import minimize
 
-from envs.reach import EndoscopeReachEnv
+from envs.reach import EndoscopeReachEnv, default_tension_range_n
 from envs.randomization import Randomization, TipLoads
 from twin.cliargs import add_param_args, params_from_args
 from twin.control.compensation import compensate_tensions
@@ -44,15 +44,30 @@ from twin.rod import Predictor, RodModel, tip_jacobian
 from twin.rod.grid import GRAVITY_TIP_FORCE_N
 from twin.scaleout import Executor, connect, map_ordered
 
-__all__ = ["TipTrackingController", "TuningResult", "tension_cost", "tracking_cost", "tune_tension_gains", "tune_tracking_gains",
+__all__ = ["TipTrackingController", "TuningResult", "tension_cost", "tension_steps_n", "tracking_cost", "tune_tension_gains", "tune_tracking_gains",
            "main", "register"]
 
 # Cost of a rollout the board faulted in (N RMS or mm): above any error a working loop has.
 _FAULT_COST = 10.0
-# Tension setpoints of the PID rollout (N): steps on the pair 1–3 at 0.5 s intervals.
-_TENSION_STEPS_N = ((1.35, 1.35, 1.35, 1.35), (2.5, 1.35, 1.0, 1.35), (1.0, 1.35, 2.5, 1.35),
-                    (3.5, 1.35, 0.6, 1.35), (1.35, 1.35, 1.35, 1.35), (0.6, 1.35, 3.0, 1.35))
+# Tension steps of the PID rollout on an antagonistic pair (a, b), as factors on the pretension,
+# every other tendon held at it; 0.5 s each. On the thesis endoscope (1.35 N) they are steps of
+# 1.35 N … 3.5 N on tendons 1 and 3.
+_PAIR_STEPS = ((1.0, 1.0), (1.85, 0.74), (0.74, 1.85), (2.59, 0.44), (1.0, 1.0), (0.44, 2.22))
 _STEPS_PER_SETPOINT = 20
+
+
+def tension_steps_n(params: Params, tension_range_n: tuple[float, float] | None = None) -> np.ndarray:
+    """The PID rollout's setpoints (steps, tendons) (N) for ``params``'s robot: :data:`_PAIR_STEPS`
+    on its antagonistic pair (:func:`twin.control.cocontraction.antagonistic_pair`), within
+    ``tension_range_n`` (default the env's for the robot)."""
+    from twin.control.cocontraction import antagonistic_pair
+
+    a, b = antagonistic_pair(params)
+    low, high = tension_range_n or default_tension_range_n(params)
+    pretension = params.tendons.pretension_n
+    steps = np.full((len(_PAIR_STEPS), params.tendons.count), pretension)
+    steps[:, a], steps[:, b] = np.array(_PAIR_STEPS).T * pretension
+    return np.clip(steps, low, high)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -82,8 +97,9 @@ def tension_cost(gains: dict, *, params: Params | None = None, seed: int = 0) ->
     try:
         env.reset(seed=seed)
         errors = []
-        for k, setpoint in enumerate(_TENSION_STEPS_N):
-            if k == len(_TENSION_STEPS_N) // 2:
+        steps = tension_steps_n(env.params, env.tension_range_n)
+        for k, setpoint in enumerate(steps):
+            if k == len(steps) // 2:
                 env.device.fixture.hang_tip_mass(0.010)
             action = env.action_for(setpoint)
             for i in range(_STEPS_PER_SETPOINT):
@@ -136,14 +152,16 @@ class TipTrackingController:
         velocity_gain_s: swing damping (s): tension change per unit of J⁺ v (0 = none).
         period_s: time between two :meth:`update` calls (s): the env's 40 Hz step.
         damping: Tikhonov damping of the pseudo-inverse (m/N).
-        floor_n, limit_n: tension bounds (N).
+        floor_n, limit_n: tension bounds (N); default the robot's: the lower end of the env's
+            tension range raised to 1 N where it allows (taut tendons), and its upper end
+            (:func:`envs.reach.default_tension_range_n`: 1 N and 5 N on the thesis endoscope).
         base_rotation: the clamp orientation (3×3) of the robot it controls; default the
             parameter set's ``rig.base_quat`` (give the device's :attr:`~twin.device.Device.base_rotation`).
     """
 
     def __init__(self, params: Params, *, gain: float = 0.05, velocity_gain_s: float = 0.0,
-                 period_s: float = 0.025, damping: float = 2e-3, floor_n: float = 1.0, limit_n: float = 5.0,
-                 base_rotation=None):
+                 period_s: float = 0.025, damping: float = 2e-3, floor_n: float | None = None,
+                 limit_n: float | None = None, base_rotation=None):
         if not (gain >= 0 and velocity_gain_s >= 0 and period_s > 0):
             raise ValueError(f"gain = {gain!r}, velocity_gain_s = {velocity_gain_s!r}, period_s = {period_s!r}: "
                              "gains must be >= 0 and the period > 0")
@@ -151,6 +169,9 @@ class TipTrackingController:
         self.base_rotation = params.rig.base_rotation if base_rotation is None else np.asarray(base_rotation, float)
         self.gravity_m_s2 = params.environment.gravity_m_s2
         self.gain, self.velocity_gain_s, self.period_s = gain, velocity_gain_s, period_s
+        low, high = default_tension_range_n(params)
+        floor_n = min(1.0, 0.5 * (low + high)) if floor_n is None else floor_n
+        limit_n = high if limit_n is None else limit_n
         self.damping, self.floor_n, self.limit_n = damping, floor_n, limit_n
         self.tensions_n = np.zeros(self.model.tendon_count)
         self._predictor = Predictor(self.model)

@@ -8,7 +8,7 @@ import json
 import time
 from pathlib import Path
 
-from twin.cliargs import add_param_args, count, new_run_folder, params_from_args, robot_name
+from twin.cliargs import UsageError, add_param_args, count, new_run_folder, params_from_args, robot_name
 from twin.device.commands import open_device_arg
 
 __all__ = ["register"]
@@ -36,6 +36,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--device", default="sim://?seed=0", help="device URL (default the twin)")
     p.add_argument("--out", default=None, metavar="DIR",
                    help="report folder (default a new runs/cocontraction-YYYYmmdd-HHMMSS)")
+    p.add_argument("--pair", default=None, metavar="A,B",
+                   help="the antagonistic pair, tendon numbers 1..N: A pulls, B opposes it (default the two "
+                        "tendons furthest apart)")
     add_param_args(p)
     p.set_defaults(func=run_cocontraction)
 
@@ -57,11 +60,23 @@ def run_compensate(args: argparse.Namespace) -> int:
 
 
 def run_cocontraction(args: argparse.Namespace) -> int:
-    from twin.control.cocontraction import run_cocontraction_study
+    from twin.control.cocontraction import antagonistic_pair, run_cocontraction_study
 
     params = params_from_args(args)
+    pair = None
+    if args.pair is not None:
+        try:
+            pair = tuple(int(k) - 1 for k in args.pair.split(","))
+        except ValueError:
+            pair = ()
+        if len(pair) != 2:
+            raise UsageError(f"--pair {args.pair}: expected two tendon numbers, e.g. 1,3")
+    try:
+        pair = antagonistic_pair(params, pair)
+    except ValueError as exc:
+        raise UsageError(f"--pair {args.pair}: {exc}" if args.pair else str(exc)) from None
     with open_device_arg(args.device, params=params, robot=robot_name(args)) as device:
-        study = run_cocontraction_study(device, params)
+        study = run_cocontraction_study(device, params, pair=pair)
     path = study.write_report(Path(args.out or new_run_folder("runs", "cocontraction")))
     print(json.dumps(study.summary(), indent=1))
     print(f"report: {path}")

@@ -15,11 +15,11 @@ in short, a folder with
     config                      configuration number (int), unique per (κ, φ, tip mass, repeat)
     experiment                  ``validation`` / ``stiffness`` / ... (str)
     repeat                      repetition index (int)
-    kappa_cmd_per_m             commanded PCC curvature (1/m)
-    phi_cmd_deg                 commanded bending plane (deg)
+    kappa_cmd_per_m             commanded PCC curvature (1/m); empty with φ for a free pose
+    phi_cmd_deg                 commanded bending plane (deg); empty with κ for a free pose
     tip_mass_kg                 nominal mass hung at the tip (kg)
     tension_1_n … tension_N_n   calibrated tensions at the load cells (N)
-    length_1_m … length_N_m     relative tendon lengths from the encoders (m, + = paid out)
+    length_1_m … length_N_m     relative tendon lengths from the encoders (m, + = paid out), when measured
     tip_x_m, tip_y_m, tip_z_m   tip position, base frame: origin at the base centre, world axes (m)
     tip_qw … tip_qz             tip orientation quaternion (w, x, y, z), world axes, when measured
     time_s                      device time of the measurement (s)
@@ -123,7 +123,8 @@ class TendonGroup:
 # datasets written before it keep reading).
 TENDON_GROUPS = (
     TendonGroup("tensions", "tension_{i}_n", "calibrated tension at the load cell (N)"),
-    TendonGroup("lengths", "length_{i}_m", "relative tendon length from the encoder (m, + = paid out)"),
+    TendonGroup("lengths", "length_{i}_m", "relative tendon length from the encoder (m, + = paid out)",
+                required=False),
     TendonGroup("sliding_state", "slide_{i}", "the tendon friction's sliding state σ followed from the encoder "
                 "(+1 last pulled in … −1 last paid out, 1; twin.effects.SlidingState)", required=False),
 )
@@ -134,8 +135,11 @@ _LEADING_COLUMNS = ("config", "experiment", "repeat", "kappa_cmd_per_m", "phi_cm
 _TRAILING_COLUMNS = ("tip_x_m", "tip_y_m", "tip_z_m", "tip_qw", "tip_qx", "tip_qy", "tip_qz", "time_s")
 # Columns that may be left out of a row (the writer fills in the experiment and repeat 0).
 _DEFAULTED = ("experiment", "repeat")
-# Columns that may be empty (not measured), besides the optional per-tendon groups.
-_NULLABLE = ("tip_qw", "tip_qx", "tip_qy", "tip_qz", "time_s")
+# Columns that may be empty (not measured), besides the optional per-tendon groups. The command
+# (κ, φ) is empty, both cells, for a free pose: one taken off any grid (an imported lab's data).
+_NULLABLE = ("kappa_cmd_per_m", "phi_cmd_deg", "tip_qw", "tip_qx", "tip_qy", "tip_qz", "time_s")
+_COMMAND = ("kappa_cmd_per_m", "phi_cmd_deg")
+_HALF_COMMAND = "has a command κ or φ without the other (a free pose leaves both empty)"
 # Lowest tension (N) a row may report: a slack tendon reads its load cell's noise around zero
 # (millinewtons); a reading further below is a wiring, sign or calibration fault, which a
 # prediction must not quietly read as a slack tendon.
@@ -253,6 +257,26 @@ class Dataset:
         """(rows, N) the friction's sliding state recorded with each row (NaN where not recorded:
         the prediction then guesses it from the lengths, :func:`twin.effects.friction_direction`)."""
         return self.per_tendon("sliding_state")
+
+    @property
+    def free(self) -> np.ndarray:
+        """(rows,) True for a free pose: a row with no commanded (κ, φ) (imported from a lab's data)."""
+        return np.isnan(np.asarray(self.columns["kappa_cmd_per_m"], dtype=float))
+
+    def bends(self) -> tuple[np.ndarray, np.ndarray]:
+        """(κ (rows,) 1/m, φ (rows,) deg) of each row for analyses that group or fit over the bend:
+        the commanded ones, and for a free pose the constant-curvature arc of the robot's length
+        through its measured tip, in the base's body frame (z along the straight backbone):
+        φ = atan2(y, x), κ = 2 atan2(√(x² + y²), z) / L."""
+        kappa = np.asarray(self.columns["kappa_cmd_per_m"], dtype=float).copy()
+        phi = np.asarray(self.columns["phi_cmd_deg"], dtype=float).copy()
+        free = np.isnan(kappa)
+        if free.any():
+            body = self.tip_positions_m[free] @ self.base_rotation  # R^T p per row
+            radial = np.hypot(body[:, 0], body[:, 1])
+            kappa[free] = 2.0 * np.arctan2(radial, body[:, 2]) / self.params.backbone.length_m
+            phi[free] = np.degrees(np.arctan2(body[:, 1], body[:, 0])) % 360.0
+        return kappa, phi
 
     @property
     def tip_positions_m(self) -> np.ndarray:
@@ -549,6 +573,8 @@ class DatasetWriter:
             raise DatasetError(f"row for config {config!r} has unknown column(s) {sorted(unknown)} (a dataset of "
                                f"{layout.tendons} tendons)")
         values = dict(row)
+        if _is_empty(values.get(_COMMAND[0])) != _is_empty(values.get(_COMMAND[1])):
+            raise DatasetError(f"{self.path}: row for config {config!r} {_HALF_COMMAND}; not written")
         values.setdefault("experiment", self.experiment)
         values.setdefault("repeat", 0)
         cells = [self._cell(c, values.get(c), config) for c in layout.columns]
@@ -760,6 +786,10 @@ def _read(folder: str | Path) -> tuple[Dataset, int, tuple[str, ...]]:
             raise DatasetError(f"{csv_path}: row {r} has {len(row)} fields, the header {len(header)}")
         for name in columns:
             columns[name].append(_parse(row[index[name]].strip(), name, csv_path, r, layout))
+    if all(c in columns for c in _COMMAND):
+        for r, (kappa, phi) in enumerate(zip(*(columns[c] for c in _COMMAND)), start=2):
+            if math.isnan(kappa) != math.isnan(phi):
+                raise DatasetError(f"{csv_path}: row {r} {_HALF_COMMAND}")
     complete_bytes = len(data) - len(torn)
     if torn:
         warnings.warn(f"{csv_path}: row {len(lines) + 1} is incomplete (no line end: its write was cut off, "
@@ -779,6 +809,10 @@ def _read(folder: str | Path) -> tuple[Dataset, int, tuple[str, ...]]:
     for name in layout.nullable:
         out.setdefault(name, np.full(n, np.nan))
     return Dataset(out, metadata, folder), complete_bytes, tuple(header)
+
+
+def _is_empty(value: Any) -> bool:
+    return value is None or (isinstance(value, (float, np.floating)) and math.isnan(value))
 
 
 def _fields(line: bytes, path: Path, row: int) -> list[str]:

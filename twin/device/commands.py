@@ -1,4 +1,5 @@
-"""``twin emulate``: the emulated board on a pseudo-terminal, for work without the rig."""
+"""``twin emulate``: the emulated rig — board on a pseudo-terminal, EM tracker over OpenIGTLink,
+automatic fixture — for work without the rig (:class:`twin.device.emulated_rig.EmulatedRig`)."""
 
 from __future__ import annotations
 
@@ -7,7 +8,8 @@ import os
 import sys
 import threading
 
-from twin.cliargs import UsageError, add_param_args, add_pose_args, count, params_from_args, sigterm_event
+from twin.cliargs import (UsageError, add_param_args, add_pose_args, count, params_from_args, pose_overrides,
+                          sigterm_event)
 from twin.live import add_live_argument
 
 __all__ = ["open_device_arg", "register"]
@@ -27,11 +29,19 @@ def open_device_arg(url: str, **kwargs):
 def register(subparsers) -> None:
     p = subparsers.add_parser(
         "emulate",
-        help="run the emulated board (firmware core + MuJoCo twin) on a pseudo-terminal until Ctrl-C or SIGTERM",
+        help="run the emulated rig until Ctrl-C or SIGTERM: the board (firmware core + MuJoCo twin) on a "
+             "pseudo-terminal, its EM tracker over OpenIGTLink and an automatic fixture; prints the device URL",
     )
     p.add_argument("--seed", type=count, default=0, help="sensor-noise seed of the twin")
     p.add_argument("--link", metavar="PATH", default=None,
                    help="also make PATH a symbolic link to the port (stable across replugs); PATH must not exist")
+    p.add_argument("--host", default="127.0.0.1", help="interface the tracker and fixture listen on (default 127.0.0.1)")
+    p.add_argument("--igtl-port", type=int, default=18944,
+                   help="TCP port of the tracker's OpenIGTLink server (default 18944, PLUS's; 0 picks a free one; "
+                        "-1 serves no tracker)")
+    p.add_argument("--fixture-port", type=int, default=18945,
+                   help="TCP port of the automatic fixture (default 18945; 0 picks a free one; -1 none: the host "
+                        "then asks an operator, as on the rig)")
     add_live_argument(p)
     add_pose_args(p)
     add_param_args(p)
@@ -41,8 +51,13 @@ def register(subparsers) -> None:
 def run_emulate(args: argparse.Namespace) -> int:
     """Start the board, print its port and device URL, run in real time until Ctrl-C or SIGTERM."""
     from twin.device.board import TICK_S
-    from twin.device.pty_board import PtyBoard
+    from twin.device.emulated_rig import EmulatedRig
 
+    for name in ("igtl_port", "fixture_port"):
+        if not -1 <= getattr(args, name) < 65536:
+            print(f"twin emulate: --{name.replace('_', '-')} {getattr(args, name)}: expected 0..65535, or -1 for none",
+                  file=sys.stderr)
+            return 2
     if args.link is not None and os.path.lexists(args.link):
         # The link is made by renaming over PATH and removed on exit: an existing file there would be lost.
         print(f"twin emulate: --link {args.link}: already exists; not replacing it (remove it or choose "
@@ -53,14 +68,32 @@ def run_emulate(args: argparse.Namespace) -> int:
     with sigterm_event() as stop:
         params = params_from_args(args)
         try:
-            board = PtyBoard(params, seed=args.seed, link_path=args.link)
+            # A pose given here goes into the URL printed, so that the host runs in the same one.
+            rig = EmulatedRig(params, seed=args.seed, link_path=args.link, host=args.host,
+                              base_rotation=params.rig.base_rotation if pose_overrides(args) else None,
+                              igtl_port=None if args.igtl_port < 0 else args.igtl_port,
+                              fixture_port=None if args.fixture_port < 0 else args.fixture_port)
         except (ValueError, NativeBuildError) as exc:
             # One line: a build error's compiler output is for make to show, not this command.
             print(f"twin emulate: the board cannot start: {_first_line(exc)}", file=sys.stderr)
             return 1
-        with board:
+        rig.board.plug()  # a --link that cannot be made is the command line's one-line OSError
+        try:
+            rig.start()
+        except OSError as exc:
+            print(f"twin emulate: --host {args.host} --igtl-port {args.igtl_port} --fixture-port {args.fixture_port}: "
+                  f"cannot listen: {exc.strerror or exc}", file=sys.stderr)
+            rig.close()
+            return 1
+        board = rig.board
+        with rig:
             print(f"port: {board.port}", flush=True)
-            print(f"url:  {board.url}", flush=True)
+            print(f"url:  {rig.url}", flush=True)
+            if rig.igtl_server is not None:
+                print(f"tracker: OpenIGTLink on {rig.host}:{rig.igtl_server.port} ({', '.join(rig.probe_names)})",
+                      flush=True)
+            if rig.fixture is not None:
+                print(f"fixture: {rig.host}:{rig.fixture.port}", flush=True)
             try:
                 _serve(board, stop, params, args)
             except KeyboardInterrupt:

@@ -299,6 +299,15 @@ class Device:
             self._transport.close()
             raise
         self._info = info
+        if self.tracker is not None and self.clock == "wall":
+            # The first fusion in a process compiles (numba: 1 s to over a minute on a loaded
+            # machine): done here, with the board disabled, not on a run's first tracker reading,
+            # when the silent host let the watchdog stop the enabled board. In simulated time
+            # nothing waits meanwhile.
+            from twin.tracking import compile_fusion
+
+            with self.attended():
+                compile_fusion(self.tracker.calibration)
         return info
 
     def reconnect(self, *, timeout_s: float = 5.0) -> DeviceInfo:
@@ -323,6 +332,9 @@ class Device:
         self._shutdown()
         if self.tracker is not None:
             self.tracker.close()
+        close_fixture = getattr(self.fixture, "close", None)  # a RemoteFixture's connection
+        if close_fixture is not None:
+            close_fixture()
 
     def attended(self) -> ContextManager[None]:
         """A block in which the host waits on purpose for something other than the board, e.g.

@@ -8,7 +8,14 @@ device's backend. Every action returns once the load or clamp is in place and st
 * :class:`SimFixture` (``sim://``) acts on the twin's plant at once, then lets the twin run
   for ``settle_s`` of simulated time.
 * :class:`OperatorFixture` (``serial://``) asks the operator on the console and returns when
-  they press Enter.
+  they press Enter. With no console to answer (stdin at its end) it stops the run with a
+  :class:`FixtureUnavailable`, one line, instead of waiting for nobody.
+* :class:`RemoteFixture` (``serial://…?fixture=host:port``) asks an automatic fixture over TCP:
+  ``twin emulate`` serves one (:class:`twin.device.emulated_rig.FixtureServer`) that does to its
+  twin what :class:`SimFixture` does, so the rig's commands run against the emulated board with
+  no person at hand. The requests are lines of JSON, ``{"action": NAME, "args": [...]}`` with
+  NAME a method of :class:`Fixture` (:data:`ACTIONS`), answered ``{"ok": true}`` once the action
+  is done and settled, or ``{"ok": false, "error": "…"}``.
 
 Channel indices are 0..N-1 as everywhere in the API; messages to the operator say tendon 1..N.
 """
@@ -16,17 +23,30 @@ Channel indices are 0..N-1 as everywhere in the API; messages to the operator sa
 from __future__ import annotations
 
 import abc
+import contextlib
+import json
 import math
-from typing import TYPE_CHECKING, Callable, Iterable
+import socket
+from typing import TYPE_CHECKING, Callable, ContextManager, Iterable
 
 import numpy as np
 
 from twin.device.codec import DEFAULT_CHANNELS
+from twin.device.errors import DeviceError
 
 if TYPE_CHECKING:
     from twin.device.board import EmulatedBoard
 
-__all__ = ["Fixture", "OperatorFixture", "SimFixture"]
+__all__ = ["ACTIONS", "Fixture", "FixtureUnavailable", "OperatorFixture", "RemoteFixture", "SimFixture"]
+
+# The fixture's actions, by method name: what a RemoteFixture may ask of a fixture server.
+ACTIONS = ("hang_tip_mass", "apply_tip_load", "engage_holder", "release_holder", "hang_calibration_mass",
+           "remove_calibration_masses")
+
+
+class FixtureUnavailable(DeviceError):
+    """A fixture action could not be done: no operator answers the prompt (stdin ended), or the
+    automatic fixture cannot be reached or refused the action. The message names the action."""
 
 
 def _check_mass(name: str, value: float) -> float:
@@ -180,4 +200,84 @@ class OperatorFixture(Fixture):
         self._ask("Take all calibration masses off the tendons")
 
     def _ask(self, request: str) -> None:
-        self._prompt(f"{request}, then press Enter: ")
+        try:
+            self._prompt(f"{request}, then press Enter: ")
+        except EOFError:
+            raise FixtureUnavailable(
+                f"no operator to ask (stdin ended) to: {request}; run it on a console, or give the device URL "
+                "fixture=host:port of an automatic fixture (twin emulate serves one)") from None
+
+
+class RemoteFixture(Fixture):
+    """Fixture actions done by an automatic fixture over TCP (``twin emulate``'s).
+
+    Each action is one request on a connection kept open between actions, answered once the
+    fixture has done it and let it settle (``settle_s`` of the board's time, sent along).
+
+    Args:
+        host, port: the fixture server.
+        attended: a context in which the host waits on purpose (:meth:`twin.device.Device.attended`:
+            the board's watchdog is fed meanwhile); none by default.
+        timeout_s: longest wait for one answer (wall s).
+        settle_s: board time each action is given to come to rest (s).
+    """
+
+    def __init__(self, host: str, port: int, *, attended: Callable[[], ContextManager] | None = None,
+                 timeout_s: float = 30.0, settle_s: float = 0.5):
+        self.address = (host, int(port))
+        self._attended = attended
+        self.timeout_s = timeout_s
+        self.settle_s = settle_s
+        self._socket: socket.socket | None = None
+        self._reader = None
+
+    def hang_tip_mass(self, mass_kg: float) -> None:
+        self._do("hang_tip_mass", _check_mass("mass_kg", mass_kg))
+
+    def apply_tip_load(self, force_n=(0.0, 0.0, 0.0), moment_nm=(0.0, 0.0, 0.0)) -> None:
+        force, moment = np.asarray(force_n, dtype=float), np.asarray(moment_nm, dtype=float)
+        if force.shape != (3,) or moment.shape != (3,) or not (np.isfinite(force).all() and np.isfinite(moment).all()):
+            raise ValueError(f"force_n = {force_n!r}, moment_nm = {moment_nm!r}: expected 3 finite numbers each")
+        self._do("apply_tip_load", force.tolist(), moment.tolist())
+
+    def engage_holder(self) -> None:
+        self._do("engage_holder")
+
+    def release_holder(self) -> None:
+        self._do("release_holder")
+
+    def hang_calibration_mass(self, mass_g: float, channels: Iterable[int]) -> None:
+        self._do("hang_calibration_mass", _check_mass("mass_g", mass_g), [int(c) for c in channels])
+
+    def remove_calibration_masses(self) -> None:
+        self._do("remove_calibration_masses")
+
+    def close(self) -> None:
+        if self._socket is not None:
+            self._reader.close()
+            self._socket.close()
+            self._socket = self._reader = None
+
+    def _do(self, action: str, *args) -> None:
+        host, port = self.address
+        where = f"fixture at {host}:{port}"
+        request = (json.dumps({"action": action, "args": list(args), "settle_s": self.settle_s}) + "\n").encode()
+        with self._attended() if self._attended is not None else contextlib.nullcontext():
+            try:
+                if self._socket is None:
+                    self._socket = socket.create_connection(self.address, timeout=self.timeout_s)
+                    self._reader = self._socket.makefile("rb")
+                self._socket.sendall(request)
+                line = self._reader.readline()
+            except OSError as exc:
+                self.close()
+                raise FixtureUnavailable(f"{where}: {action}: {exc.strerror or exc}") from None
+        if not line:
+            self.close()
+            raise FixtureUnavailable(f"{where}: {action}: the fixture closed the connection")
+        try:
+            answer = json.loads(line)
+        except ValueError:
+            answer = {"ok": False, "error": f"not an answer: {line[:80]!r}"}
+        if not answer.get("ok"):
+            raise FixtureUnavailable(f"{where}: {action}: {answer.get('error', 'refused')}")

@@ -12,19 +12,24 @@ port fails), and :meth:`PtyBoard.plug` brings it back powered up afresh on the s
 new pseudo-terminal may get another name, so pass ``link_path`` for a stable name (a symbolic
 link re-pointed on each plug, like udev's ``/dev/serial/by-id`` links) to reconnect to.
 
-Limits: a host on the port gets the rig's operator prompts for fixture actions and no tracker
-(the emulator publishes no OpenIGTLink stream); code in the same process may read
-``board.plant`` as ground truth, bearing in mind the board's thread is stepping it.
+Code in the same process acts on the plant between two ticks through :meth:`PtyBoard.call`
+and follows every tick through :attr:`PtyBoard.tick_hooks` (both run in the board's thread, so
+they never see a half-stepped plant); that is how :class:`twin.device.emulated_rig.EmulatedRig`
+adds the rig's tracker (OpenIGTLink) and an automatic fixture. Reading ``board.plant`` from
+another thread is allowed for display, bearing in mind the board's thread is stepping it.
 """
 
 from __future__ import annotations
 
+import math
 import os
+import queue
 import select
 import threading
 import time
 import tty
 from pathlib import Path
+from typing import Callable
 
 from twin.device.board import TICK_S, EmulatedBoard
 from twin.params import Params
@@ -50,6 +55,8 @@ class PtyBoard:
         ticks: board ticks run so far.
         overruns: times the board fell more than 0.1 s behind the wall clock and skipped ahead.
         tx_dropped_bytes: bytes not written because nobody read the port and its buffer was full.
+        tick_hooks: callables run in the board's thread after every tick (an exception in one
+            stops the board, as :attr:`error`).
         error: what stopped the board's thread (the simulation diverged, say), or None while
             it runs: the port then stays open but silent, as a board that hung.
     """
@@ -73,6 +80,8 @@ class PtyBoard:
         self._thread: threading.Thread | None = None
         self._stop = threading.Event()
         self._powered_before = False
+        self._calls: queue.SimpleQueue = queue.SimpleQueue()
+        self.tick_hooks: list[Callable[[], None]] = []
 
     @property
     def port(self) -> str:
@@ -132,6 +141,40 @@ class PtyBoard:
                 os.readlink(self.link_path) == self._device_path:
             self.link_path.unlink()  # only the link made here: whatever replaced it is not ours to remove
 
+    def call(self, function: Callable[[], object], *, timeout_s: float = 5.0) -> object:
+        """Run ``function()`` in the board's thread between two ticks and return its result (or
+        raise its exception here).
+
+        Raises:
+            RuntimeError: the board is not running (unplugged, or its thread stopped).
+            TimeoutError: the board's thread did not get to it within ``timeout_s`` (wall s).
+        """
+        if not self.plugged or self.error is not None:
+            raise RuntimeError(f"{self.port or 'the emulated board'}: the board is not running")
+        done, box = threading.Event(), {}
+
+        def job():
+            try:
+                box["value"] = function()
+            except Exception as exc:  # noqa: BLE001 - handed to the caller
+                box["error"] = exc
+            finally:
+                done.set()
+
+        self._calls.put(job)
+        if not done.wait(timeout_s):
+            raise TimeoutError(f"{self.port}: the board's thread did not run the call within {timeout_s:g} s")
+        if "error" in box:
+            raise box["error"]
+        return box.get("value")
+
+    def wait_board_s(self, duration_s: float) -> None:
+        """Return once the board has run ``duration_s`` of its own time (whole ticks) from now, or
+        has stopped."""
+        target = self.ticks + math.ceil(duration_s / TICK_S - 1e-9)
+        while self.ticks < target and self.plugged and self.error is None:
+            time.sleep(TICK_S)
+
     def close(self) -> None:
         """Unplug and free the firmware."""
         self.unplug()
@@ -163,6 +206,14 @@ class PtyBoard:
                 continue
             self._write(master, self.board.run_tick())
             self.ticks += 1
+            for hook in self.tick_hooks:
+                hook()
+            while True:
+                try:
+                    job = self._calls.get_nowait()
+                except queue.Empty:
+                    break
+                job()
             next_tick_s += TICK_S
             if now_s - next_tick_s > _MAX_LAG_S:
                 next_tick_s = now_s

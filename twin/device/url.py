@@ -3,9 +3,12 @@ on a pseudo-terminal).
 
 ``sim://[?seed=N][&pose=horizontal|up | &base_quat=W,X,Y,Z]``
     The emulated board (:class:`twin.device.board.EmulatedBoard`) in simulated time.
-``serial://<path>[?igtl=host:port[&igtl_…][&cap_…]][&pose=… | &base_quat=…]``
+``serial://<path>[?igtl=host:port[&igtl_…][&cap_…]][&fixture=host:port][&pose=… | &base_quat=…]``
     A board on a serial port: ``serial:///dev/ttyACM0``, or the pseudo-terminal printed by
-    ``twin emulate``. ``igtl`` names the OpenIGTLink server of the EM tracker (PLUS); without
+    ``twin emulate`` (which prints the whole URL, its tracker and fixture included). ``fixture``
+    names an automatic fixture (:class:`twin.device.fixture.RemoteFixture`; ``twin emulate``
+    serves one) that hangs the masses and clamps the holder; without it the operator is asked
+    on the console. ``igtl`` names the OpenIGTLink server of the EM tracker (PLUS); without
     it ``device.tracker`` is None. With it: ``igtl_probes=Probe1ToTracker,Probe2ToTracker``
     (device names of probes A and B), ``igtl_axis=z`` (tool axis along the probe, e.g. ``-z``),
     ``igtl_scale=mm`` (length unit), ``igtl_clock=auto`` (or the server clock minus ours, s),
@@ -25,7 +28,7 @@ import urllib.parse
 from typing import Callable
 
 from twin.device.device import Device
-from twin.device.fixture import OperatorFixture, SimFixture
+from twin.device.fixture import OperatorFixture, RemoteFixture, SimFixture
 from twin.device.igtl_source import URL_KEYS as IGTL_KEYS
 from twin.device.igtl_source import OpenIGTLinkSource, settings_from_options
 from twin.device.serial_transport import SerialTransport
@@ -40,7 +43,7 @@ __all__ = ["SCHEMES", "open_device"]
 SCHEMES = ("sim", "serial")
 _CAP_KEYS = {"cap_a_mm": "position_a_m", "cap_a_axis": "axis_a", "cap_b_mm": "position_b_m", "cap_b_axis": "axis_b"}
 _QUERY_KEYS = {"sim": ("seed", "pose", "base_quat"),
-               "serial": ("igtl", *IGTL_KEYS, *_CAP_KEYS, "pose", "base_quat")}
+               "serial": ("igtl", *IGTL_KEYS, *_CAP_KEYS, "fixture", "pose", "base_quat")}
 
 
 def _query(url: str, scheme: str, query: str) -> dict[str, str]:
@@ -126,7 +129,11 @@ def open_device(
         with device.attended():
             return prompt(request)
 
-    fixture = OperatorFixture(ask, channels=params.tendons.count)
+    if "fixture" in options:
+        host, port = _host_port(url, options["fixture"], "fixture")
+        fixture = RemoteFixture(host, port, attended=lambda: device.attended())
+    else:
+        fixture = OperatorFixture(ask, channels=params.tendons.count)
     device = Device(SerialTransport(path, url=url), fixture=fixture, tracker=tracker, **device_args)
     return device
 
@@ -158,10 +165,10 @@ def _pose(url: str, options: dict[str, str], params: Params):
     return params.rig.base_rotation
 
 
-def _host_port(url: str, value: str) -> tuple[str, int]:
+def _host_port(url: str, value: str, key: str = "igtl") -> tuple[str, int]:
     host, _, port = value.rpartition(":")
     if not host or not port.isdigit() or not 0 < int(port) < 65536:
-        raise ValueError(f"device URL {url!r}: igtl = {value!r}: expected host:port, e.g. 127.0.0.1:18944")
+        raise ValueError(f"device URL {url!r}: {key} = {value!r}: expected host:port, e.g. 127.0.0.1:18944")
     return host, int(port)
 
 

@@ -32,6 +32,7 @@ import numpy as np
 
 from twin import effects
 from twin.data.dataset import Dataset
+from twin.discrepancy.residuals import grouping_values
 from twin.params import Params
 
 __all__ = ["DESIGNS", "Design", "contenders", "decide", "designs_for"]
@@ -77,11 +78,17 @@ class Design:
 def _groups(dataset: Dataset, count: int = _GROUPS) -> list[tuple[float, float]]:
     """Up to ``count`` bent (κ, φ) groups of the dataset's own rows, the most bent first and the
     planes spread: friction, offsets and tilts all grow with the bend."""
-    kappa = np.asarray(dataset["kappa_cmd_per_m"], dtype=float)
-    phi = np.asarray(dataset["phi_cmd_deg"], dtype=float)
+    kappa, phi = _commands(dataset)
     pairs = sorted({(float(k), float(p)) for k, p in zip(kappa, phi) if k > 0}, key=lambda g: (-g[0], g[1]))
     # An even stride through the list, which runs from the most bent level through its planes.
     return pairs if len(pairs) <= count else pairs[::len(pairs) // count][:count]
+
+
+def _commands(dataset: Dataset) -> tuple[np.ndarray, np.ndarray]:
+    """Each row's (κ 1/m, φ deg) to command again: its own, or for a free pose its arc's
+    (:meth:`Dataset.bends`), rounded to groups (:func:`grouping_values`) so that nearby poses
+    are one configuration."""
+    return grouping_values(dataset, "kappa_cmd_per_m"), grouping_values(dataset, "phi_cmd_deg")
 
 
 def _masses(dataset: Dataset) -> list[float]:
@@ -110,7 +117,7 @@ def _tip_load(dataset: Dataset, params: Params):
 
 def _planes(dataset: Dataset, params: Params):
     # Halfway between neighbouring planes of all the bent rows, not only of the groups re-measured.
-    planes = sorted({float(p) for k, p in zip(dataset["kappa_cmd_per_m"], dataset["phi_cmd_deg"]) if k > 0})
+    planes = sorted({float(p) for k, p in zip(*_commands(dataset)) if k > 0})
     spacing = min(np.diff(planes + [planes[0] + 360.0])) if len(planes) > 1 else 90.0
     return [(k, (p + spacing / 2) % 360.0, m) for k, p, m in _again(dataset)], {}
 

@@ -60,8 +60,12 @@ class NoiseEstimate:
 def configuration_keys(dataset: Dataset) -> np.ndarray:
     """(rows,) integer label per configuration: rows of one experiment with equal κ, φ and tip
     mass share one. The same setpoints in another experiment (a deciding experiment approaches
-    them from the other side, or at another pretension) are another configuration, not a repeat."""
-    table = np.stack([dataset["kappa_cmd_per_m"], dataset["phi_cmd_deg"], dataset["tip_mass_kg"]], axis=1)
+    them from the other side, or at another pretension) are another configuration, not a repeat.
+    A free pose (no command: :attr:`~twin.data.dataset.Dataset.free`) is its config number's: rows
+    of one config number are repeats of one pose."""
+    free = dataset.free
+    kappa = np.where(free, -1.0 - np.asarray(dataset["config"], dtype=float), dataset["kappa_cmd_per_m"])
+    table = np.stack([kappa, np.where(free, 0.0, dataset["phi_cmd_deg"]), dataset["tip_mass_kg"]], axis=1)
     _, experiment = np.unique(np.asarray(dataset["experiment"]), return_inverse=True)
     table = np.concatenate([np.round(table, 9), experiment.reshape(-1, 1)], axis=1)
     _, labels = np.unique(table, axis=0, return_inverse=True)

@@ -59,7 +59,7 @@ def plot_signature(result: DiscrepancyResult, path: Path) -> Path:
     """e_y and e_z (mm) over φ for the held-out rows, before and after, one colour per tip mass."""
     plt = _pyplot()
     d = result.dataset.subset(result.test)
-    phi, mass = d["phi_cmd_deg"], d["tip_mass_kg"]
+    phi, mass = d.bends()[1], d["tip_mass_kg"]
     fig, axes = plt.subplots(2, 2, figsize=(9, 6), sharex=True, sharey="row")
     for col, (label, err) in enumerate((("before", result.errors_before_m), ("after", result.errors_after_m))):
         for row, (axis, name) in enumerate(((1, "e_y"), (2, "e_z"))):

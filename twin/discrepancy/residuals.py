@@ -115,6 +115,29 @@ def structure_test(errors_m: np.ndarray, kappa, phi_deg, mass_kg, noise: NoiseEs
     )
 
 
+# Group widths of free poses in the plane and curvature tables: 30° of plane, and the largest
+# curvature in this many steps.
+_FREE_PLANE_STEP_DEG = 30.0
+_FREE_CURVATURE_STEPS = 5
+
+
+def grouping_values(dataset, column: str) -> np.ndarray:
+    """(rows,) the values of ``column`` to group rows by: the column, except that for
+    ``kappa_cmd_per_m`` and ``phi_cmd_deg`` a free pose takes its arc's (:meth:`Dataset.bends`),
+    rounded to groups (:data:`_FREE_PLANE_STEP_DEG`, :data:`_FREE_CURVATURE_STEPS`)."""
+    values = np.asarray(dataset[column], dtype=float)
+    free = dataset.free
+    if column not in ("kappa_cmd_per_m", "phi_cmd_deg") or not free.any():
+        return values
+    kappa, phi = dataset.bends()
+    if column == "phi_cmd_deg":
+        rounded = np.round(phi / _FREE_PLANE_STEP_DEG) * _FREE_PLANE_STEP_DEG % 360.0
+    else:
+        step = max(float(np.max(kappa)), 1e-9) / _FREE_CURVATURE_STEPS
+        rounded = np.round(np.round(kappa / step) * step, 2)
+    return np.where(free, rounded, values)
+
+
 def thesis_signature(errors_m: np.ndarray, phi_deg) -> dict:
     """The thesis §9.2 pattern in a set of residuals (rows, 3), base frame with gravity along −z.
 
@@ -172,8 +195,10 @@ class ResidualMap:
 
     def by(self, column: str) -> list[dict]:
         """Per value of ``column`` (``phi_cmd_deg``, ``kappa_cmd_per_m``, ``tip_mass_kg``): rows, failures,
-        RMS of |e| and mean error per axis (mm)."""
-        values = self.dataset[column]
+        RMS of |e| and mean error per axis (mm). Free poses (:meth:`twin.data.dataset.Dataset.bends`)
+        join the plane and curvature groups by their arc's values, rounded to 30° and to a fifth of
+        the largest curvature."""
+        values = grouping_values(self.dataset, column)
         out = []
         for v in np.unique(values):
             rows = values == v
@@ -193,17 +218,19 @@ class ResidualMap:
                  "noise_mm": float(self.noise.sigma_m[i] * 1e3)} for i, axis in enumerate(AXES)]
 
     def by_configuration(self) -> list[dict]:
-        """One entry per row: configuration, |e| and e per axis (mm)."""
+        """One entry per row: configuration, |e| and e per axis (mm); a free pose's κ and φ are
+        its arc's (:meth:`twin.data.dataset.Dataset.bends`)."""
         d, err = self.dataset, self.predictions.errors_m * 1e3
-        return [{"config": int(d["config"][i]), "kappa_cmd_per_m": float(d["kappa_cmd_per_m"][i]),
-                 "phi_cmd_deg": float(d["phi_cmd_deg"][i]), "tip_mass_kg": float(d["tip_mass_kg"][i]),
+        kappa, phi = d.bends()
+        return [{"config": int(d["config"][i]), "kappa_cmd_per_m": round(float(kappa[i]), 3),
+                 "phi_cmd_deg": round(float(phi[i]), 2), "tip_mass_kg": float(d["tip_mass_kg"][i]),
                  "converged": bool(self.converged[i]), "error_mm": float(np.linalg.norm(err[i])),
                  "error_x_mm": float(err[i, 0]), "error_y_mm": float(err[i, 1]), "error_z_mm": float(err[i, 2])}
                 for i in range(len(d))]
 
     def signature(self) -> dict:
         """:func:`thesis_signature` of the converged rows."""
-        return thesis_signature(self.errors_m, self.dataset["phi_cmd_deg"][self.converged])
+        return thesis_signature(self.errors_m, self.dataset.bends()[1][self.converged])
 
     def to_dict(self) -> dict:
         return {"rows": len(self.dataset), "failed_predictions": self.predictions.failures, "rms_m": self.rms_m(),
@@ -236,6 +263,6 @@ def find_discrepancy(dataset: Dataset, params: Params | None = None, *, progress
         raise ValueError(f"find_discrepancy: none of the {len(dataset)} rows can be predicted with these parameters")
     if noise is None:
         noise = estimate_noise(dataset, params, predictions.errors_m, ok)
-    structure = structure_test(predictions.errors_m[ok], dataset["kappa_cmd_per_m"][ok], dataset["phi_cmd_deg"][ok],
-                               dataset["tip_mass_kg"][ok], noise)
+    kappa, phi = dataset.bends()
+    structure = structure_test(predictions.errors_m[ok], kappa[ok], phi[ok], dataset["tip_mass_kg"][ok], noise)
     return ResidualMap(dataset, predictions, noise, structure)

@@ -121,17 +121,19 @@ class DiscrepancyResult:
         return self.rms_after_m
 
     def heldout_table(self) -> list[dict]:
-        """Per held-out configuration: its settings and |e| before and after (mm)."""
+        """Per held-out configuration: its settings and |e| before and after (mm); a free pose's κ
+        and φ are its arc's (:meth:`twin.data.dataset.Dataset.bends`)."""
         d = self.dataset.subset(self.test)
+        kappa, phi = d.bends()
         before = np.linalg.norm(self.errors_before_m, axis=1) * 1e3
         after = np.linalg.norm(self.errors_after_m, axis=1) * 1e3
-        return [{"config": int(d["config"][i]), "kappa_cmd_per_m": float(d["kappa_cmd_per_m"][i]),
-                 "phi_cmd_deg": float(d["phi_cmd_deg"][i]), "tip_mass_kg": float(d["tip_mass_kg"][i]),
+        return [{"config": int(d["config"][i]), "kappa_cmd_per_m": round(float(kappa[i]), 3),
+                 "phi_cmd_deg": round(float(phi[i]), 2), "tip_mass_kg": float(d["tip_mass_kg"][i]),
                  "error_before_mm": float(before[i]), "error_after_mm": float(after[i])} for i in range(len(d))]
 
     def signatures(self) -> dict:
         """:func:`thesis_signature` of the held-out residuals before and after."""
-        phi = self.dataset["phi_cmd_deg"][self.test]
+        phi = self.dataset.bends()[1][self.test]
         return {"before": thesis_signature(self.errors_before_m, phi),
                 "after": thesis_signature(self.errors_after_m, phi)}
 

@@ -139,15 +139,26 @@ class TendonFriction:
 
     max_step_s = FRICTION_MAX_STEP_S
 
-    def __init__(self, model, coeff: float, spool_dofs: np.ndarray, sites: np.ndarray):
+    def __init__(self, model, coeff: float, spool_dofs: np.ndarray, sites: np.ndarray, passed=None):
         """Args:
             model: the compiled twin (``mujoco.MjModel``).
             coeff: μ per radian of wrap.
             spool_dofs: (n,) dof index of each spool.
             sites: (n, S) site ids along each tendon's path, spool first, tip last.
+            passed: (n,) how many of its S sites each tendon passes up to its anchor (default all):
+                a tendon of a proximal segment ends before the tip, and the sites beyond its
+                anchor carry none of its friction.
         """
         self.coeff = float(coeff)
-        self._sites = np.asarray(sites)
+        sites = np.array(sites)
+        count = sites.shape[1] if passed is None else np.asarray(passed, dtype=int)
+        # Segment k (site k → k + 1) is the tendon's while k + 1 < its count; the sites beyond its
+        # anchor repeat the anchor so that the arrays stay rectangular.
+        self._segment = np.arange(sites.shape[1] - 1)[None, :] + 1 < np.broadcast_to(count, (len(sites),))[:, None]
+        last = np.broadcast_to(count, (len(sites),)) - 1
+        beyond = np.arange(sites.shape[1])[None, :] > last[:, None]
+        sites[beyond] = np.broadcast_to(sites[np.arange(len(sites)), last][:, None], sites.shape)[beyond]
+        self._sites = sites
         self._bodies = model.site_bodyid[self._sites]
         self._own_bodies = np.unique(self._bodies)
         self._spool_dofs = np.asarray(spool_dofs)
@@ -155,10 +166,11 @@ class TendonFriction:
         self._tension_n: np.ndarray | None = None
 
     @classmethod
-    def in_model(cls, model, coeff: float, tendons: int) -> "TendonFriction":
+    def in_model(cls, model, coeff: float, tendons: int, passed=None) -> "TendonFriction":
         """The friction of the ``tendons`` tendons of a twin built by :mod:`twin.sim.model`,
         found by the names it gives them: spool joint and site ``spool{i}``, base hole
-        ``hole{i}``, then sites ``t{i}_s1`` … towards the tip."""
+        ``hole{i}``, then sites ``t{i}_s1`` … towards the tip; ``passed`` (n,) the number of
+        ``t{i}_s…`` sites up to each tendon's anchor (default all)."""
         names = {model.site(k).name for k in range(model.nsite)}
         along = 0
         while f"t0_s{along + 1}" in names:
@@ -166,7 +178,7 @@ class TendonFriction:
         sites = [[model.site(f"spool{i}").id, model.site(f"hole{i}").id]
                  + [model.site(f"t{i}_s{j}").id for j in range(1, along + 1)] for i in range(tendons)]
         dofs = [model.jnt_dofadr[model.joint(f"spool{i}").id] for i in range(tendons)]
-        return cls(model, coeff, np.array(dofs), np.array(sites))
+        return cls(model, coeff, np.array(dofs), np.array(sites), None if passed is None else np.asarray(passed) + 2)
 
     def reset(self) -> None:
         self.state[:] = 0.0
@@ -178,7 +190,8 @@ class TendonFriction:
         self.state = slide(self.state, pull_speed * model.opt.timestep)
         p = data.site_xpos[self._sites]                          # (n, S, 3)
         seg = np.diff(p, axis=1)
-        u = seg / np.linalg.norm(seg, axis=2, keepdims=True)      # (n, S-1, 3)
+        norm = np.linalg.norm(seg, axis=2, keepdims=True)
+        u = np.divide(seg, norm, out=np.zeros_like(seg), where=self._segment[:, :, None])  # (n, S-1, 3)
         cos = np.clip(np.einsum("nkj,nkj->nk", u[:, :-1], u[:, 1:]), -1.0, 1.0)
         wrap = np.cumsum(np.arccos(cos), axis=1)                  # at sites 1 .. S-2
         tension = np.asarray(spool_tensions_n, dtype=float)
@@ -190,7 +203,7 @@ class TendonFriction:
         t0 = self._tension_n[:, None]
         decay = np.exp(-self.state[:, None] * self.coeff * wrap)
         excess = np.concatenate([np.zeros_like(t0), t0 * (decay - 1.0)], axis=1)  # T_k − T₀
-        pulls = excess[:, :, None] * u                            # per segment
+        pulls = excess[:, :, None] * u                            # per segment (none beyond an anchor)
         force = np.zeros_like(p)
         force[:, 1:] -= pulls                                     # towards the previous site
         force[:, :-1] += pulls                                    # towards the next site
@@ -217,6 +230,25 @@ def friction_direction(relative_lengths_m, sense: float = 1.0, sliding_state=Non
     return sense * np.where(lengths > 0, -1.0, 1.0)
 
 
+def _sites_to_anchor(model, params: Params) -> np.ndarray:
+    """(n,) how many of the sites ``t{i}_s1`` … each tendon passes up to its anchor
+    (:meth:`Params.tendon_ends_m`): those at an arc length, measured along the clamp's axis in the
+    straight pose (``qpos0``), not beyond the anchor."""
+    import mujoco
+
+    data = mujoco.MjData(model)
+    mujoco.mj_kinematics(model, data)
+    names = {model.site(k).name for k in range(model.nsite)}
+    along = sum(1 for j in range(1, model.nsite + 1) if f"t0_s{j}" in names)
+    passed = []
+    for i, end_m in enumerate(params.tendon_ends_m()):
+        hole = model.site(f"hole{i}").id
+        axis = data.xmat[model.site_bodyid[hole]].reshape(3, 3)[:, 2]
+        s_m = [(data.site_xpos[model.site(f"t{i}_s{j}").id] - data.site_xpos[hole]) @ axis for j in range(1, along + 1)]
+        passed.append(int(np.count_nonzero(np.asarray(s_m) <= end_m + 1e-7)))
+    return np.array(passed)
+
+
 class TendonFrictionEffect(Effect):
     name = "tendon_friction"
     description = ("capstan friction at the disc holes: tension lost towards the tip while pulled, "
@@ -230,10 +262,12 @@ class TendonFrictionEffect(Effect):
 
     def step_hook(self, params: Params, model) -> TendonFriction | None:
         coeff = params.effects.tendon_friction_coeff
-        if coeff > 0 and min(params.tendon_ends_m()) < params.backbone.length_m:
-            raise ValueError("effects.tendon_friction_coeff > 0 with tendons.end_discs before the tip: the twin's "
-                             "friction runs every tendon to the tip; it is not modelled for multi-segment robots")
-        return TendonFriction.in_model(model, coeff, params.tendons.count) if coeff > 0 else None
+        if not coeff > 0:
+            return None
+        passed = None
+        if min(params.tendon_ends_m()) < params.backbone.length_m:
+            passed = _sites_to_anchor(model, params)
+        return TendonFriction.in_model(model, coeff, params.tendons.count, passed)
 
     def candidate(self, params: Params) -> Candidate:
         coeff = FitParameter("effects.tendon_friction_coeff", log=True, bounds=(1e-3, 1.0))
@@ -242,8 +276,6 @@ class TendonFrictionEffect(Effect):
                                    {"effects.tendon_friction_direction": -1.0}))
 
     def dynamic_candidate(self, params: Params) -> FitParameter | None:
-        if min(params.tendon_ends_m()) < params.backbone.length_m:
-            return None  # the twin's friction is not modelled for multi-segment robots (step_hook)
         return FitParameter("effects.tendon_friction_coeff", log=True, scale=0.05, bounds=(1e-3, 1.0))
 
 
