@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import math
 import time
 
 import numpy as np
@@ -73,9 +74,6 @@ class ConvergenceError(RuntimeError):
         self.trace = trace
 
 
-_EYE3 = np.eye(3)
-
-
 @dataclasses.dataclass(frozen=True)
 class LoadCase:
     """What acts on the rod: tendon tensions at the base, tip loads, base pose (all SI, world frame).
@@ -96,23 +94,29 @@ class LoadCase:
     @classmethod
     def make(cls, model: RodModel, tensions_n, *, tip_force_n=None, tip_moment_nm=None,
              base_rotation=None, base_position_m=None, friction_direction=None) -> "LoadCase":
+        # Checked in plain Python floats: a load is a handful of numbers, and numpy's per-call
+        # overhead on them would cost more than the rod's integration.
         nt = model.tendon_count
         tensions = _vector(tensions_n, nt, "tensions_n")
-        if (tensions < 0).any():
+        if any(t < 0 for t in tensions.tolist()):
             raise ValueError(f"tensions_n = {tensions.tolist()}: tendons only pull; tensions must be >= 0")
-        rot = np.eye(3) if base_rotation is None else np.asarray(base_rotation, dtype=float)
-        # Orthonormal to 1e-9 (np.allclose's test, element by element) and proper.
-        if rot.shape != (3, 3) or not (np.abs(rot @ rot.T - _EYE3) <= 1e-9 + 1e-5 * _EYE3).all() \
-                or np.linalg.det(rot) < 0:
-            raise ValueError(f"base_rotation = {rot.tolist()}: must be a proper 3x3 rotation")
-        direction = np.ones(nt) if friction_direction is None else _vector(friction_direction, nt, "friction_direction")
+        if base_rotation is None:
+            rot = np.eye(3)
+        else:
+            rot = np.ascontiguousarray(base_rotation, dtype=float)
+            if rot.shape != (3, 3) or not _is_rotation(rot.tolist()):
+                raise ValueError(f"base_rotation = {rot.tolist()}: must be a proper 3x3 rotation")
+        if friction_direction is None:
+            direction = np.ones(nt)
+        else:
+            direction = np.clip(_vector(friction_direction, nt, "friction_direction"), -1.0, 1.0)
         return cls(
             tensions_n=tensions,
             tip_force_n=np.zeros(3) if tip_force_n is None else _vector(tip_force_n, 3, "tip_force_n"),
             tip_moment_nm=np.zeros(3) if tip_moment_nm is None else _vector(tip_moment_nm, 3, "tip_moment_nm"),
-            base_rotation=np.ascontiguousarray(rot),
+            base_rotation=rot,
             base_position_m=np.zeros(3) if base_position_m is None else _vector(base_position_m, 3, "base_position_m"),
-            friction_direction=np.clip(direction, -1.0, 1.0),
+            friction_direction=direction,
         )
 
     def scaled(self, factor: float) -> "LoadCase":
@@ -124,9 +128,23 @@ class LoadCase:
 
 def _vector(value, n, name) -> np.ndarray:
     arr = np.asarray(value, dtype=float).reshape(-1)
-    if arr.size != n or not np.isfinite(arr).all():
+    if arr.size != n or not all(map(math.isfinite, arr.tolist())):
         raise ValueError(f"{name} = {np.asarray(value).tolist()!r}: expected {n} finite numbers")
     return arr
+
+
+def _is_rotation(r: list[list[float]]) -> bool:
+    """Orthonormal to 1e-9 (np.allclose's test, element by element: 1e-9 + 1e-5 on the diagonal)
+    and proper (determinant > 0), for a 3×3 given as nested lists."""
+    for i in range(3):
+        for j in range(i, 3):
+            dot = r[i][0] * r[j][0] + r[i][1] * r[j][1] + r[i][2] * r[j][2]
+            if not abs(dot - (i == j)) <= 1e-9 + 1e-5 * (i == j):
+                return False
+    a, b, c = r
+    det = (a[0] * (b[1] * c[2] - b[2] * c[1]) - a[1] * (b[0] * c[2] - b[2] * c[0])
+           + a[2] * (b[0] * c[1] - b[1] * c[0]))
+    return det > 0
 
 
 @dataclasses.dataclass(frozen=True)
@@ -240,17 +258,16 @@ def _run(model: RodModel, rod: RodInputs, m0: np.ndarray, states, strains, log: 
 def _initial_guess(model: RodModel, load: LoadCase) -> np.ndarray:
     """Base moment of the straight rod: the tendon moments plus the moment of the loads about the base."""
     rot = load.base_rotation
-    m = np.zeros(3)
-    for t, tau in zip(model.tendons, load.tensions_n):
-        a = np.radians(t.angle_deg)
-        r = t.radius_m * np.array([np.cos(a), np.sin(a), 0.0])
-        m += rot @ np.cross(r, tau * np.array([0.0, 0.0, 1.0]))
+    # Σ r_i × τ_i e_z in the body frame, r_i = ρ_i (cos α_i, sin α_i, 0).
+    table = model.arrays["tendons"]
+    lever = table[:, kernel.T_R0] * load.tensions_n
+    m = rot @ np.array([float(lever @ np.sin(table[:, kernel.T_ALPHA])),
+                        -float(lever @ np.cos(table[:, kernel.T_ALPHA])), 0.0])
     axis = rot[:, 2]
+    # The weight's moment: axis × g times its first moment about the base, Σ s m.
+    first_moment = model.line_mass_kg_per_m * model.length_m ** 2 / 2 + sum(s * mass for s, mass in model.point_masses)
     g = np.array([0.0, 0.0, -model.gravity_m_s2])
-    m += np.cross(axis * model.length_m, load.tip_force_n) + load.tip_moment_nm
-    m += np.cross(axis * model.length_m / 2, model.line_mass_kg_per_m * model.length_m * g)
-    for s, mass in model.point_masses:
-        m += np.cross(axis * s, mass * g)
+    m += np.cross(axis, model.length_m * load.tip_force_n + first_moment * g) + load.tip_moment_nm
     return m
 
 
