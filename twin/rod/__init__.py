@@ -12,9 +12,10 @@ Example:
 
 from twin.rod.model import RodModel, TendonRoute
 from twin.rod.jacobian import TipJacobian, solve_with_jacobian, tip_jacobian
-from twin.rod.solver import ConvergenceError, LoadCase, NewtonIteration, Predictor, RodSolution, SolverStatus, solve
+from twin.rod.solver import (ConvergenceError, LoadCase, NewtonIteration, Predictor, RodSolution, SolverStatus, solve,
+                             solve_batch)
 
 __all__ = [
     "ConvergenceError", "LoadCase", "NewtonIteration", "Predictor", "RodModel", "RodSolution", "SolverStatus",
-    "TendonRoute", "TipJacobian", "solve", "solve_with_jacobian", "tip_jacobian",
+    "TendonRoute", "TipJacobian", "solve", "solve_batch", "solve_with_jacobian", "tip_jacobian",
 ]

@@ -76,6 +76,7 @@ def tip_jacobian(model: RodModel, solution: RodSolution) -> TipJacobian:
     k = model.stations
     states = np.empty((k, 15 + 2 * nt))
     strains = np.empty((k, 6))
+    strains[0] = solution.strains[0]  # the base strains to start from (kernel.integrate)
     m0 = solution.base_moment_nm
     p_ref = solution.tip_position_m
     r_ref = solution.tip_rotation

@@ -114,7 +114,7 @@ class RodInputs(NamedTuple):
     point_mass_kg: np.ndarray
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _cholesky_solve6(a, b):
     """Solve a x = b for a symmetric positive definite 6×6 ``a`` given by its upper triangle
     (overwritten by its Cholesky factor); x overwrites b. False if ``a`` is not positive definite."""
@@ -144,7 +144,7 @@ def _cholesky_solve6(a, b):
     return True
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _routes(s, mid, tendons, length, trig, routes):
     """The body-frame offsets r_i(s) = (x, y, 0) and their derivatives r_i'(s) = (x', y', 0) of
     the tendons that run through the interval around ``mid``, into ``routes`` rows (x, y, x', y',
@@ -174,7 +174,7 @@ def _routes(s, mid, tendons, length, trig, routes):
         routes[k, 4] = 1.0
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _newton_step(nb, mb, kse, kbt, routes, taus, vu, jac, rhs, w):
     """One Newton step on the constitutive law for (v, u) given body-frame n, m; updates ``vu``.
 
@@ -354,12 +354,15 @@ def _stage(y, s, mid, converge, vu, kse, kbt, tendons, length, mu, tip_force, gr
         q1 = u2 * rx + routes[k, 3] + v1
         q2 = u0 * ry - u1 * rx + v2
         qn = np.sqrt(q0 * q0 + q1 * q1 + q2 * q2)
+        dy[15 + nt + k] = qn
+        if mu == 0.0:
+            dy[15 + k] = 0.0  # the wrap angle only ever scales μ
+            continue
         # Wrap rate |u × t| (tendon direction turning with the backbone).
         c0 = u1 * q2 - u2 * q1
         c1 = u2 * q0 - u0 * q2
         c2 = u0 * q1 - u1 * q0
         dy[15 + k] = np.sqrt(c0 * c0 + c1 * c1 + c2 * c2) / qn
-        dy[15 + nt + k] = qn
     return True
 
 
@@ -374,7 +377,8 @@ def integrate(m0, rod, states, strains):
         m0: base moment m(0) (N·m, world) (3,).
         rod: the :class:`RodInputs`.
         states: output (K+1, 15 + 2 nt) states at the stations.
-        strains: output (K+1, 6) strains (v, u) at the stations.
+        strains: output (K+1, 6) strains (v, u) at the stations; its row 0, if finite, is the
+            starting guess for the base strains (NaN for none).
 
     Returns:
         (ok, residual (3,)) — residual = m(L) − M_e (N·m, world); ok False if a local solve failed.
@@ -400,8 +404,16 @@ def integrate(m0, rod, states, strains):
         for j in range(3):
             y[3 + 3 * i + j] = r0[i, j]
     y[12:15] = m0
-    vu = np.zeros(6)
-    vu[2] = 1.0
+    # The base strains start from the last integration's (``strains[0]``: a shooting solve's
+    # integrations lie close together), or from the straight rod's where it holds none (NaN).
+    vu = np.empty(6)
+    warm = True
+    for i in range(6):
+        vu[i] = strains[0, i]
+        warm = warm and np.isfinite(vu[i])
+    if not warm:
+        vu[:] = 0.0
+        vu[2] = 1.0
     k1 = np.empty(ny)
     k2 = np.empty(ny)
     k3 = np.empty(ny)
@@ -424,7 +436,13 @@ def integrate(m0, rod, states, strains):
     # The base: its strains are station 0's output and the first step's k1.
     if not _stage(y, nodes[0], intervals[0], True, vu, kse, kbt, tendons, length, mu, tip_force, grav, line_mass,
                   pm_s, pm_m, trig, routes, taus, vec[0], vec[1], vec[2], jac, rhs, w, k1):
-        return False, res
+        if not warm:
+            return False, res
+        vu[:] = 0.0
+        vu[2] = 1.0
+        if not _stage(y, nodes[0], intervals[0], True, vu, kse, kbt, tendons, length, mu, tip_force, grav,
+                      line_mass, pm_s, pm_m, trig, routes, taus, vec[0], vec[1], vec[2], jac, rhs, w, k1):
+            return False, res
     strains[0, :] = vu
     # The strains change smoothly within an interval: each step's k2 and k4 start from the last
     # stage's strains moved along the slope between the last two steps' k1 strains. One Newton
@@ -689,3 +707,63 @@ def tip_sensitivities(m0, h_m, h_tau, h_f, p_ref, r_ref, rod, states, strains, d
         for i in range(6):
             dt_dth[i, j] = (pose[i] - pose_0[i]) / h
     return True
+
+
+@njit(cache=True)
+def shoot_batch(rod, tensions, sigma, forces, moments, cold, guesses, guess_jacs, guess_kind, chain, tol_nm, max_iter,
+                fd_step_nm, m0_out, jac_out, states, strains, internal, traces, out):
+    """:func:`shoot` for many load cases of one rod in one compiled call (``twin.rod.solve_batch``).
+
+    Case i sets the tensions ``tensions[i]`` (N), friction directions ``sigma[i]``, tip force
+    ``forces[i]`` (N) and moment ``moments[i]`` (N·m) into ``rod`` (its tendon table and tip
+    arrays are overwritten: give it copies). It starts from ``guesses[i]`` (with ``guess_jacs[i]``
+    when ``guess_kind[i]`` is 2, without when 1); with ``guess_kind[i]`` 0 from the previous
+    case's solution when ``chain`` and that one converged, else from ``cold[i]``. A warm start
+    that fails is retried from ``cold[i]``, as :func:`twin.rod.solve` does.
+
+    Outputs per case: ``m0_out`` (N·m), ``jac_out`` (the final ∂res/∂m0), ``states``,
+    ``strains``, ``internal`` (n(s), N), ``traces[i, run]`` (the two runs' trace rows), and ``out[i]``
+    = (status, residual N·m, iterations, integrations, rows of run 0, rows of run 1, 1.0 if warm-started).
+    """
+    tendons = rod.tendons
+    nt = tendons.shape[0]
+    for i in range(tensions.shape[0]):
+        for k in range(nt):
+            tendons[k, T_TAU] = tensions[i, k]
+            tendons[k, T_SIGMA] = sigma[i, k]
+        for j in range(3):
+            rod.tip_force_n[j] = forces[i, j]
+            rod.tip_moment_nm[j] = moments[i, j]
+        m0 = m0_out[i]
+        jac = jac_out[i]
+        warm = True
+        have_jac = False
+        if guess_kind[i] > 0:
+            m0[:] = guesses[i]
+            if guess_kind[i] == 2:
+                jac[:, :] = guess_jacs[i]
+                have_jac = True
+        elif chain and i > 0 and out[i - 1, 0] == _CONVERGED:
+            m0[:] = m0_out[i - 1]
+            jac[:, :] = jac_out[i - 1]
+            have_jac = True
+        else:
+            m0[:] = cold[i]
+            warm = False
+        code, norm, iters, calls, rows = shoot(m0, rod, states[i], strains[i], tol_nm, max_iter, fd_step_nm, jac,
+                                               have_jac, traces[i, 0])
+        rows2 = 0
+        if code != _CONVERGED and warm:
+            m0[:] = cold[i]
+            code, norm, it2, c2, rows2 = shoot(m0, rod, states[i], strains[i], tol_nm, max_iter, fd_step_nm, jac,
+                                               False, traces[i, 1])
+            iters += it2
+            calls += c2
+        internal_forces(rod, internal[i])
+        out[i, 0] = code
+        out[i, 1] = norm
+        out[i, 2] = iters
+        out[i, 3] = calls
+        out[i, 4] = rows
+        out[i, 5] = rows2
+        out[i, 6] = 1.0 if warm else 0.0

@@ -19,7 +19,7 @@ from twin.rod.kernel import RodInputs, SolverStatus
 from twin.rod.model import RodModel
 
 __all__ = ["ConvergenceError", "NewtonIteration", "RodSolution", "LoadCase", "SolverStatus", "rod_inputs",
-           "solve", "Predictor"]
+           "solve", "solve_batch", "Predictor"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -315,6 +315,7 @@ def _solve_load(model, load, guess_nm, continuation, raise_on_failure, guess_jac
     nt = model.tendon_count
     states = np.empty((k, 15 + 2 * nt))
     strains = np.empty((k, 6))
+    strains[0] = np.nan  # no base strains to start from (kernel.integrate)
     m0 = (_initial_guess(model, load) if guess_nm is None else np.array(guess_nm, dtype=float)).copy()
     log = []
     rod = rod_inputs(model, load)
@@ -374,13 +375,14 @@ def _continuation(model, load, states, strains, log):
 
 
 def _package(model, rod, load, states, strains, m0, converged, status, res, iters, calls, steps, elapsed, jac=None,
-             log=()):
+             log=(), forces=None):
     a = model.arrays
     nt = model.tendon_count
     k = states.shape[0]
     rotations = states[:, 3:12].reshape(k, 3, 3)
     s = a["nodes"]
-    forces = kernel.internal_forces(rod, np.empty((k, 3)))
+    if forces is None:
+        forces = kernel.internal_forces(rod, np.empty((k, 3)))
     wraps = states[:, 15:15 + nt]
     tensions = load.tensions_n[None, :] * np.exp(-model.friction_coeff * load.friction_direction[None, :] * wraps)
     return RodSolution(
@@ -404,6 +406,107 @@ def _package(model, rod, load, states, strains, m0, converged, status, res, iter
         shooting_jacobian=jac,
         trace_log=log,
     )
+
+
+def _rows(value, m, n, name, default=0.0) -> np.ndarray:
+    """``value`` as an (m, n) array of finite numbers: one row per case, or one row for all."""
+    if value is None:
+        return np.full((m, n), default)
+    arr = np.asarray(value, dtype=float)
+    if arr.ndim == 1 and arr.size == n:
+        arr = np.broadcast_to(arr, (m, n))
+    if arr.shape != (m, n) or not np.isfinite(arr).all():
+        raise ValueError(f"{name} = {np.asarray(value).tolist()!r}: expected {n} finite numbers, or {m} rows of them")
+    return np.ascontiguousarray(arr)
+
+
+def solve_batch(model: RodModel, tensions_n, *, tip_force_n=None, tip_moment_nm=None, base_rotation=None,
+                base_position_m=None, friction_direction=None, guesses=None, chain: bool = True,
+                continuation: bool = True, raise_on_failure: bool = True) -> list[RodSolution]:
+    """Solve many load cases of one rod in one compiled call: what :func:`solve` gives for each.
+
+    The cases run one after another inside the kernel (no Python between them); with ``chain``
+    each case without a guess starts from the previous case's converged solution (its base
+    moment and shooting Jacobian), which is what makes neighbouring cases (a sweep, a dataset's
+    rows, a fit's repeated evaluations) cost a few integrations each. A case whose warm start
+    fails is retried cold, and one that still fails goes through :func:`solve`'s continuation.
+
+    Args:
+        model: the rod.
+        tensions_n: (m, nt) tendon tensions at the base (N), one row per case.
+        tip_force_n, tip_moment_nm: (3,) for every case or (m, 3) per case (N, N·m, world frame).
+        base_rotation, base_position_m: the base pose, shared by the cases.
+        friction_direction: (nt,) or (m, nt) sliding states (see :class:`LoadCase`).
+        guesses: None, or one entry per case: a converged :class:`RodSolution` to start from
+            (its base moment and shooting Jacobian), or None for that case.
+        chain: warm-start a case without a guess from the previous case's solution.
+        continuation, raise_on_failure: as for :func:`solve`.
+
+    Returns:
+        One :class:`RodSolution` per case, in order; ``solve_time_s`` is each case's share of the
+        compiled call (wall time) plus its own continuation, if any.
+
+    Raises:
+        ConvergenceError: a case has no solution to tolerance, if ``raise_on_failure``.
+        ValueError: malformed input (names the argument and value).
+    """
+    start = time.perf_counter()
+    nt = model.tendon_count
+    tensions = np.asarray(tensions_n, dtype=float)
+    if tensions.ndim != 2 or tensions.shape[1] != nt or not np.isfinite(tensions).all():
+        raise ValueError(f"tensions_n: expected (cases, {nt}) finite tensions, got shape {tensions.shape}")
+    if (tensions < 0).any():
+        raise ValueError(f"tensions_n: tendons only pull; tensions must be >= 0 (min {tensions.min()!r})")
+    m = tensions.shape[0]
+    forces = _rows(tip_force_n, m, 3, "tip_force_n")
+    moments = _rows(tip_moment_nm, m, 3, "tip_moment_nm")
+    sigma = np.clip(_rows(friction_direction, m, nt, "friction_direction", default=1.0), -1.0, 1.0)
+    if guesses is not None and len(guesses) != m:
+        raise ValueError(f"guesses: expected {m} entries (a RodSolution or None each), got {len(guesses)}")
+    pose = LoadCase.make(model, tensions[0] if m else np.zeros(nt), base_rotation=base_rotation,
+                         base_position_m=base_position_m)
+    loads = [LoadCase(tensions_n=tensions[i], tip_force_n=forces[i], tip_moment_nm=moments[i],
+                      base_rotation=pose.base_rotation, base_position_m=pose.base_position_m,
+                      friction_direction=sigma[i]) for i in range(m)]
+    cold = np.array([_initial_guess(model, load) for load in loads]).reshape(m, 3)
+    guess_m0 = np.zeros((m, 3))
+    guess_jac = np.zeros((m, 3, 3))
+    kind = np.zeros(m, dtype=np.int64)
+    for i, guess in enumerate(guesses or ()):
+        if guess is not None and guess.converged:
+            guess_m0[i] = guess.base_moment_nm
+            kind[i] = 1
+            if guess.shooting_jacobian is not None:
+                guess_jac[i] = guess.shooting_jacobian
+                kind[i] = 2
+    k = model.stations
+    states = np.empty((m, k, 15 + 2 * nt))
+    strains = np.empty((m, k, 6))
+    strains[:, 0] = np.nan  # no base strains to start from (kernel.integrate)
+    internal = np.empty((m, k, 3))
+    m0 = np.empty((m, 3))
+    jac = np.zeros((m, 3, 3))
+    traces = np.empty((m, 2, model.max_iterations + 1, kernel.TRACE_COLUMNS))
+    out = np.zeros((m, 7))
+    rod = rod_inputs(model, pose)._replace(tip_force_n=np.zeros(3), tip_moment_nm=np.zeros(3))
+    kernel.shoot_batch(rod, tensions, sigma, forces, moments, cold, guess_m0, guess_jac, kind, chain,
+                       model.tolerance * model.moment_scale_nm, model.max_iterations,
+                       1e-7 * model.moment_scale_nm, m0, jac, states, strains, internal, traces, out)
+    share = (time.perf_counter() - start) / max(m, 1)
+    solutions = []
+    for i in range(m):
+        code = int(out[i, 0])
+        if code != 0:
+            sol = _solve_load(model, loads[i], None, continuation, raise_on_failure)
+            solutions.append(dataclasses.replace(sol, solve_time_s=sol.solve_time_s + share))
+            continue
+        log = [(1.0, traces[i, 0, :int(out[i, 4])])]
+        if out[i, 5]:
+            log.append((1.0, traces[i, 1, :int(out[i, 5])]))
+        solutions.append(_package(model, None, loads[i], states[i], strains[i], m0[i], True, SolverStatus.CONVERGED,
+                                  float(out[i, 1]), int(out[i, 2]), int(out[i, 3]), 0, share, jac[i], tuple(log),
+                                  forces=internal[i]))
+    return solutions
 
 
 class Predictor:
