@@ -275,19 +275,6 @@ def _internal_force(s, mid, length, tip_force, grav, line_mass, pm_s, pm_m, n):
     return n
 
 
-@njit(cache=True)
-def internal_forces(rod, out):
-    """n(s) at every station (N, world) into ``out`` (K+1, 3): :func:`_internal_force` with each
-    station's interval (the last station takes the last interval's)."""
-    nodes = rod.nodes
-    intervals = rod.intervals
-    last = intervals.shape[0] - 1
-    for k in range(nodes.shape[0]):
-        _internal_force(nodes[k], intervals[min(k, last)], rod.length_m, rod.tip_force_n, rod.gravity_m_s2,
-                        rod.line_mass_kg_per_m, rod.point_mass_s_m, rod.point_mass_kg, out[k])
-    return out
-
-
 # The stage takes the fields it uses, not a RodInputs: it runs at every RK4 stage, and a
 # RodInputs argument would hand it all of its arrays each time.
 @njit(cache=True)
@@ -711,7 +698,7 @@ def tip_sensitivities(m0, h_m, h_tau, h_f, p_ref, r_ref, rod, states, strains, d
 
 @njit(cache=True)
 def shoot_batch(rod, tensions, sigma, forces, moments, cold, guesses, guess_jacs, guess_kind, chain, tol_nm, max_iter,
-                fd_step_nm, m0_out, jac_out, states, strains, internal, traces, out):
+                fd_step_nm, m0_out, jac_out, states, strains, traces, out):
     """:func:`shoot` for many load cases of one rod in one compiled call (``twin.rod.solve_batch``).
 
     Case i sets the tensions ``tensions[i]`` (N), friction directions ``sigma[i]``, tip force
@@ -722,7 +709,7 @@ def shoot_batch(rod, tensions, sigma, forces, moments, cold, guesses, guess_jacs
     that fails is retried from ``cold[i]``, as :func:`twin.rod.solve` does.
 
     Outputs per case: ``m0_out`` (N·m), ``jac_out`` (the final ∂res/∂m0), ``states``,
-    ``strains``, ``internal`` (n(s), N), ``traces[i, run]`` (the two runs' trace rows), and ``out[i]``
+    ``strains``, ``traces[i, run]`` (the two runs' trace rows), and ``out[i]``
     = (status, residual N·m, iterations, integrations, rows of run 0, rows of run 1, 1.0 if warm-started).
     """
     tendons = rod.tendons
@@ -759,7 +746,6 @@ def shoot_batch(rod, tensions, sigma, forces, moments, cold, guesses, guess_jacs
                                                False, traces[i, 1])
             iters += it2
             calls += c2
-        internal_forces(rod, internal[i])
         out[i, 0] = code
         out[i, 1] = norm
         out[i, 2] = iters

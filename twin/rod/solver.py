@@ -257,18 +257,23 @@ def _run(model: RodModel, rod: RodInputs, m0: np.ndarray, states, strains, log: 
 
 def _initial_guess(model: RodModel, load: LoadCase) -> np.ndarray:
     """Base moment of the straight rod: the tendon moments plus the moment of the loads about the base."""
-    rot = load.base_rotation
+    return _initial_guesses(model, load.base_rotation, load.tensions_n[None], load.tip_force_n[None],
+                            load.tip_moment_nm[None])[0]
+
+
+def _initial_guesses(model: RodModel, rotation: np.ndarray, tensions_n: np.ndarray, tip_force_n: np.ndarray,
+                     tip_moment_nm: np.ndarray) -> np.ndarray:
+    """:func:`_initial_guess` for m load cases at once: (m, nt) tensions, (m, 3) tip force and moment."""
     # Σ r_i × τ_i e_z in the body frame, r_i = ρ_i (cos α_i, sin α_i, 0).
     table = model.arrays["tendons"]
-    lever = table[:, kernel.T_R0] * load.tensions_n
-    m = rot @ np.array([float(lever @ np.sin(table[:, kernel.T_ALPHA])),
-                        -float(lever @ np.cos(table[:, kernel.T_ALPHA])), 0.0])
-    axis = rot[:, 2]
+    lever = tensions_n * table[:, kernel.T_R0]
+    body = np.stack([lever @ np.sin(table[:, kernel.T_ALPHA]), -(lever @ np.cos(table[:, kernel.T_ALPHA])),
+                     np.zeros(len(tensions_n))], axis=1)
+    axis = rotation[:, 2]
     # The weight's moment: axis × g times its first moment about the base, Σ s m.
     first_moment = model.line_mass_kg_per_m * model.length_m ** 2 / 2 + sum(s * mass for s, mass in model.point_masses)
     g = np.array([0.0, 0.0, -model.gravity_m_s2])
-    m += np.cross(axis, model.length_m * load.tip_force_n + first_moment * g) + load.tip_moment_nm
-    return m
+    return body @ rotation.T + np.cross(axis, model.length_m * tip_force_n + first_moment * g) + tip_moment_nm
 
 
 def solve(model: RodModel, tensions_n, *, tip_force_n=None, tip_moment_nm=None, base_rotation=None,
@@ -340,7 +345,7 @@ def _solve_load(model, load, guess_nm, continuation, raise_on_failure, guess_jac
             )
         states[:] = np.nan
         strains[:] = np.nan
-    return _package(model, rod, load, states, strains, m0, code == 0, status, float(res), iters, calls,
+    return _package(model, load, states, strains, m0, code == 0, status, float(res), iters, calls,
                     steps_taken, elapsed, jac if code == 0 else None, tuple(log))
 
 
@@ -374,25 +379,25 @@ def _continuation(model, load, states, strains, log):
     return 0, res, iters, calls, steps, m0, jac
 
 
-def _package(model, rod, load, states, strains, m0, converged, status, res, iters, calls, steps, elapsed, jac=None,
-             log=(), forces=None):
+def _package(model, load, states, strains, m0, converged, status, res, iters, calls, steps, elapsed, jac=None, log=()):
+    # ``states`` and ``strains`` belong to this solve alone: the solution keeps views of them.
     a = model.arrays
     nt = model.tendon_count
     k = states.shape[0]
-    rotations = states[:, 3:12].reshape(k, 3, 3)
-    s = a["nodes"]
-    if forces is None:
-        forces = kernel.internal_forces(rod, np.empty((k, 3)))
-    wraps = states[:, 15:15 + nt]
-    tensions = load.tensions_n[None, :] * np.exp(-model.friction_coeff * load.friction_direction[None, :] * wraps)
+    # n(s) = F_e + (weight distal to s) g.
+    forces = load.tip_force_n + a["distal_mass_kg"][:, None] * a["grav"]
+    if model.friction_coeff:
+        tensions = load.tensions_n * np.exp(-model.friction_coeff * load.friction_direction * states[:, 15:15 + nt])
+    else:
+        tensions = np.tile(load.tensions_n, (k, 1))
     return RodSolution(
-        s_m=s.copy(),
-        positions_m=states[:, 0:3].copy(),
-        rotations=rotations.copy(),
+        s_m=a["nodes"].copy(),
+        positions_m=states[:, 0:3],
+        rotations=states[:, 3:12].reshape(k, 3, 3),
         internal_force_n=forces,
-        internal_moment_nm=states[:, 12:15].copy(),
-        strains=strains.copy(),
-        tendon_lengths_m=states[-1, 15 + nt:15 + 2 * nt].copy(),
+        internal_moment_nm=states[:, 12:15],
+        strains=strains,
+        tendon_lengths_m=states[-1, 15 + nt:15 + 2 * nt],
         tendon_tensions_n=tensions,
         base_moment_nm=m0.copy(),
         converged=converged,
@@ -468,7 +473,7 @@ def solve_batch(model: RodModel, tensions_n, *, tip_force_n=None, tip_moment_nm=
     loads = [LoadCase(tensions_n=tensions[i], tip_force_n=forces[i], tip_moment_nm=moments[i],
                       base_rotation=pose.base_rotation, base_position_m=pose.base_position_m,
                       friction_direction=sigma[i]) for i in range(m)]
-    cold = np.array([_initial_guess(model, load) for load in loads]).reshape(m, 3)
+    cold = _initial_guesses(model, pose.base_rotation, tensions, forces, moments)
     guess_m0 = np.zeros((m, 3))
     guess_jac = np.zeros((m, 3, 3))
     kind = np.zeros(m, dtype=np.int64)
@@ -483,7 +488,6 @@ def solve_batch(model: RodModel, tensions_n, *, tip_force_n=None, tip_moment_nm=
     states = np.empty((m, k, 15 + 2 * nt))
     strains = np.empty((m, k, 6))
     strains[:, 0] = np.nan  # no base strains to start from (kernel.integrate)
-    internal = np.empty((m, k, 3))
     m0 = np.empty((m, 3))
     jac = np.zeros((m, 3, 3))
     traces = np.empty((m, 2, model.max_iterations + 1, kernel.TRACE_COLUMNS))
@@ -491,7 +495,7 @@ def solve_batch(model: RodModel, tensions_n, *, tip_force_n=None, tip_moment_nm=
     rod = rod_inputs(model, pose)._replace(tip_force_n=np.zeros(3), tip_moment_nm=np.zeros(3))
     kernel.shoot_batch(rod, tensions, sigma, forces, moments, cold, guess_m0, guess_jac, kind, chain,
                        model.tolerance * model.moment_scale_nm, model.max_iterations,
-                       1e-7 * model.moment_scale_nm, m0, jac, states, strains, internal, traces, out)
+                       1e-7 * model.moment_scale_nm, m0, jac, states, strains, traces, out)
     share = (time.perf_counter() - start) / max(m, 1)
     solutions = []
     for i in range(m):
@@ -503,9 +507,8 @@ def solve_batch(model: RodModel, tensions_n, *, tip_force_n=None, tip_moment_nm=
         log = [(1.0, traces[i, 0, :int(out[i, 4])])]
         if out[i, 5]:
             log.append((1.0, traces[i, 1, :int(out[i, 5])]))
-        solutions.append(_package(model, None, loads[i], states[i], strains[i], m0[i], True, SolverStatus.CONVERGED,
-                                  float(out[i, 1]), int(out[i, 2]), int(out[i, 3]), 0, share, jac[i], tuple(log),
-                                  forces=internal[i]))
+        solutions.append(_package(model, loads[i], states[i], strains[i], m0[i], True, SolverStatus.CONVERGED,
+                                  float(out[i, 1]), int(out[i, 2]), int(out[i, 3]), 0, share, jac[i], tuple(log)))
     return solutions
 
 
