@@ -631,11 +631,11 @@ def _tip_change(states, p_ref, r_ref, out):
 @njit(cache=True)
 def tip_sensitivities(m0, h_m, h_tau, h_f, p_ref, r_ref, rod, states, strains, dr_dm, dt_dm, dr_dth, dt_dth):
     """The partial derivatives twin.rod.jacobian.tip_jacobian combines, from single integrations
-    at the converged base moment m0 (7 + nt + 3 of them, in one compiled call).
+    at the converged base moment m0 (4 + nt + 3 of them, in one compiled call).
 
-    ∂r/∂m0 (3, 3) and ∂T/∂m0 (6, 3) by central differences of step ``h_m`` (N·m); ∂r/∂θ and ∂T/∂θ
-    for θ = each tension (step ``h_tau``, N) then each tip force component (``h_f``, N) by forward
-    differences against an integration at m0, written into the first nt + 3 columns of
+    ∂r/∂m0 (3, 3) and ∂T/∂m0 (6, 3) (step ``h_m``, N·m), ∂r/∂θ and ∂T/∂θ for θ = each tension
+    (step ``h_tau``, N) then each tip force component (``h_f``, N), all by forward differences
+    against an integration at m0, written into the first nt + 3 columns of
     ``dr_dth`` (3, ·) and ``dt_dth`` (6, ·). T is the tip pose change against (p_ref, r_ref):
     position (m) and rotation vector (rad). ``rod.tendons`` and ``rod.tip_force_n`` are perturbed
     in place and restored.
@@ -648,9 +648,12 @@ def tip_sensitivities(m0, h_m, h_tau, h_f, p_ref, r_ref, rod, states, strains, d
     nt = tendons.shape[0]
     trial = np.empty(3)
     pose_p = np.empty(6)
-    pose_m = np.empty(6)
     pose_0 = np.empty(6)
     pose = np.empty(6)
+    ok, res_0 = integrate(m0, rod, states, strains)
+    if not ok:
+        return False
+    _tip_change(states, p_ref, r_ref, pose_0)
     for j in range(3):
         for i in range(3):
             trial[i] = m0[i]
@@ -659,19 +662,10 @@ def tip_sensitivities(m0, h_m, h_tau, h_f, p_ref, r_ref, rod, states, strains, d
         if not ok:
             return False
         _tip_change(states, p_ref, r_ref, pose_p)
-        trial[j] = m0[j] - h_m
-        ok, res_m = integrate(trial, rod, states, strains)
-        if not ok:
-            return False
-        _tip_change(states, p_ref, r_ref, pose_m)
         for i in range(3):
-            dr_dm[i, j] = (res_p[i] - res_m[i]) / (2 * h_m)
+            dr_dm[i, j] = (res_p[i] - res_0[i]) / h_m
         for i in range(6):
-            dt_dm[i, j] = (pose_p[i] - pose_m[i]) / (2 * h_m)
-    ok, res_0 = integrate(m0, rod, states, strains)
-    if not ok:
-        return False
-    _tip_change(states, p_ref, r_ref, pose_0)
+            dt_dm[i, j] = (pose_p[i] - pose_0[i]) / h_m
     for j in range(nt + 3):
         if j < nt:
             h = h_tau

@@ -104,7 +104,7 @@ class LoadCase:
             rot = np.eye(3)
         else:
             rot = np.ascontiguousarray(base_rotation, dtype=float)
-            if rot.shape != (3, 3) or not _is_rotation(rot.tolist()):
+            if rot.shape != (3, 3) or not (rot.tobytes() in _ROTATIONS or _is_rotation(rot.tolist())):
                 raise ValueError(f"base_rotation = {rot.tolist()}: must be a proper 3x3 rotation")
         if friction_direction is None:
             direction = np.ones(nt)
@@ -133,9 +133,14 @@ def _vector(value, n, name) -> np.ndarray:
     return arr
 
 
+# The bytes of base rotations already found proper (a stream passes the same one every time);
+# bounded, since a caller may pass a new rotation with every solve.
+_ROTATIONS: set[bytes] = set()
+
+
 def _is_rotation(r: list[list[float]]) -> bool:
     """Orthonormal to 1e-9 (np.allclose's test, element by element: 1e-9 + 1e-5 on the diagonal)
-    and proper (determinant > 0), for a 3×3 given as nested lists."""
+    and proper (determinant > 0), for a 3×3 given as nested lists; remembered in ``_ROTATIONS``."""
     for i in range(3):
         for j in range(i, 3):
             dot = r[i][0] * r[j][0] + r[i][1] * r[j][1] + r[i][2] * r[j][2]
@@ -144,7 +149,11 @@ def _is_rotation(r: list[list[float]]) -> bool:
     a, b, c = r
     det = (a[0] * (b[1] * c[2] - b[2] * c[1]) - a[1] * (b[0] * c[2] - b[2] * c[0])
            + a[2] * (b[0] * c[1] - b[1] * c[0]))
-    return det > 0
+    if not det > 0:
+        return False
+    if len(_ROTATIONS) < 64:
+        _ROTATIONS.add(np.array(r, dtype=float).tobytes())
+    return True
 
 
 @dataclasses.dataclass(frozen=True)
@@ -389,7 +398,7 @@ def _package(model, load, states, strains, m0, converged, status, res, iters, ca
     if model.friction_coeff:
         tensions = load.tensions_n * np.exp(-model.friction_coeff * load.friction_direction * states[:, 15:15 + nt])
     else:
-        tensions = np.tile(load.tensions_n, (k, 1))
+        tensions = np.broadcast_to(load.tensions_n, (k, nt))  # constant along s: a read-only view
     return RodSolution(
         s_m=a["nodes"].copy(),
         positions_m=states[:, 0:3],
