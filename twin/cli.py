@@ -2,15 +2,21 @@
 
 Subcommands live beside the code they drive: each module in ``COMMAND_MODULES`` has a
 ``register(subparsers)`` that adds its parsers and sets ``func`` (returns an exit code).
+
+Only the module of the command being run is imported: the others' command names and one-line
+helps are read from their sources (the ``add_parser`` calls of their ``register``), so ``twin
+--help`` and ``twin CMD --help`` load neither MuJoCo nor Numba unless CMD's own module does.
 """
 
 from __future__ import annotations
 
 import argparse
+import ast
 import importlib
 import os
 import sys
 import warnings
+from pathlib import Path
 
 from twin.cliargs import UsageError, values_as_arguments
 from twin.data.dataset import DatasetError, DatasetWarning
@@ -41,15 +47,58 @@ class _Parser(argparse.ArgumentParser):
         self.exit(2, f"{self.prog}: {message} (see {self.prog} --help)\n")
 
 
-def build_parser() -> argparse.ArgumentParser:
+def build_parser(argv: list[str] | None = None) -> argparse.ArgumentParser:
+    """The ``twin`` parser for the command line ``argv``: only the module of the command it names is
+    imported and registers its parsers, the other commands stand in by name and help. Without
+    ``argv`` (or when its command is not found in the sources), every module registers."""
     parser = _Parser(
         prog="twin",
         description="Digital twin of a tendon-driven flexible endoscope and its rig.",
     )
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    index = command_index()
+    chosen = None if argv is None else next((word for word in argv if not word.startswith("-")), "")
+    everything = chosen is None or (chosen and not any(chosen in commands for commands in index.values()))
     for name in COMMAND_MODULES:
-        importlib.import_module(name).register(sub)
+        if everything or index[name] is None or chosen in index[name]:
+            importlib.import_module(name).register(sub)
+        else:
+            for command, help_text in index[name].items():
+                sub.add_parser(command, help=help_text)
     return parser
+
+
+def _module_source(name: str) -> Path:
+    """Where a ``twin.*`` module's source is, found without importing its package."""
+    base = Path(__file__).resolve().parent.joinpath(*name.split(".")[1:])
+    return base / "__init__.py" if base.is_dir() else base.with_suffix(".py")
+
+
+def command_index() -> dict[str, dict[str, str | None] | None]:
+    """For each of ``COMMAND_MODULES``, the commands its ``register(sub)`` adds, with their one-line
+    help, read from its source: the ``sub.add_parser("NAME", help="...")`` calls on its first
+    argument. None for a module whose commands cannot be read so (it is then always imported)."""
+    index: dict[str, dict[str, str | None] | None] = {}
+    for name in COMMAND_MODULES:
+        try:
+            tree = ast.parse(_module_source(name).read_text())
+        except (OSError, SyntaxError):
+            index[name] = None
+            continue
+        commands: dict[str, str | None] = {}
+        for node in tree.body:
+            if isinstance(node, ast.FunctionDef) and node.name == "register" and node.args.args:
+                sub = node.args.args[0].arg
+                for call in ast.walk(node):
+                    if (isinstance(call, ast.Call) and isinstance(call.func, ast.Attribute)
+                            and call.func.attr == "add_parser" and isinstance(call.func.value, ast.Name)
+                            and call.func.value.id == sub and call.args
+                            and isinstance(call.args[0], ast.Constant) and isinstance(call.args[0].value, str)):
+                        help_text = next((kw.value.value for kw in call.keywords if kw.arg == "help"
+                                          and isinstance(kw.value, ast.Constant)), None)
+                        commands[call.args[0].value] = help_text
+        index[name] = commands or None
+    return index
 
 
 _format_warning = warnings.formatwarning
@@ -82,8 +131,8 @@ def main(argv: list[str] | None = None) -> int:
         The command's exit code; 2 for a bad parameter, argument or dataset, 1 for a file that cannot
         be read or written or a native part that cannot be built, 130 on Ctrl-C.
     """
-    parser = build_parser()
-    args = parser.parse_args(values_as_arguments(sys.argv[1:] if argv is None else list(argv)))
+    argv = values_as_arguments(sys.argv[1:] if argv is None else list(argv))
+    args = build_parser(argv).parse_args(argv)
     warnings.formatwarning = _format
     try:
         return int(args.func(args) or 0)

@@ -14,8 +14,6 @@ import numpy as np
 from twin.cliargs import add_param_args, params_from_args
 from twin.pose import HORIZONTAL
 from twin.rod.grid import GRAVITY_TIP_FORCE_N, pcc_tensions_n
-from twin.rod.model import RodModel
-from twin.rod.solver import solve
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -26,6 +24,8 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run_demo(args: argparse.Namespace) -> int:
+    from twin.rod import RodModel, solve  # here: the parser is built without loading the kernels
+
     params = params_from_args(args)
     model = RodModel.from_params(params)
     g = params.environment.gravity_m_s2

@@ -16,9 +16,13 @@ from tqdm import tqdm
 from twin import effects
 from twin.data.dataset import Dataset
 from twin.params import Params
-from twin.rod import Predictor, RodModel, solve
+from twin.rod import RodModel, solve_batch
 
 __all__ = ["Predictions", "predict_dataset", "predict_rows"]
+
+# Rows per compiled call: large enough that the call costs little beside its solves, small
+# enough that the progress bar moves every fraction of a second.
+_CHUNK_ROWS = 128
 
 
 @dataclasses.dataclass(frozen=True)
@@ -77,7 +81,6 @@ def predict_rows(params: Params, base_rotation, tensions_n, tip_mass_kg, lengths
         (tip_m (n, 3), converged (n,), residual_nm (n,), solve_time_s (n,)).
     """
     model = model or RodModel.from_params(params)
-    predictor = Predictor(model)
     rotation = effects.clamp_rotation(params, base_rotation)
     tensions = np.clip(effects.true_tensions_n(params, tensions_n), 0.0, None)
     n = len(tip_mass_kg)
@@ -85,30 +88,32 @@ def predict_rows(params: Params, base_rotation, tensions_n, tip_mass_kg, lengths
     converged = np.zeros(n, dtype=bool)
     residual = np.full(n, np.nan)
     times = np.zeros(n)
-    rows = tqdm(range(n), desc="predicting", unit="row", disable=not progress, leave=False)
-    for i in rows:
-        load = dict(
-            tip_force_n=effects.tip_force_n(params, tip_mass_kg[i]),
-            base_rotation=rotation,
-            friction_direction=effects.friction_direction(lengths_m[i], params.effects.tendon_friction_direction,
-                                                          None if sliding_state is None else sliding_state[i]),
-            raise_on_failure=False,
-        )
-        if guesses is None:
-            sol = predictor.solve(tensions[i], **load)
-        else:
-            last = guesses[i]
-            sol = solve(model, tensions[i], guess_nm=None if last is None else last.base_moment_nm,
-                        guess_jacobian=None if last is None else last.shooting_jacobian, **load)
-        converged[i] = sol.converged
-        residual[i] = sol.residual_nm
-        times[i] = sol.solve_time_s
-        if sol.converged:
-            tip[i] = effects.tracked_point_m(params, sol.tip_position_m, sol.tip_rotation)
-            if guesses is not None:
-                guesses[i] = sol
-        else:
-            predictor.reset()
+    forces = np.array([effects.tip_force_n(params, mass) for mass in tip_mass_kg]).reshape(n, 3)
+    directions = np.array([effects.friction_direction(lengths_m[i], params.effects.tendon_friction_direction,
+                                                      None if sliding_state is None else sliding_state[i])
+                           for i in range(n)]).reshape(n, model.tendon_count)
+    # The rows are solved in chunks by one compiled call each (a progress bar moves per chunk);
+    # a row without a guess of its own starts from the row before it, across chunks too.
+    last = None
+    with tqdm(total=n, desc="predicting", unit="row", disable=not progress, leave=False) as bar:
+        for start in range(0, n, _CHUNK_ROWS):
+            rows = range(start, min(n, start + _CHUNK_ROWS))
+            starts = [None if guesses is None else guesses[i] for i in rows]
+            if starts[0] is None:
+                starts[0] = last
+            solutions = solve_batch(model, tensions[rows.start:rows.stop], tip_force_n=forces[rows.start:rows.stop],
+                                    base_rotation=rotation, friction_direction=directions[rows.start:rows.stop],
+                                    guesses=starts, raise_on_failure=False)
+            for i, sol in zip(rows, solutions):
+                converged[i] = sol.converged
+                residual[i] = sol.residual_nm
+                times[i] = sol.solve_time_s
+                if sol.converged:
+                    tip[i] = effects.tracked_point_m(params, sol.tip_position_m, sol.tip_rotation)
+                    if guesses is not None:
+                        guesses[i] = sol
+            last = solutions[-1] if solutions and solutions[-1].converged else None
+            bar.update(len(rows))
     return tip, converged, residual, times
 
 

@@ -9,8 +9,6 @@ import sys
 import numpy as np
 
 from twin.cliargs import add_param_args, add_pose_args, params_from_args, vector
-from twin.rod.model import RodModel
-from twin.rod.solver import ConvergenceError, solve
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -42,6 +40,10 @@ def _tensions(text: str) -> np.ndarray:
 
 
 def run_predict(args: argparse.Namespace) -> int:
+    # Imported here: the parser of every command is built without loading the compiled kernels.
+    from twin.rod.model import RodModel
+    from twin.rod.solver import ConvergenceError, solve
+
     params = params_from_args(args)
     model = RodModel.from_params(params)
     if args.tensions.size != model.tendon_count:

@@ -166,7 +166,13 @@ class RodModel:
             table[i, kernel.T_OMEGA] = t.helix_rad_per_m
             table[i, kernel.T_END] = L if t.end_m is None else t.end_m
         pm = np.array(self.point_masses, dtype=float).reshape(-1, 2)
+        # The weight distal to each station (kg): the rod beyond it and the point masses beyond its
+        # interval's midpoint (the last station takes the last interval's), as kernel._internal_force does per RK4 stage.
+        stations = np.array(nodes)
+        midpoints = np.array(mids + mids[-1:])
+        distal = self.line_mass_kg_per_m * (L - stations) + (pm[None, :, 1] * (pm[None, :, 0] > midpoints[:, None])).sum(1)
         return {
+            "distal_mass_kg": distal,
             "nodes": np.array(nodes),
             "intervals": np.array(mids),
             "kse": np.array([self.shear_stiffness_n, self.shear_stiffness_n, self.axial_stiffness_n]),

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import math
 import time
 
 import numpy as np
@@ -18,7 +19,7 @@ from twin.rod.kernel import RodInputs, SolverStatus
 from twin.rod.model import RodModel
 
 __all__ = ["ConvergenceError", "NewtonIteration", "RodSolution", "LoadCase", "SolverStatus", "rod_inputs",
-           "solve", "Predictor"]
+           "solve", "solve_batch", "Predictor"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -73,9 +74,6 @@ class ConvergenceError(RuntimeError):
         self.trace = trace
 
 
-_EYE3 = np.eye(3)
-
-
 @dataclasses.dataclass(frozen=True)
 class LoadCase:
     """What acts on the rod: tendon tensions at the base, tip loads, base pose (all SI, world frame).
@@ -96,23 +94,29 @@ class LoadCase:
     @classmethod
     def make(cls, model: RodModel, tensions_n, *, tip_force_n=None, tip_moment_nm=None,
              base_rotation=None, base_position_m=None, friction_direction=None) -> "LoadCase":
+        # Checked in plain Python floats: a load is a handful of numbers, and numpy's per-call
+        # overhead on them would cost more than the rod's integration.
         nt = model.tendon_count
         tensions = _vector(tensions_n, nt, "tensions_n")
-        if (tensions < 0).any():
+        if any(t < 0 for t in tensions.tolist()):
             raise ValueError(f"tensions_n = {tensions.tolist()}: tendons only pull; tensions must be >= 0")
-        rot = np.eye(3) if base_rotation is None else np.asarray(base_rotation, dtype=float)
-        # Orthonormal to 1e-9 (np.allclose's test, element by element) and proper.
-        if rot.shape != (3, 3) or not (np.abs(rot @ rot.T - _EYE3) <= 1e-9 + 1e-5 * _EYE3).all() \
-                or np.linalg.det(rot) < 0:
-            raise ValueError(f"base_rotation = {rot.tolist()}: must be a proper 3x3 rotation")
-        direction = np.ones(nt) if friction_direction is None else _vector(friction_direction, nt, "friction_direction")
+        if base_rotation is None:
+            rot = np.eye(3)
+        else:
+            rot = np.ascontiguousarray(base_rotation, dtype=float)
+            if rot.shape != (3, 3) or not (rot.tobytes() in _ROTATIONS or _is_rotation(rot.tolist())):
+                raise ValueError(f"base_rotation = {rot.tolist()}: must be a proper 3x3 rotation")
+        if friction_direction is None:
+            direction = np.ones(nt)
+        else:
+            direction = np.clip(_vector(friction_direction, nt, "friction_direction"), -1.0, 1.0)
         return cls(
             tensions_n=tensions,
             tip_force_n=np.zeros(3) if tip_force_n is None else _vector(tip_force_n, 3, "tip_force_n"),
             tip_moment_nm=np.zeros(3) if tip_moment_nm is None else _vector(tip_moment_nm, 3, "tip_moment_nm"),
-            base_rotation=np.ascontiguousarray(rot),
+            base_rotation=rot,
             base_position_m=np.zeros(3) if base_position_m is None else _vector(base_position_m, 3, "base_position_m"),
-            friction_direction=np.clip(direction, -1.0, 1.0),
+            friction_direction=direction,
         )
 
     def scaled(self, factor: float) -> "LoadCase":
@@ -124,9 +128,32 @@ class LoadCase:
 
 def _vector(value, n, name) -> np.ndarray:
     arr = np.asarray(value, dtype=float).reshape(-1)
-    if arr.size != n or not np.isfinite(arr).all():
+    if arr.size != n or not all(map(math.isfinite, arr.tolist())):
         raise ValueError(f"{name} = {np.asarray(value).tolist()!r}: expected {n} finite numbers")
     return arr
+
+
+# The bytes of base rotations already found proper (a stream passes the same one every time);
+# bounded, since a caller may pass a new rotation with every solve.
+_ROTATIONS: set[bytes] = set()
+
+
+def _is_rotation(r: list[list[float]]) -> bool:
+    """Orthonormal to 1e-9 (np.allclose's test, element by element: 1e-9 + 1e-5 on the diagonal)
+    and proper (determinant > 0), for a 3×3 given as nested lists; remembered in ``_ROTATIONS``."""
+    for i in range(3):
+        for j in range(i, 3):
+            dot = r[i][0] * r[j][0] + r[i][1] * r[j][1] + r[i][2] * r[j][2]
+            if not abs(dot - (i == j)) <= 1e-9 + 1e-5 * (i == j):
+                return False
+    a, b, c = r
+    det = (a[0] * (b[1] * c[2] - b[2] * c[1]) - a[1] * (b[0] * c[2] - b[2] * c[0])
+           + a[2] * (b[0] * c[1] - b[1] * c[0]))
+    if not det > 0:
+        return False
+    if len(_ROTATIONS) < 64:
+        _ROTATIONS.add(np.array(r, dtype=float).tobytes())
+    return True
 
 
 @dataclasses.dataclass(frozen=True)
@@ -239,19 +266,23 @@ def _run(model: RodModel, rod: RodInputs, m0: np.ndarray, states, strains, log: 
 
 def _initial_guess(model: RodModel, load: LoadCase) -> np.ndarray:
     """Base moment of the straight rod: the tendon moments plus the moment of the loads about the base."""
-    rot = load.base_rotation
-    m = np.zeros(3)
-    for t, tau in zip(model.tendons, load.tensions_n):
-        a = np.radians(t.angle_deg)
-        r = t.radius_m * np.array([np.cos(a), np.sin(a), 0.0])
-        m += rot @ np.cross(r, tau * np.array([0.0, 0.0, 1.0]))
-    axis = rot[:, 2]
+    return _initial_guesses(model, load.base_rotation, load.tensions_n[None], load.tip_force_n[None],
+                            load.tip_moment_nm[None])[0]
+
+
+def _initial_guesses(model: RodModel, rotation: np.ndarray, tensions_n: np.ndarray, tip_force_n: np.ndarray,
+                     tip_moment_nm: np.ndarray) -> np.ndarray:
+    """:func:`_initial_guess` for m load cases at once: (m, nt) tensions, (m, 3) tip force and moment."""
+    # Σ r_i × τ_i e_z in the body frame, r_i = ρ_i (cos α_i, sin α_i, 0).
+    table = model.arrays["tendons"]
+    lever = tensions_n * table[:, kernel.T_R0]
+    body = np.stack([lever @ np.sin(table[:, kernel.T_ALPHA]), -(lever @ np.cos(table[:, kernel.T_ALPHA])),
+                     np.zeros(len(tensions_n))], axis=1)
+    axis = rotation[:, 2]
+    # The weight's moment: axis × g times its first moment about the base, Σ s m.
+    first_moment = model.line_mass_kg_per_m * model.length_m ** 2 / 2 + sum(s * mass for s, mass in model.point_masses)
     g = np.array([0.0, 0.0, -model.gravity_m_s2])
-    m += np.cross(axis * model.length_m, load.tip_force_n) + load.tip_moment_nm
-    m += np.cross(axis * model.length_m / 2, model.line_mass_kg_per_m * model.length_m * g)
-    for s, mass in model.point_masses:
-        m += np.cross(axis * s, mass * g)
-    return m
+    return body @ rotation.T + np.cross(axis, model.length_m * tip_force_n + first_moment * g) + tip_moment_nm
 
 
 def solve(model: RodModel, tensions_n, *, tip_force_n=None, tip_moment_nm=None, base_rotation=None,
@@ -298,6 +329,7 @@ def _solve_load(model, load, guess_nm, continuation, raise_on_failure, guess_jac
     nt = model.tendon_count
     states = np.empty((k, 15 + 2 * nt))
     strains = np.empty((k, 6))
+    strains[0] = np.nan  # no base strains to start from (kernel.integrate)
     m0 = (_initial_guess(model, load) if guess_nm is None else np.array(guess_nm, dtype=float)).copy()
     log = []
     rod = rod_inputs(model, load)
@@ -322,7 +354,7 @@ def _solve_load(model, load, guess_nm, continuation, raise_on_failure, guess_jac
             )
         states[:] = np.nan
         strains[:] = np.nan
-    return _package(model, rod, load, states, strains, m0, code == 0, status, float(res), iters, calls,
+    return _package(model, load, states, strains, m0, code == 0, status, float(res), iters, calls,
                     steps_taken, elapsed, jac if code == 0 else None, tuple(log))
 
 
@@ -356,24 +388,25 @@ def _continuation(model, load, states, strains, log):
     return 0, res, iters, calls, steps, m0, jac
 
 
-def _package(model, rod, load, states, strains, m0, converged, status, res, iters, calls, steps, elapsed, jac=None,
-             log=()):
+def _package(model, load, states, strains, m0, converged, status, res, iters, calls, steps, elapsed, jac=None, log=()):
+    # ``states`` and ``strains`` belong to this solve alone: the solution keeps views of them.
     a = model.arrays
     nt = model.tendon_count
     k = states.shape[0]
-    rotations = states[:, 3:12].reshape(k, 3, 3)
-    s = a["nodes"]
-    forces = kernel.internal_forces(rod, np.empty((k, 3)))
-    wraps = states[:, 15:15 + nt]
-    tensions = load.tensions_n[None, :] * np.exp(-model.friction_coeff * load.friction_direction[None, :] * wraps)
+    # n(s) = F_e + (weight distal to s) g.
+    forces = load.tip_force_n + a["distal_mass_kg"][:, None] * a["grav"]
+    if model.friction_coeff:
+        tensions = load.tensions_n * np.exp(-model.friction_coeff * load.friction_direction * states[:, 15:15 + nt])
+    else:
+        tensions = np.broadcast_to(load.tensions_n, (k, nt))  # constant along s: a read-only view
     return RodSolution(
-        s_m=s.copy(),
-        positions_m=states[:, 0:3].copy(),
-        rotations=rotations.copy(),
+        s_m=a["nodes"].copy(),
+        positions_m=states[:, 0:3],
+        rotations=states[:, 3:12].reshape(k, 3, 3),
         internal_force_n=forces,
-        internal_moment_nm=states[:, 12:15].copy(),
-        strains=strains.copy(),
-        tendon_lengths_m=states[-1, 15 + nt:15 + 2 * nt].copy(),
+        internal_moment_nm=states[:, 12:15],
+        strains=strains,
+        tendon_lengths_m=states[-1, 15 + nt:15 + 2 * nt],
         tendon_tensions_n=tensions,
         base_moment_nm=m0.copy(),
         converged=converged,
@@ -387,6 +420,105 @@ def _package(model, rod, load, states, strains, m0, converged, status, res, iter
         shooting_jacobian=jac,
         trace_log=log,
     )
+
+
+def _rows(value, m, n, name, default=0.0) -> np.ndarray:
+    """``value`` as an (m, n) array of finite numbers: one row per case, or one row for all."""
+    if value is None:
+        return np.full((m, n), default)
+    arr = np.asarray(value, dtype=float)
+    if arr.ndim == 1 and arr.size == n:
+        arr = np.broadcast_to(arr, (m, n))
+    if arr.shape != (m, n) or not np.isfinite(arr).all():
+        raise ValueError(f"{name} = {np.asarray(value).tolist()!r}: expected {n} finite numbers, or {m} rows of them")
+    return np.ascontiguousarray(arr)
+
+
+def solve_batch(model: RodModel, tensions_n, *, tip_force_n=None, tip_moment_nm=None, base_rotation=None,
+                base_position_m=None, friction_direction=None, guesses=None, chain: bool = True,
+                continuation: bool = True, raise_on_failure: bool = True) -> list[RodSolution]:
+    """Solve many load cases of one rod in one compiled call: what :func:`solve` gives for each.
+
+    The cases run one after another inside the kernel (no Python between them); with ``chain``
+    each case without a guess starts from the previous case's converged solution (its base
+    moment and shooting Jacobian), which is what makes neighbouring cases (a sweep, a dataset's
+    rows, a fit's repeated evaluations) cost a few integrations each. A case whose warm start
+    fails is retried cold, and one that still fails goes through :func:`solve`'s continuation.
+
+    Args:
+        model: the rod.
+        tensions_n: (m, nt) tendon tensions at the base (N), one row per case.
+        tip_force_n, tip_moment_nm: (3,) for every case or (m, 3) per case (N, N·m, world frame).
+        base_rotation, base_position_m: the base pose, shared by the cases.
+        friction_direction: (nt,) or (m, nt) sliding states (see :class:`LoadCase`).
+        guesses: None, or one entry per case: a converged :class:`RodSolution` to start from
+            (its base moment and shooting Jacobian), or None for that case.
+        chain: warm-start a case without a guess from the previous case's solution.
+        continuation, raise_on_failure: as for :func:`solve`.
+
+    Returns:
+        One :class:`RodSolution` per case, in order; ``solve_time_s`` is each case's share of the
+        compiled call (wall time) plus its own continuation, if any.
+
+    Raises:
+        ConvergenceError: a case has no solution to tolerance, if ``raise_on_failure``.
+        ValueError: malformed input (names the argument and value).
+    """
+    start = time.perf_counter()
+    nt = model.tendon_count
+    tensions = np.asarray(tensions_n, dtype=float)
+    if tensions.ndim != 2 or tensions.shape[1] != nt or not np.isfinite(tensions).all():
+        raise ValueError(f"tensions_n: expected (cases, {nt}) finite tensions, got shape {tensions.shape}")
+    if (tensions < 0).any():
+        raise ValueError(f"tensions_n: tendons only pull; tensions must be >= 0 (min {tensions.min()!r})")
+    m = tensions.shape[0]
+    forces = _rows(tip_force_n, m, 3, "tip_force_n")
+    moments = _rows(tip_moment_nm, m, 3, "tip_moment_nm")
+    sigma = np.clip(_rows(friction_direction, m, nt, "friction_direction", default=1.0), -1.0, 1.0)
+    if guesses is not None and len(guesses) != m:
+        raise ValueError(f"guesses: expected {m} entries (a RodSolution or None each), got {len(guesses)}")
+    pose = LoadCase.make(model, tensions[0] if m else np.zeros(nt), base_rotation=base_rotation,
+                         base_position_m=base_position_m)
+    loads = [LoadCase(tensions_n=tensions[i], tip_force_n=forces[i], tip_moment_nm=moments[i],
+                      base_rotation=pose.base_rotation, base_position_m=pose.base_position_m,
+                      friction_direction=sigma[i]) for i in range(m)]
+    cold = _initial_guesses(model, pose.base_rotation, tensions, forces, moments)
+    guess_m0 = np.zeros((m, 3))
+    guess_jac = np.zeros((m, 3, 3))
+    kind = np.zeros(m, dtype=np.int64)
+    for i, guess in enumerate(guesses or ()):
+        if guess is not None and guess.converged:
+            guess_m0[i] = guess.base_moment_nm
+            kind[i] = 1
+            if guess.shooting_jacobian is not None:
+                guess_jac[i] = guess.shooting_jacobian
+                kind[i] = 2
+    k = model.stations
+    states = np.empty((m, k, 15 + 2 * nt))
+    strains = np.empty((m, k, 6))
+    strains[:, 0] = np.nan  # no base strains to start from (kernel.integrate)
+    m0 = np.empty((m, 3))
+    jac = np.zeros((m, 3, 3))
+    traces = np.empty((m, 2, model.max_iterations + 1, kernel.TRACE_COLUMNS))
+    out = np.zeros((m, 7))
+    rod = rod_inputs(model, pose)._replace(tip_force_n=np.zeros(3), tip_moment_nm=np.zeros(3))
+    kernel.shoot_batch(rod, tensions, sigma, forces, moments, cold, guess_m0, guess_jac, kind, chain,
+                       model.tolerance * model.moment_scale_nm, model.max_iterations,
+                       1e-7 * model.moment_scale_nm, m0, jac, states, strains, traces, out)
+    share = (time.perf_counter() - start) / max(m, 1)
+    solutions = []
+    for i in range(m):
+        code = int(out[i, 0])
+        if code != 0:
+            sol = _solve_load(model, loads[i], None, continuation, raise_on_failure)
+            solutions.append(dataclasses.replace(sol, solve_time_s=sol.solve_time_s + share))
+            continue
+        log = [(1.0, traces[i, 0, :int(out[i, 4])])]
+        if out[i, 5]:
+            log.append((1.0, traces[i, 1, :int(out[i, 5])]))
+        solutions.append(_package(model, loads[i], states[i], strains[i], m0[i], True, SolverStatus.CONVERGED,
+                                  float(out[i, 1]), int(out[i, 2]), int(out[i, 3]), 0, share, jac[i], tuple(log)))
+    return solutions
 
 
 class Predictor:
