@@ -2,8 +2,12 @@
 
 from __future__ import annotations
 
-import numpy as np
+import json
 
+import numpy as np
+import pytest
+
+from twin.cli import main
 from twin.force import estimate_tip_wrench
 from twin.force.bench import COVERAGE_GOAL, POSES, accuracy_trials, pose_tensions_n, summarise
 from twin.robots import load_robot
@@ -40,3 +44,30 @@ def test_axial_force_of_a_straight_robot_is_reported_unobservable_not_zero():
     # The world axis along the rod is NaN with NaN covariance, never 0; the sideways one (y) is seen.
     assert not est.force_observable[0] and np.isnan(est.force_n[0]) and np.isnan(est.force_cov_n2[0]).all()
     assert est.force_observable[1] and abs(est.force_n[1]) < 2e-3
+def test_cli_force_json_and_bad_input(capsys):
+    params = load_robot("three-tendon")
+    model = RodModel.from_params(params)
+    tensions = pose_tensions_n(params, 45.0, 0.0)
+    force = np.array([0.0, 0.1, -0.05])
+    sol = solve(model, tensions, tip_force_n=force, base_rotation=params.rig.base_rotation)
+    args = ["force", "--robot", "three-tendon", "--tensions", ",".join(map(str, tensions)),
+            "--tip-position", ",".join(map(str, sol.tip_position_m)),
+            "--tip-rotation", ",".join(map(str, sol.tip_rotation.ravel())), "--json"]
+    assert main(args) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["converged"] is True
+    got = np.array([np.nan if v is None else v for v in out["force_n"]])
+    seen = np.array(out["observable"]["force"])
+    assert np.allclose(got[seen], force[seen], atol=3e-3) and np.isnan(got[~seen]).all()
+    unseen = np.array(out["observable"]["unobservable_force_directions"]).reshape(-1, 3)
+    projector = np.eye(3) - unseen.T @ unseen
+    assert unseen.shape[0] <= 1 and np.allclose(out["force_observable_n"], projector @ force, atol=3e-3)
+    assert len(out["force_cov_n2"]) == 3
+    assert main([*args[:4], "1,2", *args[5:]]) == 2
+    assert "--tensions" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        main(["force", "--tensions", "1,1,1", "--tip-position", "0,0", "--robot", "three-tendon"])
+    assert main([*args[:4], "1,-2,1", *args[5:]]) == 2
+    assert "tendons only pull" in capsys.readouterr().err
+    assert main([*args[:-2], "1,0,0,0,1,0,0,0,2", "--json"]) == 2
+    assert "--tip-rotation" in capsys.readouterr().err
