@@ -71,3 +71,38 @@ def test_cli_force_json_and_bad_input(capsys):
     assert "tendons only pull" in capsys.readouterr().err
     assert main([*args[:-2], "1,0,0,0,1,0,0,0,2", "--json"]) == 2
     assert "--tip-rotation" in capsys.readouterr().err
+
+
+def test_cli_force_on_a_dataset_finds_the_hung_masses(tmp_path, capsys):
+    from twin import effects
+    from twin.data.dataset import write_dataset
+    from twin.pose import matrix_to_quat
+
+    params = load_robot("endoscope")
+    model = RodModel.from_params(params)
+    rows = []
+    for config, (bend, mass) in enumerate([(0.0, 0.005), (45.0, 0.010), (45.0, 0.0)]):
+        tensions = pose_tensions_n(params, bend, 0.0)
+        weight = effects.tip_force_n(params, mass)
+        sol = solve(model, tensions, tip_force_n=weight, base_rotation=params.rig.base_rotation)
+        tip = effects.tracked_point_m(params, sol.tip_position_m, sol.tip_rotation)
+        row = {"config": config, "experiment": "stiffness", "repeat": 0, "kappa_cmd_per_m": 0.0, "phi_cmd_deg": 0.0,
+               "tip_mass_kg": mass, "time_s": float(config), "tip_x_m": tip[0], "tip_y_m": tip[1], "tip_z_m": tip[2]}
+        row.update({f"tip_q{c}": q for c, q in zip("wxyz", matrix_to_quat(sol.tip_rotation))})
+        row.update({f"tension_{i + 1}_n": t for i, t in enumerate(tensions)})
+        row.update({f"length_{i + 1}_m": 0.0 for i in range(tensions.size)})
+        rows.append(row)
+    write_dataset(tmp_path / "ds", rows, experiment="stiffness", device="synthetic", params=params,
+                  base_rotation=params.rig.base_rotation, robot="endoscope")
+    assert main(["force", str(tmp_path / "ds"), "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["converged"] and len(out["rows"]) == 3
+    for row in out["rows"]:
+        unseen = np.array(row["observable"]["unobservable_force_directions"]).reshape(-1, 3)
+        projector = np.eye(3) - unseen.T @ unseen
+        assert np.allclose(row["force_observable_n"], projector @ np.array(row["known_force_n"]), atol=2e-3)
+    # The straight rod sees the 5 g weight whole (it is across the rod); nothing on the empty third row.
+    assert abs(np.linalg.norm(out["rows"][0]["force_observable_n"]) - 0.005 * 9.81) < 2e-3
+    assert np.linalg.norm(out["rows"][2]["force_observable_n"]) < 2e-3
+    assert main(["force", str(tmp_path / "ds"), "--tensions", "1,1,1,1"]) == 2
+    assert "not with a DATASET" in capsys.readouterr().err
