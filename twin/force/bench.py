@@ -125,3 +125,38 @@ def summarise(trials: list[ForceTrial]) -> list[dict]:
             "resolution_n": float(np.median([t.resolution_n for t in group])),
         })
     return rows
+
+
+def bench_force(params: Params | None = None, *, forces_per_pose: int = 16, seed: int = 0) -> dict:
+    """Time per estimate and the accuracy table over the zoo (see :func:`accuracy_trials`).
+
+    estimate_s: median CPU time of one estimate (cold: from no force, predictor solves and
+        Jacobians included) on ``params``' robot (default the default robot), over its trials.
+    table: per robot and pose, median and 95th percentile error (N) in the observable directions,
+        the median error over its goal (5 % of the force + 2 mN), 95 % interval coverage (the goal
+        judges it per robot, over its poses: ``worst_coverage``), the
+        observable dimensions and the smallest force resolved (1.96 σ along the worst observable
+        direction, N).
+    """
+    from tqdm import tqdm
+
+    from twin.params import load_params
+    from twin.robots import robot_names
+
+    params = params or load_params()
+    names = robot_names()
+    total = (len(names) + 1) * len(POSES) * forces_per_pose
+    with tqdm(total=total, desc="force trials", unit="estimate", leave=False) as bar:
+        timed = accuracy_trials([params], forces_per_pose=forces_per_pose, seed=seed, progress=bar.update)
+        trials = accuracy_trials(names, forces_per_pose=forces_per_pose, seed=seed + 1, progress=bar.update)
+    table = summarise(trials)
+    rounded = [{k: (float(f"{v:.4g}") if isinstance(v, float) else v) for k, v in row.items()} for row in table]
+    return {
+        "estimate_s": float(np.median([t.time_s for t in timed])),
+        "worst_median_error_over_goal": max(row["median_error_over_goal"] for row in table),
+        # Per robot over its poses: a cell of a few trials is too few to judge a 95 % interval on.
+        "worst_coverage": min(float(np.mean([t.covered for t in trials if t.robot == name])) for name in names),
+        "converged_fraction": float(np.mean([t.converged for t in trials])),
+        "smallest_force_resolved_n": float(np.median([row["resolution_n"] for row in table])),
+        "table": rounded,
+    }

@@ -167,7 +167,7 @@ def _axis_report(value, cov_obs, unobs_dirs):
 def estimate_tip_wrench(params: Params, tensions_n, tip_position_m, tip_rotation=None, *,
                         base_rotation=None, friction_direction=None, model: RodModel | None = None,
                         estimate_moment: bool = False, model_error_fraction: float = 0.02,
-                        max_std_n: float = 0.01, max_std_nm: float = 0.0004, max_iterations: int = 12,
+                        max_std_n: float = 0.01, max_std_nm: float = 0.0004, max_iterations: int = 40,
                         tolerance_n: float = 1e-5) -> WrenchEstimate:
     """Estimate the tip wrench that makes the predictor meet the measured tip pose.
 
@@ -221,6 +221,10 @@ def estimate_tip_wrench(params: Params, tensions_n, tip_position_m, tip_rotation
     # Steps are held within a trust radius (0.2 N: the 0–0.3 N contact range in two steps; the
     # pose is far from linear in the force over it) and halved until the weighted residual falls.
     radius = 0.2
+    # A weak prior on the load, F ~ N(0, (1 N)²) (M ~ N(0, (1 N · L)²)): three times the contact range,
+    # nothing against what the pose sees (2 mN), enough to keep what it cannot see near zero.
+    prior = 1.0
+    damping = 1e-3
     guess = None
 
     def evaluate(theta, guess):
@@ -264,23 +268,27 @@ def estimate_tip_wrench(params: Params, tensions_n, tip_position_m, tip_rotation
         jac, weight = linearise(sol)
         chi2 = float(residual @ weight @ residual)
         info = jac.T @ weight @ jac
-        # Only in the directions the measurements see (a truncated pseudo-inverse): a step along
-        # one they cannot see would be noise amplified by its tiny sensitivity.
-        lam, vec = np.linalg.eigh(0.5 * (info + info.T))
-        limit = np.array([1.0 / max_std_n**2] * 3 + [length**2 / max_std_nm**2] * (nu - 3))
-        keep = lam > 0.01 * float(np.min(limit))
-        step = vec[:, keep] @ ((vec[:, keep].T @ (jac.T @ weight @ residual)) / lam[keep])
-        size = float(np.linalg.norm(step))
-        if size > radius:
-            step *= radius / size
-        for _ in range(8):
+        gradient = jac.T @ weight @ residual - prior * theta
+        cost = chi2 + prior * float(theta @ theta)
+        # Levenberg-Marquardt, damped alike in every direction (scaled by the mean information):
+        # that holds back the directions the pose barely sees until the seen ones have settled; the
+        # weak prior keeps the unseen ones from wandering.
+        for _ in range(10):
+            step = np.linalg.solve(info + (prior + damping * np.trace(info) / nu) * np.eye(nu), gradient)
+            size = float(np.linalg.norm(step))
+            if size > radius:
+                step *= radius / size
             trial_sol, trial_res = evaluate(theta + step, guess)
-            if trial_sol is not None and float(trial_res @ weight @ trial_res) <= chi2 * (1 + 1e-9) + 1e-12:
-                break
-            step = 0.5 * step
+            if trial_sol is not None:
+                trial = theta + step
+                trial_cost = float(trial_res @ weight @ trial_res) + prior * float(trial @ trial)
+                if trial_cost <= cost * (1 + 1e-12) + 1e-15:
+                    damping = max(damping / 3.0, 1e-9)
+                    break
+            damping *= 4.0
         else:
-            # No decrease along the step: the estimate is where the residual is least.
-            converged = bool(np.max(np.abs(step)) < tolerance_n * 100)
+            # No decrease however short the step: the estimate is where the cost is least.
+            converged = bool(np.max(np.abs(step)) < tolerance_n * 10)
             break
         theta = theta + step
         sol, residual = trial_sol, trial_res
