@@ -55,7 +55,7 @@ def test_cli_force_json_and_bad_input(capsys):
             "--tip-rotation", ",".join(map(str, sol.tip_rotation.ravel())), "--json"]
     assert main(args) == 0
     out = json.loads(capsys.readouterr().out)
-    assert out["converged"] is True
+    assert out["converged"] is True and out["consistent"] is True
     got = np.array([np.nan if v is None else v for v in out["force_n"]])
     seen = np.array(out["observable"]["force"])
     assert np.allclose(got[seen], force[seen], atol=3e-3) and np.isnan(got[~seen]).all()
@@ -106,3 +106,16 @@ def test_cli_force_on_a_dataset_finds_the_hung_masses(tmp_path, capsys):
     assert np.linalg.norm(out["rows"][2]["force_observable_n"]) < 2e-3
     assert main(["force", str(tmp_path / "ds"), "--tensions", "1,1,1,1"]) == 2
     assert "not with a DATASET" in capsys.readouterr().err
+
+
+def test_a_pose_no_tip_force_explains_is_flagged_inconsistent():
+    params = load_robot("endoscope")
+    model = RodModel.from_params(params)
+    tensions = pose_tensions_n(params, 45.0, 0.0)
+    force = np.array([0.0, 0.1, -0.05])
+    results = []
+    for moment in (None, np.array([0.0, 0.003, 0.0])):
+        sol = solve(model, tensions, tip_force_n=force, tip_moment_nm=moment, base_rotation=params.rig.base_rotation)
+        est = estimate_tip_wrench(params, tensions, sol.tip_position_m, sol.tip_rotation, model=model)
+        results.append(est.consistent)
+    assert results == [True, False]

@@ -88,6 +88,8 @@ def _print(est) -> None:
         print(f"unobservable     along {d[0]:+.3f} {d[1]:+.3f} {d[2]:+.3f}")
     if est.moment_nm is not None:
         print(f"tip moment       {fmt(est.moment_nm, 1e3)} mN m")
+    if est.consistent is False:
+        print("inconsistent     no tip force explains the pose to the sensors' noise (chi2 too large)")
     print(f"converged        {est.converged} ({est.iterations} iterations, chi2 {est.residual_chi2:.2f}, "
           f"{est.estimate_time_s * 1e3:.1f} ms CPU)")
 

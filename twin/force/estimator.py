@@ -29,6 +29,7 @@ import dataclasses
 import time
 
 import numpy as np
+import scipy.stats
 
 from twin import effects
 from twin.params import Params
@@ -86,6 +87,9 @@ class WrenchEstimate:
         iterations: Gauss-Newton iterations.
         residual_chi2: whitened squared pose residual at the estimate (≈ the number of pose
             measurements less the unknowns when the model and the noise are right).
+        consistent: whether ``residual_chi2`` is within the 99.9 % quantile of χ² with (measurements −
+            unknowns) degrees of freedom: False flags a pose no tip force explains (an unmodelled
+            moment or contact along the body, a model off); None with no spare measurement.
         estimate_time_s: CPU time of the estimate (s).
         tip_position_m, tip_rotation: the predicted tip pose under the estimate.
     """
@@ -104,6 +108,7 @@ class WrenchEstimate:
     converged: bool
     iterations: int
     residual_chi2: float
+    consistent: bool | None
     estimate_time_s: float
     tip_position_m: np.ndarray
     tip_rotation: np.ndarray
@@ -139,6 +144,7 @@ class WrenchEstimate:
             "converged": bool(self.converged),
             "iterations": int(self.iterations),
             "residual_chi2": float(self.residual_chi2),
+            "consistent": self.consistent,
             "estimate_time_s": float(self.estimate_time_s),
         }
 
@@ -304,7 +310,7 @@ def estimate_tip_wrench(params: Params, tensions_n, tip_position_m, tip_rotation
                               np.full((3, 3), np.nan), np.eye(3),
                               nan3 if estimate_moment else None, np.full((3, 3), np.nan) if estimate_moment else None,
                               np.zeros(3, bool) if estimate_moment else None, np.eye(3) if estimate_moment else None,
-                              np.full(3, np.inf), False, iterations, float("nan"),
+                              np.full(3, np.inf), False, iterations, float("nan"), None,
                               time.process_time() - start, nan3, np.full((3, 3), np.nan))
     # The information at the estimate.
     info = jac.T @ weight @ jac
@@ -335,4 +341,5 @@ def estimate_tip_wrench(params: Params, tensions_n, tip_position_m, tip_rotation
         unobservable_force_directions=unobs.T, moment_nm=m_out, moment_cov_nm2=m_cov, moment_observable=m_observable,
         unobservable_moment_directions=None if m_unobs is None else m_unobs.T, force_std_n=std,
         converged=converged, iterations=iterations, residual_chi2=chi2,
+        consistent=bool(chi2 <= scipy.stats.chi2.ppf(0.999, rows - nu)) if rows > nu else None,
         estimate_time_s=time.process_time() - start, tip_position_m=sol.tip_position_m, tip_rotation=sol.tip_rotation)
