@@ -134,7 +134,7 @@ def bench_force(params: Params | None = None, *, forces_per_pose: int = 16, seed
         Jacobians included) on ``params``' robot (default the default robot), over its trials.
     table: per robot and pose, median and 95th percentile error (N) in the observable directions,
         the median error over its goal (5 % of the force + 2 mN), 95 % interval coverage (the goal
-        judges it per robot, over its poses: ``worst_coverage``), the
+        judges it over every trial: ``coverage``), the
         observable dimensions and the smallest force resolved (1.96 σ along the worst observable
         direction, N).
     """
@@ -154,8 +154,10 @@ def bench_force(params: Params | None = None, *, forces_per_pose: int = 16, seed
     return {
         "estimate_s": float(np.median([t.time_s for t in timed])),
         "worst_median_error_over_goal": max(row["median_error_over_goal"] for row in table),
-        # Per robot over its poses: a cell of a few trials is too few to judge a 95 % interval on.
-        "worst_coverage": min(float(np.mean([t.covered for t in trials if t.robot == name])) for name in names),
+        # Over every trial, as the goal says "of cases"; per robot for a look (48 trials at the
+        # default: a 95 % interval misses 5 or more of them about one time in ten by chance alone).
+        "coverage": float(np.mean([t.covered for t in trials])),
+        "worst_robot_coverage": min(float(np.mean([t.covered for t in trials if t.robot == name])) for name in names),
         "converged_fraction": float(np.mean([t.converged for t in trials])),
         "smallest_force_resolved_n": float(np.median([row["resolution_n"] for row in table])),
         "table": rounded,
