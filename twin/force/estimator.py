@@ -237,7 +237,9 @@ def estimate_tip_wrench(params: Params, tensions_n, tip_position_m, tip_rotation
         force = theta[:3]
         moment = theta[3:] * length if estimate_moment else None
         sol = solve(model, tensions, tip_force_n=force, tip_moment_nm=moment, base_rotation=rotation,
-                    friction_direction=friction_direction, guess_nm=guess, raise_on_failure=False)
+                    friction_direction=friction_direction, raise_on_failure=False,
+                    guess_nm=None if guess is None else guess.base_moment_nm,
+                    guess_jacobian=None if guess is None else guess.shooting_jacobian)
         if not sol.converged and guess is not None:
             sol = solve(model, tensions, tip_force_n=force, tip_moment_nm=moment, base_rotation=rotation,
                         friction_direction=friction_direction, raise_on_failure=False)
@@ -270,7 +272,8 @@ def estimate_tip_wrench(params: Params, tensions_n, tip_position_m, tip_rotation
     for iterations in range(1, max_iterations + 1):
         if not solved:
             break
-        guess = sol.base_moment_nm
+        # Nearby loads start from this shape and its shooting Jacobian (Broyden updates of it).
+        guess = sol
         jac, weight = linearise(sol)
         chi2 = float(residual @ weight @ residual)
         info = jac.T @ weight @ jac
