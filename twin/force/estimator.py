@@ -2,7 +2,7 @@
 
 The predictor maps (tensions τ, tip force F, tip moment M) to the tip pose; with τ measured by the
 load cells and the pose by the tracker, the unknown load is what makes the predicted pose meet the
-measured one. :func:`estimate_tip_wrench` finds it by Gauss-Newton on the pose residual, weighted by
+measured one. :func:`estimate_tip_wrench` finds it by Levenberg-Marquardt on the pose residual, weighted by
 the measurement covariance
 
     Σ_y = diag(σ_p² I, σ_φ² I) + J_τ σ_τ² J_τᵀ
@@ -83,8 +83,8 @@ class WrenchEstimate:
             when the moment is not estimated.
         force_std_n: (3,) standard deviation (N) along each principal direction of the force
             information, ascending; inf where unobservable.
-        converged: the Gauss-Newton iteration met its step tolerance and every solve converged.
-        iterations: Gauss-Newton iterations.
+        converged: the Levenberg-Marquardt iteration met its step tolerance and every solve converged.
+        iterations: Levenberg-Marquardt iterations.
         residual_chi2: whitened squared pose residual at the estimate (≈ the number of pose
             measurements less the unknowns when the model and the noise are right).
         consistent: whether ``residual_chi2`` is within the 99.9 % quantile of χ² with (measurements −
@@ -192,7 +192,7 @@ def estimate_tip_wrench(params: Params, tensions_n, tip_position_m, tip_rotation
         max_std_n, max_std_nm: a direction whose standard deviation exceeds this is unobservable;
             defaults 0.01 N (a 1σ of 5 % of a mid-range 0.2 N contact force: a direction seen worse is
             not resolved to that) and 0.0004 N·m (that force at a 40 mm lever).
-        max_iterations, tolerance_n: Gauss-Newton stops when a step is below ``tolerance_n`` (N;
+        max_iterations, tolerance_n: the iteration stops when a step is below ``tolerance_n`` (N;
             N·m for the moment, scaled by the rod's length).
 
     Raises:
