@@ -119,3 +119,16 @@ def test_a_pose_no_tip_force_explains_is_flagged_inconsistent():
         est = estimate_tip_wrench(params, tensions, sol.tip_position_m, sol.tip_rotation, model=model)
         results.append(est.consistent)
     assert results == [True, False]
+
+
+def test_position_alone_sees_the_sideways_force():
+    params = load_robot("two-segment")
+    model = RodModel.from_params(params)
+    tensions = pose_tensions_n(params, 0.0, 0.0)
+    force = np.array([0.0, -0.08, 0.03])  # across the horizontal rod (along world x)
+    sol = solve(model, tensions, tip_force_n=force, base_rotation=params.rig.base_rotation)
+    est = estimate_tip_wrench(params, tensions, sol.tip_position_m, None, model=model)
+    assert est.converged and est.consistent is None  # three measurements, three unknowns: nothing to spare
+    seen = np.eye(3) - est.unobservable_force_directions.T @ est.unobservable_force_directions
+    assert np.allclose(est.force_observable_n, seen @ force, atol=1e-3)
+    assert np.linalg.norm(seen @ force) > 0.07
