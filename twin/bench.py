@@ -36,6 +36,9 @@ TARGETS = {
     # Not a speed: whether the board's loops settle (friction on with --set effects.tendon_friction_coeff=...).
     "hold": ("twin.control.settling", "hold_figures",
              {"tension_ptp_n": ("<=", 0.05), "tension_offset_n": ("<=", 0.02), "length_error_counts": ("<=", 1.0)}),
+    # 40 Hz live estimates on one core; the accuracy goals of the tip force estimate (twin.force.bench).
+    "force": ("twin.force.bench", "bench_force", {"estimate_s": ("<=", 5e-3), "worst_median_error_over_goal": ("<=", 1.0),
+                                                  "coverage": (">=", 0.9), "converged_fraction": (">=", 1.0)}),
 }
 
 

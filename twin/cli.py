@@ -25,6 +25,7 @@ from twin.resources import NativeBuildError
 
 COMMAND_MODULES = [
     "twin.rod.commands",
+    "twin.force.commands",
     "twin.sim.commands",
     "twin.device.commands",
     "twin.device.igtl_server",
