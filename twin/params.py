@@ -203,11 +203,16 @@ class Rig:
 
 @dataclasses.dataclass(frozen=True)
 class Sensors:
+    """Load cells and tracker. The cells' rated sensitivity bounds the calibrations the board
+    accepts (25 % either way) and their capacity bounds the tension limit."""
+
     loadcell_gain_counts_per_n: float = _f(_positive)
     loadcell_offset_counts: tuple[float, ...] = _f()
     loadcell_noise_n: float = _f(_nonnegative)
     tracker_noise_m: float = _f(_nonnegative)
     tracker_noise_rad: float = _f(_nonnegative)
+    loadcell_capacity_n: float = _f(_positive, default=9.80665,
+                                    source="default: assumption: 1 kg load cells, as sensors.loadcell_gain_counts_per_n assumes")
 
 
 @functools.cache
@@ -491,6 +496,7 @@ def _consistency_problems(p: Params) -> list[str]:
     for key in per_tendon + ["sensors.loadcell_offset_counts"]:
         if len(p.get(key)) != n:
             problems.append(f"{key} = {list(p.get(key))!r}: must have one entry per tendon ({n})")
+    problems += _rig_problems(p)
     if p.sim.elements < d.count:
         problems.append(f"sim.elements = {p.sim.elements!r}: must be >= discs.count = {d.count}")
     if t.end_discs:
@@ -500,6 +506,23 @@ def _consistency_problems(p: Params) -> list[str]:
         if bad:
             problems.append(f"tendons.end_discs = {list(t.end_discs)!r}: {bad} beyond the discs: each must be a "
                             f"disc number 1 … discs.count = {d.count} (the tip)")
+    return problems
+
+
+def _rig_problems(p: Params) -> list[str]:
+    """The load cells and the tension limit must be ones the board can hold (firmware/PROTOCOL.md)."""
+    # Imported here: the device package reads parameter sets itself.
+    from twin.device.device import MAX_TENSION_LIMIT_N, RATED_GAIN_COUNTS_PER_N
+
+    problems = []
+    limit, capacity, gain = p.rig.tension_limit_n, p.sensors.loadcell_capacity_n, p.sensors.loadcell_gain_counts_per_n
+    if limit > min(capacity, MAX_TENSION_LIMIT_N):
+        problems.append(f"rig.tension_limit_n = {limit!r}: must be <= sensors.loadcell_capacity_n = {capacity!r} "
+                        f"and <= {MAX_TENSION_LIMIT_N:g} N, the most the firmware accepts")
+    low, high = RATED_GAIN_COUNTS_PER_N
+    if not low <= gain <= high:
+        problems.append(f"sensors.loadcell_gain_counts_per_n = {gain!r}: must be in {low:g}..{high:.0f} counts/N "
+                        "(the HX711's 24-bit range holds the largest limit; a count is at most 10 mN)")
     return problems
 
 
