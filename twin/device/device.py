@@ -254,6 +254,12 @@ class Device:
         return self._transport.url
 
     @property
+    def loadcell_gain_counts_per_n(self) -> float:
+        """The load cells' rated sensitivity (counts/N) this host gives the board: the noise of
+        a reading in N scales with its inverse (the HX711's noise is in counts)."""
+        return self._rated_gain
+
+    @property
     def base_rotation(self) -> np.ndarray:
         """The clamp's orientation (3×3, body → world): the pose datasets taken on this device
         record and predictions of its measurements use."""

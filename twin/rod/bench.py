@@ -19,7 +19,7 @@ __all__ = ["bench_predictor"]
 def bench_predictor(params: Params | None = None, *, stream_samples: int = 400) -> dict:
     """Median solve times on one core, and the tip accuracy against a fine-resolution solution.
 
-    cold_s: a solve from no guess, over the thesis grid.
+    cold_s: a solve from no guess, over the robot's validation grid (:func:`twin.pcc.validation_grid`).
     warm_s: the next sample of a 40 Hz stream whose tensions and tip load change slowly
         (a 0.5 Hz sweep), each solve warm-started from the previous one by
         :class:`twin.rod.Predictor` (its base moment and shooting Jacobian).
@@ -30,7 +30,7 @@ def bench_predictor(params: Params | None = None, *, stream_samples: int = 400) 
     model = RodModel.from_params(params)
     pose = params.rig.base_rotation
     g = params.environment.gravity_m_s2
-    grid = validation_grid()[::7]
+    grid = validation_grid(params)[::7]
     cases = [(pcc_tensions_n(k, phi, params), GRAVITY_TIP_FORCE_N(m, g)) for _, k, phi, m in grid]
     solve(model, cases[0][0], tip_force_n=cases[0][1], base_rotation=pose)  # compile / load cache
 
