@@ -7,6 +7,7 @@ from pathlib import Path
 from typing import Mapping, Sequence
 
 from twin.experiments.analysis import ValidationResult, plot_validation
+from twin.pose import pose_name
 
 __all__ = ["markdown_table", "write_validation_report"]
 
@@ -53,7 +54,8 @@ def write_validation_report(result: ValidationResult, folder: str | Path, *, tit
     robot = (meta.get("robot") or {}).get("name")
     lines += [f"Device `{meta.get('device')}`, {summary['rows']} static measurements, experiment "
               f"`{meta.get('experiment')}`, recorded {meta.get('created')}"
-              + (f", robot `{robot}` ({result.dataset.tendons} tendons)." if robot else "."), ""]
+              + (f", robot `{robot}` ({result.dataset.tendons} tendons)" if robot else "")
+              + f", base clamped {pose_name(result.dataset.base_rotation)}.", ""]
     if left_out:
         lines += [f"**{len(left_out)} configurations of the grid left out**: the robot cannot realise or hold them "
                   "(listed with the reason under *Configurations left out*).", ""]
