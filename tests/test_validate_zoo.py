@@ -131,3 +131,11 @@ def test_a_configuration_that_trips_the_limit_is_left_out_and_a_resume_does_not_
     err = capsys.readouterr().err
     assert code == 0, err
     assert "2 of the grid's 4 configurations left out" in err and "going on" not in err
+
+
+def test_a_grid_the_limit_cannot_hold_at_all_is_said_and_exits_non_zero(tmp_path, capsys):
+    code = main(["validate", "--robot", "stiff-long", "--grid", "kappa_per_m=26.2;phi_deg=0;tip_mass_kg=0",
+                 "--out", str(tmp_path)])
+    err = capsys.readouterr().err
+    assert code == 4
+    assert "1 of the grid's 1 configurations left out" in err and "no configuration was measured" in err

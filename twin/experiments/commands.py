@@ -503,6 +503,10 @@ def _validate(args, folder: Path, params) -> int:
     sweep_s = time.perf_counter() - start
     dataset = read_dataset(folder / RUN_DATASET)
     left_out = dataset.metadata.get("left_out", [])  # with the configurations that tripped the limit
+    if len(dataset) == 0:
+        print(f"twin validate: no configuration was measured: all {len(left_out)} left out (listed in "
+              f"{folder / RUN_DATASET}/metadata.json); nothing to predict", file=sys.stderr)
+        return 4
     result = analyse_validation(dataset, params, progress=True)
     picture = _picture(args, params, folder, pose)
     path = write_validation_report(result, folder, picture=picture, warnings=_twin_warnings(args, params),

@@ -330,12 +330,13 @@ def run_validation(device, folder: str | Path, params: Params, *, grid: Sequence
         with tqdm(total=sum(len(v) for _, v in todo), desc="validation sweep", unit="config",
                   disable=not progress) as bar:
             for (kappa, phi), configs in todo:
-                current = None
+                current, bending = None, False
                 try:
                     device.disable()
                     pretension(device, params, tension_n=pre, settle_s=0.3)
                     device.wait(0.05)
                     _check_state(device.latest())
+                    bending = True
                     # The relative lengths of the pretensioned straight endoscope: the zero of the PCC setpoints.
                     zero = device.latest().tendon_lengths_m.copy()
                     device.fixture.release_holder()
@@ -357,7 +358,8 @@ def run_validation(device, folder: str | Path, params: Params, *, grid: Sequence
                     device.fixture.hang_tip_mass(0.0)
                     device.disable()
                 except Exception:
-                    flags = _tension_trip(device)
+                    # A trip in the pretension is every configuration's (a limit under it): the run stops.
+                    flags = _tension_trip(device) if bending else 0
                     if not flags:
                         raise
                     # The configuration being set up (the lightest load first) or loaded trips the
