@@ -71,13 +71,13 @@ def test_golden_file_is_what_its_script_writes():
 
 def test_set_limits_frame_built_by_hand_from_protocol_md():
     # PROTOCOL.md: [type][seq u16][payload][crc u16 over the rest], COBS, 0x00. SET_LIMITS = 0x0A,
-    # payload tension_limit_n f32 + watchdog_timeout_ms u16.
-    body = bytes([0x0A]) + struct.pack("<H", 12) + struct.pack("<fH", 6.0, 250)
+    # payload tension_limit_n f32 + watchdog_timeout_ms u16 + loadcell_gain_counts_per_n f32.
+    body = bytes([0x0A]) + struct.pack("<H", 12) + struct.pack("<fHf", 6.0, 250, 45000.0)
     raw = body + struct.pack("<H", binascii.crc_hqx(body, 0xFFFF))
-    assert raw.hex() == "0a0c000000c040fa005eb4"
-    cobs = bytes.fromhex("030a0c010104c040fa035eb4")  # zeros at bytes 2, 3, 4 and 8 stuffed by hand
+    assert raw.hex() == "0a0c000000c040fa0000c82f4742df"
+    cobs = bytes.fromhex("030a0c010104c040fa0106c82f4742df")  # zeros at bytes 2, 3, 4, 8 and 9 stuffed by hand
     assert c.cobs_decode(cobs) == raw
-    assert c.encode_frame(c.SetLimits(6.0, 250), seq=12) == cobs + b"\x00"
+    assert c.encode_frame(c.SetLimits(6.0, 250, 45000.0), seq=12) == cobs + b"\x00"
 
 
 def test_crc_check_value():

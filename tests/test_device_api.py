@@ -12,7 +12,7 @@ import pytest
 
 from twin.calibration import run_calibration
 from twin.device import CommandRejected, DeviceError, OperatorFixture, open_device
-from twin.device.codec import Drive, Mode, NackError, State
+from twin.device.codec import PROTOCOL_VERSION, Drive, Mode, NackError, State
 from twin.params import load_params
 
 
@@ -205,7 +205,7 @@ def test_twin_emulate_prints_a_port_that_the_driver_connects_to():
         url = process.stdout.readline().split(":", 1)[1].strip()
         assert url == f"serial://{port}"
         with open_device(url) as device:
-            assert device.info.protocol_version == 3
+            assert device.info.protocol_version == PROTOCOL_VERSION
             assert device.wait_next().state is State.DISABLED
     finally:
         # SIGTERM, not SIGINT: a child started while another thread of this process is inside
@@ -257,3 +257,40 @@ def test_connecting_disables_a_board_left_enabled():
         sample = device.latest()
         assert sample.state is State.DISABLED and sample.fault_flags == 0
         assert all(drive is not Drive.DRIVE for drive in sample.drives) and not np.any(sample.motor_commands)
+
+
+def test_another_labs_load_cells_and_limit_work_end_to_end_and_a_blinding_calibration_is_refused():
+    # 5 kg cells (9,000 counts/N on the HX711) and a 30 N limit, as the parameter file says.
+    params = load_params(overrides={"sensors.loadcell_gain_counts_per_n": 9000.0, "sensors.loadcell_capacity_n": 49.0,
+                                    "rig.tension_limit_n": 30.0})
+    with open_device("sim://?seed=2", params=params) as device:
+        # Before any calibration, the board reads with the cells' rated sensitivity.
+        device.fixture.hang_calibration_mass(500.0, range(4))
+        before = np.mean([device.wait_next().tensions_n for _ in range(8)], axis=0)
+        device.fixture.remove_calibration_masses()
+        offsets = np.asarray(params.sensors.loadcell_offset_counts) / 9000.0
+        np.testing.assert_allclose(before - offsets, 0.5 * params.environment.gravity_m_s2, atol=0.05)
+        run = run_calibration(lambda: device.wait_next().raw_counts, device.fixture.hang_calibration_mass,
+                              masses_g=(0.0, 200.0, 500.0, 1000.0), samples_per_mass=4, gravity_m_s2=9.81)
+        device.fixture.remove_calibration_masses()
+        np.testing.assert_allclose(run.calibration.gain_counts_per_n, 9000.0, rtol=0.02)
+        device.set_calibration(run.calibration)
+        # The thesis's 1 kg gain would read these cells 5x low, blind to the limit: refused.
+        with pytest.raises(ValueError, match=r"gain_counts_per_n\[0\] = 45000.0: outside 7200..11250 counts/N "
+                                             r"\(more than 25 % off the load cells' rated 9000"):
+            device.set_calibration(gain_counts_per_n=[45000.0] * 4, offset_counts=[0.0] * 4)
+        # Tensions over the thesis rig's 6 N are driven under the 30 N limit and read as they are
+        # (the tension loop's own accuracy is not this test's); beyond the limit refused.
+        device.set_mode("tensions")
+        device.enable()
+        device.set_tensions([12.0, 1.0, 1.0, 1.0])
+        read, true = [], []
+        for _ in range(10):
+            device.wait(0.2)
+            read.append(device.latest().tensions_n[0])
+            true.append(device.twin.true_tensions_n()[0])
+        assert device.latest().fault_flags == 0
+        assert np.mean(true[-5:]) == pytest.approx(12.0, abs=2.0)
+        np.testing.assert_allclose(read, true, atol=0.15)
+        with pytest.raises(ValueError, match=r"tensions_n\[0\] = 31.0: outside 0..30 N"):
+            device.set_tensions([31.0, 1.0, 1.0, 1.0])

@@ -13,11 +13,12 @@ import tty
 import numpy as np
 import pytest
 
-from twin.device import DeviceDisconnected, DeviceTimeout, ProtocolVersionError, SimTwin, open_device
+from twin.device import DeviceDisconnected, DeviceError, DeviceTimeout, ProtocolVersionError, SimTwin, open_device
 from twin.device import codec as c
 from twin.device.codec import Drive, Fault, State
 from twin.device.inbox import Inbox
 from twin.device.pty_board import PtyBoard
+from twin.params import load_params
 
 
 def telemetry_stream(count: int) -> tuple[list[c.TelemetryMessage], list[bytes]]:
@@ -82,8 +83,8 @@ class HandPlayedBoard:
         self.decoder = c.FrameDecoder()
 
     def answer_hello(self, reply: c.HelloReply, *, then: bytes = b"") -> threading.Thread:
-        """Answer the HELLO with ``reply`` and the DISABLE that a host sends next with an ACK,
-        then send ``then``; the messages received meanwhile go to :attr:`received`."""
+        """Answer the HELLO with ``reply``, the DISABLE and SET_LIMITS that a host sends next
+        with an ACK each, then send ``then``; the messages received meanwhile go to :attr:`received`."""
         self.received = []
 
         def run():
@@ -93,7 +94,9 @@ class HandPlayedBoard:
                     if isinstance(frame.message, c.Hello):
                         os.write(self.master, c.encode_frame(reply, seq=0))
                     elif isinstance(frame.message, c.Disable):
-                        os.write(self.master, c.encode_frame(c.Ack(frame.seq, c.MsgType.DISABLE), seq=1) + then)
+                        os.write(self.master, c.encode_frame(c.Ack(frame.seq, c.MsgType.DISABLE), seq=1))
+                    elif isinstance(frame.message, c.SetLimits):
+                        os.write(self.master, c.encode_frame(c.Ack(frame.seq, c.MsgType.SET_LIMITS), seq=2) + then)
                         return
 
         thread = threading.Thread(target=run, daemon=True)
@@ -122,13 +125,51 @@ def test_a_board_of_another_protocol_version_is_refused():
         board.close()
 
 
+RIG_M_PER_COUNT = load_params().rig.tendon_m_per_count
+
+
+def test_a_board_that_counts_another_spool_is_refused():
+    # The rig's spool, gearbox and encoder are the parameter file's: a board whose firmware was
+    # built for another counts the tendons in other units, so every length would be off.
+    board = HandPlayedBoard()
+    try:
+        thread = board.answer_hello(c.HelloReply(tendon_m_per_count=2 * RIG_M_PER_COUNT))
+        device = open_device(board.url)
+        with pytest.raises(DeviceError, match=r"counts 1.88\d+e-06 m of tendon per encoder count, the robot's rig "
+                                              r"9.40\d+e-07 m \(rig.spool_radius_m"):
+            device.connect(timeout_s=1.0)
+        assert not device.connected
+        thread.join(timeout=1.0)
+        assert [type(m) for m in board.received] == [c.Hello, c.Disable]
+    finally:
+        board.close()
+
+
+def test_the_board_is_given_the_rigs_limit_and_load_cells_on_connecting():
+    params = load_params(overrides={"sensors.loadcell_gain_counts_per_n": 9000.0, "sensors.loadcell_capacity_n": 49.0,
+                                    "rig.tension_limit_n": 30.0})
+    board = HandPlayedBoard()
+    try:
+        _, telemetry = telemetry_stream(1)
+        thread = board.answer_hello(c.HelloReply(tendon_m_per_count=RIG_M_PER_COUNT), then=telemetry[0])
+        device = open_device(board.url, params=params)
+        device.connect(timeout_s=1.0)
+        thread.join(timeout=1.0)
+        limits = board.received[-1]
+        assert isinstance(limits, c.SetLimits)
+        assert (limits.tension_limit_n, limits.loadcell_gain_counts_per_n) == (30.0, 9000.0)
+        device.close()
+    finally:
+        board.close()
+
+
 def test_garbage_on_the_line_is_skipped_and_a_silent_board_times_out():
     board = HandPlayedBoard()
     try:
         # Garbage before, between and after the frames the host needs.
         garbage = bytes(range(1, 200)) + b"\x00\x17\x42\x00"
         _, telemetry = telemetry_stream(1)
-        board.answer_hello(c.HelloReply(), then=garbage + telemetry[0] + garbage)
+        board.answer_hello(c.HelloReply(tendon_m_per_count=RIG_M_PER_COUNT), then=garbage + telemetry[0] + garbage)
         device = open_device(board.url)
         device.connect(timeout_s=1.0)
         assert device.latest().seq == 0

@@ -342,3 +342,15 @@ def test_a_dynamic_dataset_whose_base_pose_is_not_a_rotation_is_refused_in_one_l
         read_run(tmp_path / "run")
     code, out, err = run(capsys, "dynamics", "calibrate", tmp_path / "run")
     assert code == 2 and len(err.strip().splitlines()) == 1 and "base_rotation" in err
+
+
+def test_the_dynamic_experiments_bend_a_longer_robot_by_the_same_angles():
+    from twin.dynamics.protocols import STEP_KAPPA_PER_M, experiment_set
+    from twin.pcc import tendon_length_changes_m
+    from twin.robots import load_robot
+
+    for name, kappa in (("endoscope", STEP_KAPPA_PER_M), ("stiff-long", STEP_KAPPA_PER_M * 0.06 / 0.15)):
+        params = load_robot(name)
+        steps = experiment_set(params, quick=True)[0]
+        expected = tendon_length_changes_m(kappa, params.tendons.angles_deg[0], params)
+        np.testing.assert_allclose(steps.commands[0].values, expected, rtol=1e-9, err_msg=name)

@@ -47,9 +47,6 @@ def constant(name: str) -> float:
     ("kDefaultChannels", PARAMS.tendons.count),
     ("kMotorStallTorqueNm", PARAMS.rig.motor_stall_torque_nm),
     ("kMotorNoLoadSpeedRpm", PARAMS.rig.motor_no_load_speed_rpm),
-    # The calibration bounds: 25 % either way of the parameter set's nominal gain.
-    ("kMinGainCountsPerN", PARAMS.sensors.loadcell_gain_counts_per_n / 1.25),
-    ("kMaxGainCountsPerN", PARAMS.sensors.loadcell_gain_counts_per_n * 1.25),
 ])
 def test_a_compiled_default_is_the_parameter_sets_value(name, expected):
     assert constant(name) == pytest.approx(expected, rel=1e-12)
@@ -65,8 +62,12 @@ def test_the_parser_reads_what_it_claims():
 def test_the_driver_refuses_what_the_firmware_refuses():
     from twin.device import device
 
-    low, high = device.CALIBRATION_GAIN_COUNTS_PER_N
-    assert (low, high) == (constant("kMinGainCountsPerN"), constant("kMaxGainCountsPerN"))
+    assert device.GAIN_TOLERANCE == constant("kGainTolerance")
+    low, high = device.RATED_GAIN_COUNTS_PER_N
+    assert low == constant("kMinRatedGainCountsPerN")
+    # config.h computes it from the other constants; the driver's must be the same number.
+    assert high == pytest.approx((constant("kLoadcellMaxCounts") - constant("kMaxOffsetCounts"))
+                                 / (constant("kMaxTensionLimitN") * constant("kGainTolerance")), rel=1e-7)
     assert device.MAX_OFFSET_COUNTS == constant("kMaxOffsetCounts")
     assert device.MAX_TENSION_LIMIT_N == constant("kMaxTensionLimitN")
     assert device.MAX_LENGTH_SETPOINT_M == pytest.approx(constant("kMaxLengthSetpointM"), rel=1e-7)

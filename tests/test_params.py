@@ -159,3 +159,97 @@ def test_a_bad_description_is_refused_with_every_inconsistent_key_named_at_once(
     with pytest.raises(ParameterError) as info:
         load_params(overrides={"backbone.mass_kg": -1.0, "sim.elements": 0, "rig.base_quat": [0, 0, 0, 0]})
     assert all(key in str(info.value) for key in ("backbone.mass_kg", "sim.elements", "rig.base_quat"))
+
+
+def _two_segment_arrays_removed() -> str:
+    """The two-segment robot's file without its [[segments]]: the keys they set are missing."""
+    from twin.robots import robot_path
+
+    text = robot_path("two-segment").read_text()
+    return text[:text.index("[[segments]]")]
+
+
+SEGMENTS = """
+[[segments]]
+source = "test: proximal"
+length_m = 0.03
+discs = 5
+tendons = [{ angle_deg = 0.0 }, { angle_deg = 120.0 }, { angle_deg = 240.0 }]
+
+[[segments]]
+length_m = { value = 0.03, source = "test: distal" }
+discs = 5
+tendons = [{ angle_deg = 60.0, radius_m = 0.0045, routing = "straight" }, { angle_deg = 180.0 }, { angle_deg = 300.0 }]
+"""
+
+
+def test_segments_describe_the_robot_the_arrays_do(tmp_path):
+    from twin.robots import load_robot
+
+    path = tmp_path / "two.toml"
+    path.write_text(_two_segment_arrays_removed() + SEGMENTS)
+    params = load_params(path)
+    assert (params.backbone.length_m, params.discs.count) == (0.06, 10)
+    assert params.tendons.angles_deg == (0.0, 120.0, 240.0, 60.0, 180.0, 300.0)
+    assert params.tendons.end_discs == (5, 5, 5, 10, 10, 10)
+    assert params == load_robot("two-segment")
+    assert params.source("tendons.end_discs") == "segments: [0] test: proximal; [1] test: distal"
+    # Written back as the arrays, which read as the same robot.
+    assert load_params(params.save(tmp_path / "saved.toml")) == params
+
+
+@pytest.mark.parametrize("change, message", [
+    (("discs = 5\ntendons = [{ angle_deg = 60.0", "discs = 4\ncolour = 1\ntendons = [{ angle = 60.0"),
+     "segments[1]: unknown key(s) ['colour']; a segment has length_m, discs, tendons, source; segments[1].tendons[0]: "
+     "unknown key(s) ['angle']"),
+    (("discs = 5\ntendons = [{ angle_deg = 60.0", "discs = 4\ntendons = [{ angle_deg = 60.0"),
+     "segments[1]: 4 discs over 0.03 m are 7.5 mm apart, segments[0]'s 6 mm"),
+    (("radius_m = 0.0045", "radius_m = 0.003"), "[[segments]]: tendons' radius_m 0.003 differs from tendons.radius_m = 0.0045"),
+    (("length_m = 0.03\n", "length_m = -1\n"), "segments[0].length_m = -1: must be a number > 0"),
+])
+def test_a_wrong_segment_is_named_with_every_other_wrong_key_in_one_line(tmp_path, change, message):
+    path = tmp_path / "bad.toml"
+    text = (_two_segment_arrays_removed() + SEGMENTS).replace(*change, 1)
+    path.write_text(text.replace("pretension_n = { value = 1.35", "pretension_n = { value = -1", 1))
+    with pytest.raises(ParameterError) as info:
+        load_params(path)
+    text = str(info.value)
+    assert message in text and "\n" not in text and "missing key" not in text
+    assert "tendons.pretension_n = -1" in text  # the other wrong key, named in the same line
+
+
+def test_segments_and_the_arrays_they_set_are_not_both_given(tmp_path):
+    from twin.robots import robot_path
+
+    path = tmp_path / "both.toml"
+    path.write_text(robot_path("endoscope").read_text() + SEGMENTS)
+    with pytest.raises(ParameterError, match=r"\[\[segments\]\] set backbone.length_m, discs.count, tendons.angles_deg: "
+                                             "give them as segments or as keys, not both"):
+        load_params(path)
+
+
+def test_modelfiles_refuses_a_bad_parameter_file_in_one_line_and_writes_nothing(tmp_path, monkeypatch, capsys):
+    import twin.robots
+    from twin.sim import modelfiles
+
+    (tmp_path / "endoscope").mkdir()
+    (tmp_path / "endoscope" / "endoscope.toml").write_text(
+        twin.robots.robot_path("endoscope").read_text().replace("count = { value = 10,", "count = { value = 2.5,")
+        .replace("value = 0.003, source", "value = \"thick\", source", 1))
+    monkeypatch.setattr(twin.robots, "MODELS_DIR", tmp_path)
+    assert modelfiles.main() == 2
+    err = capsys.readouterr().err
+    assert len(err.strip().splitlines()) == 1 and err.startswith("python -m twin.sim.modelfiles: ")
+    assert "discs.count = 2.5: must be a whole number" in err and "backbone.radius_m = 'thick': must be a number" in err
+    assert sorted(p.name for p in tmp_path.rglob("*")) == ["endoscope", "endoscope.toml"]
+
+
+def test_the_rigs_load_cells_and_limit_must_be_ones_the_board_can_hold():
+    with pytest.raises(ParameterError, match=r"rig.tension_limit_n = 30.0: must be <= sensors.loadcell_capacity_n = "
+                                             r"9.80665 and <= 50 N"):
+        load_params(overrides={"rig.tension_limit_n": 30.0})
+    with pytest.raises(ParameterError, match=r"sensors.loadcell_gain_counts_per_n = 200000.0: must be in 100..117440"):
+        load_params(overrides={"sensors.loadcell_gain_counts_per_n": 200000.0})
+    five_kg = load_params(overrides={"rig.tension_limit_n": 30.0, "sensors.loadcell_capacity_n": 49.03,
+                                     "sensors.loadcell_gain_counts_per_n": 9000.0})
+    assert five_kg.rig.tension_limit_n == 30.0

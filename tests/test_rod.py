@@ -304,3 +304,22 @@ def test_a_plane_no_tendon_pair_brackets_is_refused_not_bent_elsewhere():
     assert pcc_realisable(0.0, two) and pcc_realisable(180.0, two) and not pcc_realisable(90.0, two)
     with pytest.raises(ValueError, match="cannot bend towards it"):
         pcc_tensions_n(13.0, 90.0, two)
+
+
+def test_a_stiffness_run_off_to_zero_is_a_failed_solve_not_a_crash():
+    # A fit's trial with an undetermined shear modulus run off to 1e-278 Pa: GA underflows.
+    from twin.robots import load_robot
+
+    params = load_robot("stiff-long").replace({"backbone.shear_modulus_pa": 5.8e-278})
+    model = RodModel.from_params(params)
+    sol = solve(model, [0.0, 0.02, 0.003], base_rotation=params.rig.base_rotation, raise_on_failure=False)
+    assert not sol.converged
+
+
+def test_the_step_count_follows_the_robots_length():
+    from twin.robots import load_robot
+
+    endoscope, stiff = load_robot("endoscope"), load_robot("stiff-long")
+    assert endoscope.predictor_steps() == endoscope.solver.steps == 12
+    # 150 mm at no more than 5 mm a step.
+    assert stiff.predictor_steps() == 30 and RodModel.from_params(stiff).steps == 30

@@ -156,3 +156,12 @@ def test_with_tendon_friction_the_predictor_given_the_twins_sliding_state_agrees
                     base_rotation=plant.base_rotation, friction_direction=np.ones(params.tendons.count))
         misses.append(np.linalg.norm(sol.tip_position_m - plant.tip_pose()[0]) / params.backbone.length_m * 100)
     assert max(misses) > GOAL_WORST_PCT
+
+
+def test_the_report_names_the_clamp_pose_of_the_parameter_set(tmp_path):
+    from twin.pose import matrix_to_quat, rot_y
+
+    down = robot_params("endoscope").replace({"rig.base_quat": matrix_to_quat(rot_y(np.radians(120.0))).tolist()})
+    result = crosscheck(down, configs=QUICK_GRID[:1])
+    text = write_report(result, [], tmp_path, down).read_text()
+    assert "Base clamped pointing 30° below the horizontal, gravity on" in text and "Endoscope horizontal" not in text

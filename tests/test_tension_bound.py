@@ -41,7 +41,7 @@ import pytest
 
 from twin.device import CommandRejected, Device, open_device
 from twin.device import codec as c
-from twin.device.device import CALIBRATION_GAIN_COUNTS_PER_N
+from twin.device.device import GAIN_TOLERANCE
 from twin.params import load_params
 
 PARAMS = load_params()
@@ -63,8 +63,8 @@ LOAD_SETTLE_S = 0.5
 def random_calibration(rng: np.random.Generator) -> dict:
     """A calibration the board accepts: per channel the nominal gain, or either extreme of the
     accepted range, or anywhere between; offsets a few hundred counts off the twin's."""
-    low, high = CALIBRATION_GAIN_COUNTS_PER_N
     nominal = PARAMS.sensors.loadcell_gain_counts_per_n
+    low, high = nominal / GAIN_TOLERANCE, nominal * GAIN_TOLERANCE
     if rng.random() < 0.5:
         gains = rng.choice([low, nominal, high], 4)
     else:

@@ -47,3 +47,18 @@ def test_resuming_the_upright_run_without_its_pose_is_refused_naming_the_pose(ru
     # With it, the run is complete: nothing is measured again.
     assert main(["validate", "--quick", "--seed", "2", "--resume", str(run), "--pose", "up"]) == 0
     assert len(read_dataset(run)) == 24
+
+
+def test_the_report_names_the_pose_the_robot_was_clamped_in(runs):
+    assert "base clamped upright." in (runs["up"][0] / "report.md").read_text()
+    assert "base clamped horizontal (the thesis's clamp)." in (runs["horizontal"][0] / "report.md").read_text()
+
+
+def test_a_pose_is_named_by_where_the_backbone_points():
+    from twin.pose import pose_name, rot_y, rot_z
+
+    # Clamped pointing down at 30°: the body z axis 30° below the world's horizontal plane.
+    assert pose_name(rot_y(np.radians(120.0))) == "pointing 30° below the horizontal"
+    assert pose_name(rot_z(0.3) @ rot_y(np.radians(60.0))) == "pointing 30° above the horizontal"
+    assert pose_name(rot_y(np.pi)) == "pointing straight down"
+    assert pose_name(rot_z(1.0) @ HORIZONTAL) == "pointing horizontally"

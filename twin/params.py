@@ -203,11 +203,16 @@ class Rig:
 
 @dataclasses.dataclass(frozen=True)
 class Sensors:
+    """Load cells and tracker. The cells' rated sensitivity bounds the calibrations the board
+    accepts (25 % either way) and their capacity bounds the tension limit."""
+
     loadcell_gain_counts_per_n: float = _f(_positive)
     loadcell_offset_counts: tuple[float, ...] = _f()
     loadcell_noise_n: float = _f(_nonnegative)
     tracker_noise_m: float = _f(_nonnegative)
     tracker_noise_rad: float = _f(_nonnegative)
+    loadcell_capacity_n: float = _f(_positive, default=9.80665,
+                                    source="default: assumption: 1 kg load cells, as sensors.loadcell_gain_counts_per_n assumes")
 
 
 @functools.cache
@@ -243,9 +248,15 @@ class SimSettings:
 
 @dataclasses.dataclass(frozen=True)
 class SolverSettings:
+    """The predictor's integration: RK4 over ``max(steps, ⌈backbone.length_m / max_step_m⌉)``
+    steps (:meth:`Params.predictor_steps`), so that a longer robot keeps the tip accuracy."""
+
     steps: int = _f(_positive)
     tolerance: float = _f(_positive)
     max_iterations: int = _f(_positive)
+    max_step_m: float = _f(_positive, default=0.005,
+                           source="default: chosen by measurement: the endoscope's 60 mm / 12 steps puts the tip within "
+                                  "1.6e-7 m of 640 steps (twin bench predictor); 150 mm at 30 steps 3.6e-7 m")
 
 
 def _sections() -> dict[str, type]:
@@ -283,6 +294,11 @@ class Params:
         b, t, d = self.backbone, self.tendons, self.discs
         ends = t.end_discs or (d.count,) * t.count
         return tuple(b.length_m * float(e) / d.count for e in ends)
+
+    def predictor_steps(self) -> int:
+        """RK4 steps of the predictor over the backbone: ``solver.steps``, or more where the
+        backbone is longer than ``solver.steps · solver.max_step_m``."""
+        return max(self.solver.steps, math.ceil(self.backbone.length_m / self.solver.max_step_m - 1e-9))
 
     def source(self, key: str) -> str:
         """Where the value of ``"section.key"`` came from (thesis / assumption / fitted / override)."""
@@ -412,7 +428,8 @@ def _from_dict(raw: Mapping[str, Any], origin: str) -> Params:
     """
     sections: dict[str, Any] = {}
     sources: dict[str, str] = {}
-    problems: list[str] = []
+    had_segments = "segments" in raw
+    raw, problems = _from_segments(raw, origin)
     section_types = _sections()
     unknown = set(raw) - set(section_types)
     if unknown:
@@ -439,12 +456,113 @@ def _from_dict(raw: Mapping[str, Any], origin: str) -> Params:
                 problems.append(str(exc))
         if len(kwargs) == len(names):
             sections[section] = cls(**kwargs)
+    if had_segments:
+        # Keys the segments set are missing only because the segments were wrong (said above).
+        problems = [p for p in problems if not any(p.endswith(f"missing key {key}") for key in _SEGMENT_SET)]
     if not problems:
         params = Params(**sections, sources=sources)
         problems += _consistency_problems(params)
     if problems:
         raise ParameterError("; ".join(problems))
     return params
+
+
+# What a [[segments]] entry holds, and what each of its tendons holds.
+_SEGMENT_KEYS = ("length_m", "discs", "tendons", "source")
+_SEGMENT_TENDON_KEYS = ("angle_deg", "radius_m", "routing", "source")
+# The keys [[segments]] set: a file gives them one way or the other.
+_SEGMENT_SET = ("backbone.length_m", "discs.count", "tendons.angles_deg", "tendons.end_discs")
+
+
+def _from_segments(raw: Mapping[str, Any], origin: str) -> tuple[dict, list[str]]:
+    """The file's ``[[segments]]`` (a robot described segment by segment, base first) turned into
+    the arrays the model reads, and the problems found: ``backbone.length_m`` (their sum),
+    ``discs.count`` (their sum), ``tendons.angles_deg`` (every segment's tendons, in order) and
+    ``tendons.end_discs`` (each tendon anchored at its segment's last disc). The model has one
+    tendon radius and routing and evenly spaced discs: segments that differ in them are refused.
+    A file without ``[[segments]]`` is returned as it is."""
+    raw = {k: (dict(v) if isinstance(v, Mapping) else v) for k, v in raw.items()}
+    segments = raw.pop("segments", None)
+    if segments is None:
+        return raw, []
+    where = f"{origin}: [[segments]]"
+    if not isinstance(segments, list) or not segments or not all(isinstance(seg, Mapping) for seg in segments):
+        return raw, [f"{where} must be one or more tables ([[segments]] with length_m, discs and tendons)"]
+    problems: list[str] = []
+    given_twice = [key for key in _SEGMENT_SET
+                   if isinstance(raw.get(key.split(".")[0]), Mapping) and key.split(".")[1] in raw[key.split(".")[0]]]
+    if given_twice:
+        problems.append(f"{where} set {', '.join(given_twice)}: give them as segments or as keys, not both")
+
+    def plain(entry):
+        return (entry.get("value"), str(entry.get("source", ""))) if isinstance(entry, Mapping) else (entry, "")
+
+    lengths, discs, angles, ends, radii, routings, sources = [], [], [], [], set(), set(), []
+    for i, seg in enumerate(segments):
+        at = f"segments[{i}]"
+        unknown = sorted(set(seg) - set(_SEGMENT_KEYS))
+        if unknown:
+            problems.append(f"{at}: unknown key(s) {unknown}; a segment has {', '.join(_SEGMENT_KEYS)}")
+        length, length_source = plain(seg.get("length_m"))
+        count, count_source = plain(seg.get("discs"))
+        if isinstance(length, bool) or not isinstance(length, (int, float)) or not math.isfinite(length) or length <= 0:
+            problems.append(f"{at}.length_m = {length!r}: must be a number > 0")
+            length = None
+        if isinstance(count, bool) or not isinstance(count, int) or count < 1:
+            problems.append(f"{at}.discs = {count!r}: must be a whole number >= 1")
+            count = None
+        tendons = seg.get("tendons")
+        if not isinstance(tendons, list) or not tendons or not all(isinstance(t, Mapping) for t in tendons):
+            problems.append(f"{at}.tendons = {tendons!r}: must be a list of tables {{ angle_deg = ..., radius_m = ..., "
+                            "routing = ... }}, one per tendon ending at this segment's last disc")
+            tendons = []
+        for j, tendon in enumerate(tendons):
+            bad = sorted(set(tendon) - set(_SEGMENT_TENDON_KEYS))
+            if bad:
+                problems.append(f"{at}.tendons[{j}]: unknown key(s) {bad}; a tendon has {', '.join(_SEGMENT_TENDON_KEYS)}")
+            angle = tendon.get("angle_deg")
+            if isinstance(angle, bool) or not isinstance(angle, (int, float)) or not math.isfinite(angle):
+                problems.append(f"{at}.tendons[{j}].angle_deg = {angle!r}: must be a number")
+                continue
+            angles.append(float(angle))
+            ends.append(None if count is None else sum(discs) + count)
+            if "radius_m" in tendon:
+                radii.add(tendon["radius_m"])
+            if "routing" in tendon:
+                routings.add(tendon["routing"])
+        if length is not None and count is not None:
+            if lengths and not math.isclose(length / count, lengths[0] / discs[0], rel_tol=1e-9):
+                problems.append(f"{at}: {count} discs over {length!r} m are {length / count * 1e3:.4g} mm apart, "
+                                f"segments[0]'s {lengths[0] / discs[0] * 1e3:.4g} mm: the model spaces the discs "
+                                "evenly over the backbone")
+            lengths.append(length)
+            discs.append(count)
+        sources.append(str(seg.get("source", "")) or length_source or count_source)
+    for name, values in (("radius_m", radii), ("routing", routings)):
+        existing = raw.get("tendons", {}).get(name) if isinstance(raw.get("tendons"), Mapping) else None
+        if len(values) > 1:
+            problems.append(f"{where}: tendons of radius_m / routing {sorted(map(str, values))}: the model has one "
+                            f"tendons.{name} for every tendon")
+        elif values and existing is not None and plain(existing)[0] not in values:
+            problems.append(f"{where}: tendons' {name} {next(iter(values))!r} differs from tendons.{name} = "
+                            f"{plain(existing)[0]!r}")
+    if problems:
+        return raw, problems
+    source = "segments: " + "; ".join(f"[{i}] {s}" for i, s in enumerate(sources) if s) if any(sources) else "segments"
+    single = len(segments) == 1
+    settings = {"backbone": {"length_m": sum(lengths)}, "discs": {"count": sum(discs)},
+                "tendons": {"angles_deg": angles, "end_discs": [] if single else [float(e) for e in ends]}}
+    if radii:
+        settings["tendons"]["radius_m"] = next(iter(radii))
+    if routings:
+        settings["tendons"]["routing"] = next(iter(routings))
+    for section, values in settings.items():
+        table = raw.setdefault(section, {})
+        if not isinstance(table, dict):
+            continue  # the section's own problem, named when it is read
+        for key, value in values.items():
+            table[key] = {"value": value, "source": source}
+    return raw, []
 
 
 def _entry(origin: str, key: str, f: dataclasses.Field, table: Mapping, annotation, sections: dict):
@@ -491,6 +609,7 @@ def _consistency_problems(p: Params) -> list[str]:
     for key in per_tendon + ["sensors.loadcell_offset_counts"]:
         if len(p.get(key)) != n:
             problems.append(f"{key} = {list(p.get(key))!r}: must have one entry per tendon ({n})")
+    problems += _rig_problems(p)
     if p.sim.elements < d.count:
         problems.append(f"sim.elements = {p.sim.elements!r}: must be >= discs.count = {d.count}")
     if t.end_discs:
@@ -500,6 +619,23 @@ def _consistency_problems(p: Params) -> list[str]:
         if bad:
             problems.append(f"tendons.end_discs = {list(t.end_discs)!r}: {bad} beyond the discs: each must be a "
                             f"disc number 1 … discs.count = {d.count} (the tip)")
+    return problems
+
+
+def _rig_problems(p: Params) -> list[str]:
+    """The load cells and the tension limit must be ones the board can hold (firmware/PROTOCOL.md)."""
+    # Imported here: the device package reads parameter sets itself.
+    from twin.device.device import MAX_TENSION_LIMIT_N, RATED_GAIN_COUNTS_PER_N
+
+    problems = []
+    limit, capacity, gain = p.rig.tension_limit_n, p.sensors.loadcell_capacity_n, p.sensors.loadcell_gain_counts_per_n
+    if limit > min(capacity, MAX_TENSION_LIMIT_N):
+        problems.append(f"rig.tension_limit_n = {limit!r}: must be <= sensors.loadcell_capacity_n = {capacity!r} "
+                        f"and <= {MAX_TENSION_LIMIT_N:g} N, the most the firmware accepts")
+    low, high = RATED_GAIN_COUNTS_PER_N
+    if not low <= gain <= high:
+        problems.append(f"sensors.loadcell_gain_counts_per_n = {gain!r}: must be in {low:g}..{high:.0f} counts/N "
+                        "(the HX711's 24-bit range holds the largest limit; a count is at most 10 mN)")
     return problems
 
 

@@ -11,7 +11,7 @@ import math
 
 import numpy as np
 
-__all__ = ["HORIZONTAL", "HORIZONTAL_QUAT", "UP", "rotation_of_quat", "base_rotation_from", "quat_to_matrix", "matrix_to_quat", "rot_x", "rot_y", "rot_z"]
+__all__ = ["HORIZONTAL", "HORIZONTAL_QUAT", "UP", "pose_name", "rotation_of_quat", "base_rotation_from", "quat_to_matrix", "matrix_to_quat", "rot_x", "rot_y", "rot_z"]
 
 
 def rot_x(angle_rad: float) -> np.ndarray:
@@ -93,3 +93,23 @@ def base_rotation_from(*, pose: str | None = None, quat=None) -> np.ndarray:
     if pose in _NAMED:
         return _NAMED[pose].copy()
     raise ValueError(f"pose {pose!r}: expected 'up' or 'horizontal'")
+
+
+def pose_name(rotation) -> str:
+    """The clamp pose in words, for reports: ``"horizontal"`` and ``"upright"`` for the named
+    poses, else where the backbone points, e.g. ``"pointing 30° below the horizontal"``
+    (the body z axis against world z; gravity along world −z)."""
+    r = np.asarray(rotation, dtype=float)
+    if np.allclose(r, HORIZONTAL, atol=1e-9):
+        return "horizontal (the thesis's clamp)"
+    if np.allclose(r, UP, atol=1e-9):
+        return "upright"
+    axis = r[:, 2]
+    elevation = math.degrees(math.asin(max(-1.0, min(1.0, float(axis[2])))))
+    if abs(elevation) < 0.05:
+        return "pointing horizontally"
+    if elevation >= 89.95:
+        return "pointing straight up"
+    if elevation <= -89.95:
+        return "pointing straight down"
+    return f"pointing {abs(elevation):.3g}° {'above' if elevation > 0 else 'below'} the horizontal"

@@ -34,11 +34,12 @@ bool valid_gains(Mode mode, const msg::SetGains& m) {
 }
 
 // A calibration channel SET_CALIBRATION accepts (config.h, firmware/PROTOCOL.md): counts rise
-// with tension at a plausible rate, and the offset leaves the tension limit inside the 24-bit
-// range. Compared as counts per N, so that the bounds are the datasheet-like numbers.
-bool valid_calibration(float gain_n_per_count, float offset_counts) {
+// with tension within kGainTolerance of the cells' rated sensitivity, and the offset leaves the
+// tension limit inside the 24-bit range. Compared as counts per N, so that the bounds are the
+// datasheet-like numbers.
+bool valid_calibration(float gain_n_per_count, float offset_counts, float rated_counts_per_n) {
   if (!(gain_n_per_count > 0.0f)) return false;
-  return within(1.0f / gain_n_per_count, kMinGainCountsPerN, kMaxGainCountsPerN) &&
+  return within(1.0f / gain_n_per_count, rated_counts_per_n / kGainTolerance, rated_counts_per_n * kGainTolerance) &&
          within(offset_counts, -kMaxOffsetCounts, kMaxOffsetCounts);
 }
 
@@ -174,7 +175,9 @@ uint8_t Firmware::on_set_calibration(const msg::SetCalibration& m) {
     return nack(NackError::kBadValue);
   }
   for (size_t i = 0; i < channels_; ++i) {
-    if (!valid_calibration(m.gain_n_per_count[i], m.offset_counts[i])) return nack(NackError::kBadValue);
+    if (!valid_calibration(m.gain_n_per_count[i], m.offset_counts[i], rated_counts_per_n_)) {
+      return nack(NackError::kBadValue);
+    }
   }
   for (size_t i = 0; i < channels_; ++i) {
     gain_n_per_count_[i] = m.gain_n_per_count[i];
@@ -190,6 +193,15 @@ uint8_t Firmware::on_set_limits(const msg::SetLimits& m) {
   }
   if (m.watchdog_timeout_ms < kMinWatchdogMs || m.watchdog_timeout_ms > kMaxWatchdogMs) {
     return nack(NackError::kBadValue);
+  }
+  if (!within(m.loadcell_gain_counts_per_n, kMinRatedGainCountsPerN, kMaxRatedGainCountsPerN)) {
+    return nack(NackError::kBadValue);
+  }
+  // Other load cells: the calibration of the ones before does not hold for them. Not while
+  // driving, which the readings' scale changing under the tension loop would upset.
+  if (m.loadcell_gain_counts_per_n != rated_counts_per_n_) {
+    if (safety_.state() == State::kEnabled) return nack(NackError::kNotWhileEnabled);
+    set_rated_gain(m.loadcell_gain_counts_per_n);
   }
   safety_.set_limits(m.tension_limit_n, m.watchdog_timeout_ms);
   set_tension_limit(m.tension_limit_n);

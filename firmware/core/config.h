@@ -20,7 +20,7 @@ using ChannelMask = uint16_t;
 static_assert(kMaxChannels <= 8 * sizeof(ChannelMask), "a ChannelMask holds a bit per channel");
 
 // Protocol version: bumped on any change of a byte layout in firmware/PROTOCOL.md.
-constexpr uint16_t kProtocolVersion = 3;
+constexpr uint16_t kProtocolVersion = 4;
 constexpr uint8_t kFirmwareVersionMajor = 0;
 constexpr uint8_t kFirmwareVersionMinor = 3;
 constexpr uint8_t kFirmwareVersionPatch = 0;
@@ -144,18 +144,27 @@ constexpr float kPlausibleMinForceN = 0.6f;
 constexpr float kPlausibleFraction = 1.0f / 3.0f;
 constexpr float kPlausibleMarginN = 0.2f;
 
-// Calibrations SET_CALIBRATION accepts. Gain: counts rise with tension, within 25 % of the
-// nominal 45,000 counts/N (load-cell rated output ±10 %, HX711 excitation and gain a few %
-// more; a larger error is a wrong cell, wiring or unit, and it scales the tension loop's gain
-// away from what its gains were tuned for). Offset: within 2^20 counts
-// of zero, an eighth of the HX711's 24-bit range, so that the largest limit (50 N) at the
-// largest gain still reads below saturation. Readings at either end of the 24-bit range are not
-// trusted at all.
-constexpr float kMinGainCountsPerN = 36000.0f;
-constexpr float kMaxGainCountsPerN = 56250.0f;
+// Load cells. The host gives the board its cells' rated sensitivity (SET_LIMITS
+// loadcell_gain_counts_per_n: the parameter set's sensors.loadcell_gain_counts_per_n, 45,000
+// counts/N for the thesis's HX711 at gain 128 with 1 kg cells) and SET_CALIBRATION accepts a
+// gain only within kGainTolerance of it either way: the cell's rated output ±10 %, the HX711's
+// excitation and gain a few % more. A larger error is a wrong cell, wiring or unit; it would
+// blind the tension limit (a reading 10x low lets the tendon reach 10x the limit) and scale the
+// tension loop's gain away from what its gains were tuned for. Until a calibration arrives the
+// rated sensitivity converts the readings, so the limit holds from the first ENABLE.
+constexpr float kGainTolerance = 1.25f;
+// Offsets: within 2^20 counts of zero, an eighth of the HX711's 24-bit range. Readings at either
+// end of the 24-bit range are not trusted at all.
 constexpr float kMaxOffsetCounts = 1048576.0f;
 constexpr int32_t kLoadcellMaxCounts = 8388607;
 constexpr int32_t kLoadcellMinCounts = -8388608;
+// Rated sensitivities SET_LIMITS accepts (counts/N). At most so much that the largest limit
+// (kMaxTensionLimitN) at the largest calibrated gain on the largest offset still reads below
+// saturation: (2^23 - 1 - 2^20) / (50 N x 1.25) = 117,440 counts/N. At least 100: a count is then
+// 10 mN, twice the thesis cell's noise; a coarser cell cannot hold a limit to a few percent.
+constexpr float kMinRatedGainCountsPerN = 100.0f;
+constexpr float kMaxRatedGainCountsPerN =
+    static_cast<float>((kLoadcellMaxCounts - kMaxOffsetCounts) / (kMaxTensionLimitN * kGainTolerance));
 
 // Largest PID gains SET_GAINS accepts, per unit of the mode: length modes in duty per m, tension
 // in duty per N (100 to 300× the defaults). At them a 1-count (0.94 µm) error already commands
@@ -167,8 +176,8 @@ constexpr float kMaxTensionKp = 1.0f;
 constexpr float kMaxTensionKi = 1.0e2f;
 constexpr float kMaxTensionKd = 1.0e-1f;
 
-// Nominal load-cell calibration until the host sends its regression (45,000 counts/N:
-// HX711 at gain 128 with a 1 kg cell, models/endoscope/endoscope.toml [sensors]).
+// Rated load-cell sensitivity until the host sends its own (45,000 counts/N: HX711 at gain 128
+// with a 1 kg cell, models/endoscope/endoscope.toml [sensors]).
 constexpr float kDefaultGainNPerCount = 1.0f / 45000.0f;
 
 }  // namespace twinfw

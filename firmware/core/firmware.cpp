@@ -9,7 +9,7 @@ Firmware::Firmware(size_t channels)
       controller_(channels_),
       safety_(channels_),
       guard_(channels_) {
-  for (float& g : gain_n_per_count_) g = kDefaultGainNPerCount;
+  set_rated_gain(1.0f / kDefaultGainNPerCount);
   set_tension_limit(kDefaultTensionLimitN);
 }
 
@@ -109,6 +109,14 @@ uint32_t Firmware::guard_faults(ChannelMask stale_mask) {
 // Length references ramp at the winding speed limit, paying out too: a tendon paid out faster
 // than its antagonist winds in goes slack, and the rod snaps it taut. Tension references ramp
 // at kTensionRatePerS times the limit per second.
+// The load cells' rated sensitivity (counts/N): it converts the readings until a calibration
+// arrives, and bounds the calibrations accepted.
+void Firmware::set_rated_gain(float counts_per_n) {
+  rated_counts_per_n_ = counts_per_n;
+  for (float& g : gain_n_per_count_) g = 1.0f / counts_per_n;
+  calibrated_ = false;
+}
+
 void Firmware::set_tension_limit(float tension_limit_n) {
   guard_.set_tension_limit(tension_limit_n);
   const float rate = guard_.winding_speed_limit();

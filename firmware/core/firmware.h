@@ -84,6 +84,7 @@ class Firmware {
   uint32_t guard_faults(ChannelMask stale_mask);
   void set_outputs(bool may_move);
   void set_tension_limit(float tension_limit_n);
+  void set_rated_gain(float counts_per_n);
   void end_session();
 
   size_t channels_;
@@ -115,6 +116,7 @@ class Firmware {
   float gain_n_per_count_[kMaxChannels];
   float offset_counts_[kMaxChannels] = {};
   bool calibrated_ = false;
+  float rated_counts_per_n_ = 0.0f;
 
   bool handshake_ok_ = false;
   bool motion_held_ = true;

@@ -112,6 +112,7 @@ struct SetLimits {
   static constexpr MsgType kType = MsgType::kSetLimits;
   float tension_limit_n;
   uint16_t watchdog_timeout_ms;
+  float loadcell_gain_counts_per_n;  // the load cells' rated sensitivity
 };
 
 // Board → host.
@@ -191,6 +192,7 @@ template <class V> void visit_fields(V& v, msg::SetCalibration& m) {
 template <class V> void visit_fields(V& v, msg::SetLimits& m) {
   v(m.tension_limit_n);
   v(m.watchdog_timeout_ms);
+  v(m.loadcell_gain_counts_per_n);
 }
 template <class V> void visit_fields(V& v, msg::HelloReply& m) {
   v(m.protocol_version);

@@ -34,7 +34,7 @@ VALID: list[tuple[str, int, c.Message]] = [
     ("set_gains_tension", 10, c.SetGains(c.Mode.TENSION, kp=0.25, ki=0.5, kd=0.0078125, output_limit=0.5)),
     ("set_calibration", 11, c.SetCalibration((2.0**-15, 2.0**-15, -(2.0**-16), 2.0**-14), (8200.0, -5100.0, 3300.0, -900.0),
                                              channels=4)),
-    ("set_limits", 12, c.SetLimits(tension_limit_n=6.0, watchdog_timeout_ms=250)),
+    ("set_limits", 12, c.SetLimits(tension_limit_n=6.0, watchdog_timeout_ms=250, loadcell_gain_counts_per_n=45000.0)),
     ("hello_reply", 0, c.HelloReply(c.PROTOCOL_VERSION, (0, 3, 0), 4, 10000, 25000, 2.0**-20)),
     ("ack", 13, c.Ack(acked_seq=0x1234, acked_type=c.MsgType.ENABLE)),
     ("nack", 14, c.Nack(acked_seq=0xFF00, acked_type=c.MsgType.SET_SETPOINTS, error=c.NackError.WRONG_MODE)),

@@ -172,8 +172,8 @@ void commands_are_validated() {
   b.send(msg::SetSetpoints{4, 0, {2.0f, 0, 0, 0}});  // 2 m: a value in mm sent as m
   b.send(msg::SetGains{0, -1.0f, 0, 0, 1.0f});
   b.send(msg::SetGains{0, 1.0f, 0, 0, 1.5f});
-  b.send(msg::SetLimits{0.0f, 250});
-  b.send(msg::SetLimits{6.0f, 5});
+  b.send(msg::SetLimits{0.0f, 250, 45000.0f});
+  b.send(msg::SetLimits{6.0f, 5, 45000.0f});
   b.send(msg::Tare{4, 1, 0});
   b.send(msg::SetCalibration{4, {1, 1, 1, 1}, {0, 0, 0, 0}});
   CHECK(b.replies.nacks == nacks + 9);
@@ -223,11 +223,51 @@ void calibrations_outside_physical_bounds_are_refused() {
   CHECK(refused(1 / Bench::kRawPerN, -1.1e6f));
   CHECK(refused(0.0f, 0.0f));
   CHECK(refused(NAN, 0.0f));
-  // The bounds themselves are accepted: 36,000 and 56,250 counts/N, ±2^20 counts.
+  // The bounds themselves are accepted: 25 % either way of the rated 45,000 counts/N, ±2^20 counts.
   const int acks = b.replies.acks;
-  b.send(msg::SetCalibration{4, {1 / kMinGainCountsPerN, 1 / kMaxGainCountsPerN, 1 / Bench::kRawPerN, 1 / Bench::kRawPerN},
+  const float low = 45000.0f / kGainTolerance, high = 45000.0f * kGainTolerance;
+  b.send(msg::SetCalibration{4, {1 / low, 1 / high, 1 / Bench::kRawPerN, 1 / Bench::kRawPerN},
                              {kMaxOffsetCounts, -kMaxOffsetCounts, 0.0f, 0.0f}});
   CHECK(b.replies.acks == acks + 1);
+}
+
+// Another rig's load cells: the host's rated sensitivity sets the bounds, and converts the
+// readings until a calibration arrives.
+void the_rated_sensitivity_the_host_sends_bounds_the_calibrations() {
+  Bench b;
+  b.send(msg::Hello{kProtocolVersion});
+  b.extra_tension_n[0] = 1.0f;  // the bench's cells give 45,000 counts/N
+  b.run(0.05);
+  CHECK_NEAR(b.replies.last.tensions_n[0] - b.replies.last.tensions_n[1], 1.0, 1e-3);
+  auto calibrate = [&b](float counts_per_n) {
+    const int acks = b.replies.acks;
+    const float g = 1 / counts_per_n;
+    b.send(msg::SetCalibration{4, {g, g, g, g}, {0, 0, 0, 0}});
+    return b.replies.acks == acks + 1;
+  };
+  // A 5 kg cell rated at 9,000 counts/N: refused against the default 1 kg cell's bounds, ...
+  CHECK(!calibrate(9000.0f));
+  const int acked = b.replies.acks;
+  b.send(msg::SetLimits{30.0f, 250, 9000.0f});
+  CHECK(b.replies.acks == acked + 1);
+  // ... accepted once the host said which cells these are; the readings are counts / 9,000.
+  b.run(0.05);
+  CHECK_NEAR(b.replies.last.tensions_n[0] - b.replies.last.tensions_n[1], 5.0, 5e-3);
+  CHECK(calibrate(9000.0f * 1.2f));
+  CHECK(!calibrate(45000.0f));         // the 1 kg cell's gain would read 5x low: blind to 30 N
+  CHECK(!calibrate(9000.0f * 1.3f));
+  // Rated sensitivities the 24-bit range cannot hold the limit with, or below a count per 10 mN.
+  const int nacks = b.replies.nacks;
+  b.send(msg::SetLimits{30.0f, 250, kMaxRatedGainCountsPerN * 1.01f});
+  b.send(msg::SetLimits{30.0f, 250, 50.0f});
+  b.send(msg::SetLimits{30.0f, 250, NAN});
+  CHECK(b.replies.nacks == nacks + 3);
+  // Not changed while driving; the same one is accepted (the host sends it before each ENABLE).
+  b.send(msg::Enable{});
+  b.send(msg::SetLimits{30.0f, 250, 9000.0f});
+  CHECK(b.replies.nacks == nacks + 3);
+  b.send(msg::SetLimits{30.0f, 250, 45000.0f});
+  CHECK(b.replies.nacks == nacks + 4 && b.replies.last_nack_error == static_cast<uint8_t>(NackError::kNotWhileEnabled));
 }
 
 void gains_beyond_their_bounds_are_refused() {
@@ -320,6 +360,7 @@ void test_firmware() {
   commands_are_validated();
   tare_sets_origins();
   calibrations_outside_physical_bounds_are_refused();
+  the_rated_sensitivity_the_host_sends_bounds_the_calibrations();
   gains_beyond_their_bounds_are_refused();
   hello_leaves_the_board_disabled();
   a_tare_outside_the_offset_bound_is_refused();

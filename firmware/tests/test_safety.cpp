@@ -46,7 +46,7 @@ void watchdog_trips_latches_and_reenables() {
 void watchdog_timeout_is_settable() {
   Bench b;
   CHECK(b.start());
-  b.send(msg::SetLimits{6.0f, 50});
+  b.send(msg::SetLimits{6.0f, 50, 45000.0f});
   b.run(0.045);
   CHECK(b.fw.state() == State::kEnabled);
   b.run(0.01);

@@ -74,7 +74,7 @@ __all__ = [
     "decode_frame",
 ]
 
-PROTOCOL_VERSION = 3
+PROTOCOL_VERSION = 4
 # Most channels a board may have: the firmware's kMaxChannels (firmware/core/config.h), which
 # the TELEMETRY fault flags have a tension and an implausible bit each for.
 MAX_CHANNELS = 12
@@ -306,10 +306,14 @@ class SetCalibration(Message):
 
 @dataclasses.dataclass(frozen=True)
 class SetLimits(Message):
+    """Per-channel tension limit, watchdog timeout and the load cells' rated sensitivity: the
+    board bounds calibrations by it and converts readings with it until one arrives."""
+
     TYPE = MsgType.SET_LIMITS
-    LAYOUT = (("tension_limit_n", "f"), ("watchdog_timeout_ms", "H"))
+    LAYOUT = (("tension_limit_n", "f"), ("watchdog_timeout_ms", "H"), ("loadcell_gain_counts_per_n", "f"))
     tension_limit_n: float = 6.0
     watchdog_timeout_ms: int = 250
+    loadcell_gain_counts_per_n: float = 45000.0
 
 
 # Board → host.

@@ -60,7 +60,7 @@ if TYPE_CHECKING:
     from twin.device.sim_twin import SimTwin
     from twin.device.tracker import TipTracker
 
-__all__ = ["CALIBRATION_GAIN_COUNTS_PER_N", "MAX_LENGTH_SETPOINT_M", "MAX_OFFSET_COUNTS", "MAX_TENSION_LIMIT_N",
+__all__ = ["GAIN_TOLERANCE", "MAX_LENGTH_SETPOINT_M", "MAX_OFFSET_COUNTS", "MAX_TENSION_LIMIT_N", "RATED_GAIN_COUNTS_PER_N",
            "MODE_NAMES", "Device"]
 
 # Names of the control modes in this API → the protocol's modes.
@@ -87,15 +87,21 @@ def _vector(name: str, values: Iterable[float], count: int) -> tuple[float, ...]
 # must not unwind the spools.
 MAX_LENGTH_SETPOINT_M = 0.05
 
-# Calibrations the firmware accepts (firmware/PROTOCOL.md, its kMinGainCountsPerN,
-# kMaxGainCountsPerN and kMaxOffsetCounts): counts per N within 25 % of the nominal 45,000 of
-# the HX711 at gain 128 with the 1 kg cells, and an unloaded offset within 2^20 counts, an eighth
-# of the 24-bit range. Outside them a calibration would blind the tension limit.
-CALIBRATION_GAIN_COUNTS_PER_N = (36000.0, 56250.0)
+# Calibrations the firmware accepts (firmware/PROTOCOL.md, its kGainTolerance and
+# kMaxOffsetCounts): counts per N within 25 % either way of the load cells' rated sensitivity
+# (the parameter set's sensors.loadcell_gain_counts_per_n, which the host sends with the limits),
+# and an unloaded offset within 2^20 counts, an eighth of the 24-bit range. Outside them a
+# calibration would blind the tension limit.
+GAIN_TOLERANCE = 1.25
 MAX_OFFSET_COUNTS = float(2**20)
 
 # Largest per-channel tension limit the firmware accepts (N): its kMaxTensionLimitN.
 MAX_TENSION_LIMIT_N = 50.0
+
+# Rated sensitivities the firmware accepts (counts/N; its kMinRatedGainCountsPerN and
+# kMaxRatedGainCountsPerN): the largest limit at the largest calibrated gain on the largest offset
+# reads below the HX711's saturation, and a count is at most 10 mN.
+RATED_GAIN_COUNTS_PER_N = (100.0, (2**23 - 1 - MAX_OFFSET_COUNTS) / (MAX_TENSION_LIMIT_N * GAIN_TOLERANCE))
 
 
 def _bounded(name: str, values: tuple[float, ...], low: float, high: float, unit: str, why: str) -> tuple[float, ...]:
@@ -111,12 +117,23 @@ def _tension_limit(name: str, value: float) -> float:
     return float(value)
 
 
-def _calibration(gains: tuple[float, ...], offsets: tuple[float, ...]) -> None:
-    """Refuse, naming the value, a calibration outside the firmware's physical bounds."""
-    low, high = CALIBRATION_GAIN_COUNTS_PER_N
+def _rated_gain(name: str, value: float) -> float:
+    low, high = RATED_GAIN_COUNTS_PER_N
+    if not (isinstance(value, (int, float, np.floating, np.integer)) and low <= value <= high):
+        raise ValueError(f"{name} = {value!r}: must be in {low:g}..{high:.0f} counts/N (the HX711's 24-bit range "
+                         f"holds the largest limit, {MAX_TENSION_LIMIT_N:g} N, and a count is at most 10 mN)")
+    return float(value)
+
+
+def _calibration(gains: tuple[float, ...], offsets: tuple[float, ...], rated: float) -> None:
+    """Refuse, naming the value, a calibration outside the firmware's bounds for load cells of
+    ``rated`` counts/N."""
+    low, high = rated / GAIN_TOLERANCE, rated * GAIN_TOLERANCE
     for i, gain in enumerate(gains):
         if not low <= gain <= high:
-            why = "counts must rise with tension" if gain <= 0 else "not a 1 kg cell on an HX711 at gain 128"
+            why = ("counts must rise with tension" if gain <= 0 else
+                   f"more than 25 % off the load cells' rated {rated:g} counts/N, sensors.loadcell_gain_counts_per_n; "
+                   "it would blind the tension limit")
             raise ValueError(f"gain_counts_per_n[{i}] = {gain!r}: outside {low:g}..{high:g} counts/N ({why})")
     for i, offset in enumerate(offsets):
         if not -MAX_OFFSET_COUNTS <= offset <= MAX_OFFSET_COUNTS:
@@ -165,6 +182,14 @@ class Device:
         tendons: the robot's tendon count (``tendons.count``): :meth:`connect` refuses a board
             with another channel count. None takes the board's count as it comes.
         robot: the robot's name, for that refusal's message (None: "the robot").
+        loadcell_gain_counts_per_n: the load cells' rated sensitivity (counts/N), e.g. the
+            parameter set's ``sensors.loadcell_gain_counts_per_n``: sent with the limits on
+            :meth:`connect` and before every :meth:`enable`; the board then bounds calibrations
+            by it (25 % either way) and reads tensions with it until one arrives. None keeps the
+            board's default (45,000 counts/N, the thesis's 1 kg cells).
+        tendon_m_per_count: the rig's tendon length per encoder count (m), e.g.
+            ``rig.tendon_m_per_count``: :meth:`connect` refuses a board that counts otherwise
+            (another spool, gearbox or encoder). None takes the board's as it comes.
 
     Attributes:
         fixture: the :class:`twin.device.fixture.Fixture` (None if the backend has none).
@@ -185,6 +210,8 @@ class Device:
         base_rotation=HORIZONTAL,
         tendons: int | None = None,
         robot: str | None = None,
+        loadcell_gain_counts_per_n: float | None = None,
+        tendon_m_per_count: float | None = None,
     ):
         if tendons is not None and not (isinstance(tendons, (int, np.integer)) and tendons >= 1):
             raise ValueError(f"tendons = {tendons!r}: must be a whole number >= 1, or None")
@@ -211,6 +238,12 @@ class Device:
         if tension_limit_n is not None:
             self._tension_limit_n = _tension_limit("tension_limit_n", tension_limit_n)
         self._watchdog_timeout_ms = defaults.watchdog_timeout_ms
+        self._rated_gain = defaults.loadcell_gain_counts_per_n
+        if loadcell_gain_counts_per_n is not None:
+            self._rated_gain = _rated_gain("loadcell_gain_counts_per_n", loadcell_gain_counts_per_n)
+        if tendon_m_per_count is not None and not (math.isfinite(tendon_m_per_count) and tendon_m_per_count > 0):
+            raise ValueError(f"tendon_m_per_count = {tendon_m_per_count!r}: must be finite and > 0, or None")
+        self._tendon_m_per_count = tendon_m_per_count
         self._base_rotation = np.array(base_rotation, dtype=float)
         if self._base_rotation.shape != (3, 3):
             raise ValueError(f"base_rotation = {base_rotation!r}: must be a 3x3 rotation")
@@ -219,6 +252,12 @@ class Device:
     @property
     def url(self) -> str:
         return self._transport.url
+
+    @property
+    def loadcell_gain_counts_per_n(self) -> float:
+        """The load cells' rated sensitivity (counts/N) this host gives the board: the noise of
+        a reading in N scales with its inverse (the HX711's noise is in counts)."""
+        return self._rated_gain
 
     @property
     def base_rotation(self) -> np.ndarray:
@@ -370,7 +409,7 @@ class Device:
             CommandRejected: the board refused the limits (then it was sent DISABLE) or ENABLE.
         """
         self._check_connected()
-        limits = codec.SetLimits(self._tension_limit_n, self._watchdog_timeout_ms)
+        limits = self._limits()
         # Not awaited on its own: the board answers in order, so its answer is in when ENABLE's is.
         seq = self._send(limits, expect_answer=True)
         try:
@@ -447,8 +486,8 @@ class Device:
 
         Raises:
             ValueError: neither or both forms given, values not finite, or a gain or offset
-                outside the bounds the firmware accepts (:data:`CALIBRATION_GAIN_COUNTS_PER_N`,
-                :data:`MAX_OFFSET_COUNTS`; the argument, channel and value named).
+                outside the bounds the firmware accepts (:data:`GAIN_TOLERANCE` of the rated
+                sensitivity, :data:`MAX_OFFSET_COUNTS`; the argument, channel and value named).
             CommandRejected: while enabled.
         """
         if calibration is not None:
@@ -462,7 +501,7 @@ class Device:
             )
         gains = _vector("gain_counts_per_n", gain_counts_per_n, self.channels)
         offsets = _vector("offset_counts", offset_counts, self.channels)
-        _calibration(gains, offsets)
+        _calibration(gains, offsets, self._rated_gain)
         self._command(codec.SetCalibration(tuple(1.0 / g for g in gains), offsets, self.channels))
 
     def set_limits(self, *, tension_limit_n: float | None = None, watchdog_timeout_s: float = 0.25) -> None:
@@ -479,7 +518,7 @@ class Device:
         limit = self._tension_limit_n if tension_limit_n is None else _tension_limit("tension_limit_n", tension_limit_n)
         if not 0.02 <= watchdog_timeout_s <= 10.0:
             raise ValueError(f"watchdog_timeout_s = {watchdog_timeout_s!r}: must be in 0.02..10")
-        self._command(codec.SetLimits(limit, round(watchdog_timeout_s * 1e3)))
+        self._command(codec.SetLimits(limit, round(watchdog_timeout_s * 1e3), self._rated_gain))
 
     def set_lengths(self, lengths_m: Sequence[float]) -> None:
         """Setpoints of ``"lengths"`` mode: a relative length per tendon (m, positive = paid out,
@@ -611,9 +650,20 @@ class Device:
         if self._tendons is not None and reply.channels != self._tendons:
             self._send(codec.Disable())
             raise ChannelCountError(self.url, reply.channels, self._tendons, self._robot)
+        if self._tendon_m_per_count is not None and not math.isclose(
+                reply.tendon_m_per_count, self._tendon_m_per_count, rel_tol=1e-5):
+            self._send(codec.Disable())
+            raise DeviceError(
+                f"{self.url}: the board counts {reply.tendon_m_per_count:.6g} m of tendon per encoder count, the "
+                f"robot's rig {self._tendon_m_per_count:.6g} m (rig.spool_radius_m, rig.gear_ratio, "
+                "rig.encoder_counts_per_rev); flash firmware built for this rig (firmware/core/config.h) "
+                "or correct the parameter file")
         self._transport.keep_alive(self._keepalive_s, self._ping)
-        # Whatever a previous host left running stops before this one takes over.
+        # Whatever a previous host left running stops before this one takes over; then the board
+        # is given this host's limits and load cells, so that it reads tensions in this rig's
+        # units from the first sample on.
         self._await_answer(codec.Disable())
+        self._await_answer(self._limits())
         # Samples that came before may be stale (old bytes on the line, a state before the
         # DISABLE); wait for one after.
         inbox = self._inbox
@@ -621,6 +671,10 @@ class Device:
         if not self._wait_for(lambda: inbox.sample_count > count, timeout_s):
             raise DeviceTimeout(f"{self.url}: handshake done but no telemetry within {timeout_s} s")
         return DeviceInfo.from_reply(reply, url=self.url, clock=self.clock)
+
+    def _limits(self) -> codec.SetLimits:
+        """The limits this host set last (or was configured with), and its load cells."""
+        return codec.SetLimits(self._tension_limit_n, self._watchdog_timeout_ms, self._rated_gain)
 
     def _check_pairs(self, name: str, value) -> None:
         """Refuse, naming ``name`` and its value, pairs on an odd count of tendons."""

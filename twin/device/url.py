@@ -96,7 +96,9 @@ def open_device(
     # The parameter set's tension limit is what the board drives with: Device.enable sends it.
     device_args = dict(command_timeout_s=command_timeout_s, keepalive_s=keepalive_s, queue_size=queue_size,
                        tension_limit_n=params.rig.tension_limit_n, base_rotation=_pose(url, options, params),
-                       tendons=params.tendons.count, robot=robot)
+                       tendons=params.tendons.count, robot=robot,
+                       loadcell_gain_counts_per_n=params.sensors.loadcell_gain_counts_per_n,
+                       tendon_m_per_count=params.rig.tendon_m_per_count)
 
     if parts.scheme == "sim":
         if parts.netloc or parts.path not in ("", "/"):

@@ -35,7 +35,7 @@ import numpy as np
 from twin.device.errors import CommandRejected
 from twin.experiments.protocols import ProtocolError, pretension
 from twin.params import Params
-from twin.pcc import tendon_length_changes_m
+from twin.pcc import THESIS_LENGTH_M, tendon_length_changes_m
 
 __all__ = ["CHIRP_HZ", "CYCLE_COMMAND_S", "CYCLE_KAPPA_PER_M", "COMMAND_KINDS", "Command", "Experiment",
            "Series", "STEP_HOLD_S", "STEP_KAPPA_PER_M", "TENSION_STEP_FRACTION", "experiment_set", "run_experiment"]
@@ -141,7 +141,10 @@ def _kappa_schedule(name: str, params: Params, times_s: np.ndarray, kappa_per_m:
 
 def experiment_set(params: Params, *, quick: bool = False) -> list[Experiment]:
     """The dynamic experiments for the robot of ``params`` (any tendon count); ``quick``: the
-    first tendon of the steps, one pull-release cycle and a 2 s chirp."""
+    first tendon of the steps, one pull-release cycle and a 2 s chirp. The curvatures are the
+    thesis's 60 mm robot's, scaled to bend this one by the same angles (as the validation grid,
+    :func:`twin.pcc.validation_grid`)."""
+    bend = THESIS_LENGTH_M / params.backbone.length_m
     n = params.tendons.count
     angles = list(params.tendons.angles_deg)
     tendons = range(1 if quick else n)
@@ -149,16 +152,16 @@ def experiment_set(params: Params, *, quick: bool = False) -> list[Experiment]:
     step_n = TENSION_STEP_FRACTION * (params.rig.tension_limit_n - pre)
     rest = np.full(n, pre)
     tension_targets = [rest + step_n * (np.arange(n) == i) for i in tendons]
-    length_targets = [tendon_length_changes_m(STEP_KAPPA_PER_M, angles[i], params) for i in tendons]
+    length_targets = [tendon_length_changes_m(bend * STEP_KAPPA_PER_M, angles[i], params) for i in tendons]
     cycles = 1 if quick else 2
     period_s = 2.0
     cycle_t = np.arange(0.0, cycles * period_s + 1e-9, CYCLE_COMMAND_S)
     phase = np.mod(cycle_t, period_s) / period_s
-    cycle_k = CYCLE_KAPPA_PER_M * (1.0 - np.abs(2.0 * phase - 1.0))
+    cycle_k = bend * CYCLE_KAPPA_PER_M * (1.0 - np.abs(2.0 * phase - 1.0))
     chirp_s = 2.0 if quick else 4.0
     chirp_t = np.arange(0.0, chirp_s + 1e-9, 0.025)
     f0, f1 = CHIRP_HZ
-    chirp_k = CHIRP_KAPPA_PER_M * np.sin(2 * math.pi * (f0 * chirp_t + 0.5 * (f1 - f0) / chirp_s * chirp_t ** 2))
+    chirp_k = bend * CHIRP_KAPPA_PER_M * np.sin(2 * math.pi * (f0 * chirp_t + 0.5 * (f1 - f0) / chirp_s * chirp_t ** 2))
     # The tension steps last: their loop carries load-cell noise into the motion, and what it
     # leaves (a spool stuck by friction where the noise left it) would carry into the others.
     return [

@@ -14,7 +14,7 @@ from twin.cliargs import (UsageError, add_param_args, add_pose_args, count, new_
 from twin.device.commands import open_device_arg
 from twin.live import add_live_argument
 from twin.params import parse_override
-from twin.pcc import validation_grid
+from twin.pcc import quick_grid, validation_grid
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -27,7 +27,14 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     _device_args(v)
     v.add_argument("--quick", action="store_true",
-                   help="a 24-configuration subset (kappa 0/13/26.2, phi 0/90/180/270, 0 and 10 g) for a fast look")
+                   help="a 24-configuration subset of the grid (smallest, middle and largest kappa, phi 0/90/180/270, "
+                        "lightest and heaviest tip mass; on the thesis grid kappa 0/13/26.2, 0 and 10 g) for a fast look")
+    v.add_argument("--grid", metavar="FILE|SPEC",
+                   help="the configurations to run: a CSV file with columns kappa_per_m (or bend_deg), phi_deg, "
+                        "tip_mass_kg, one configuration a row; or a SPEC of axes, e.g. "
+                        "'bend_deg=0,30,60;phi_deg=0,90,180,270;tip_mass_kg=0,0.01' (an axis left out keeps the "
+                        "default's). Default: the thesis grid (thesis 8.3), its curvatures scaled to bend the robot "
+                        "by the thesis's 0-90 deg")
     v.add_argument("--resume", metavar="RUN_DIR", help="continue an interrupted run in this folder")
     add_live_argument(v)
     v.set_defaults(func=run_validate)
@@ -125,6 +132,7 @@ def _calibration(args, params, device) -> dict:
 def _invocation(args, command: str) -> dict:
     """What decides the conditions of a run's measurements, as recorded in ``run.json``."""
     return {"command": command, "device": args.device, "seed": args.seed, "quick": bool(getattr(args, "quick", False)),
+            "grid": getattr(args, "grid", None),
             "calibration": args.calibration, "robot": getattr(args, "robot", None), "params": args.params,
             "set": list(args.overrides)}
 
@@ -136,6 +144,8 @@ def _resume_command(args, command: str, folder: Path) -> str:
         words += ["--seed", str(args.seed)]
     if getattr(args, "quick", False):
         words.append("--quick")
+    if getattr(args, "grid", None):
+        words += ["--grid", args.grid]
     if args.calibration:
         words += ["--calibration", args.calibration]
     if getattr(args, "robot", None):
@@ -242,6 +252,7 @@ def _check_resume(args, command: str, experiment: str, params) -> Path:
             differ("--seed", args.seed, record.get("seed"))
         if command == "validate":
             differ("--quick", bool(args.quick), record.get("quick"))
+            differ("--grid", args.grid, record.get("grid"))
         differ("--calibration", args.calibration, record.get("calibration"))
     truth_path = folder / TWIN_TRUTH
     try:
@@ -313,6 +324,82 @@ def _stopped(command: str, folder: Path, args, exc: BaseException) -> None:
           f"  {_resume_command(args, command, folder)}", file=sys.stderr)
 
 
+# The axes a --grid SPEC may set, and the file columns: name → (what it is, smallest value).
+_GRID_AXES = {"kappa_per_m": ("curvature (1/m)", 0.0), "bend_deg": ("bend angle kappa L (deg)", 0.0),
+              "phi_deg": ("bending plane (deg)", None), "tip_mass_kg": ("tip mass (kg)", 0.0)}
+
+
+def grid_from_arg(text: str | None, params) -> list[tuple]:
+    """The (config, κ 1/m, φ deg, tip mass kg) rows ``--grid`` names: the robot's default grid
+    (:func:`twin.pcc.validation_grid`) for None, a SPEC's axes crossed, or a CSV file's rows.
+
+    Raises:
+        RunRefused: a file that cannot be read, or a key, column or value that is wrong (named).
+    """
+    import csv
+    import math
+
+    if text is None:
+        return validation_grid(params)
+    where = f"--grid {text}"
+    length_m = params.backbone.length_m
+
+    def number(key: str, word: str) -> float:
+        try:
+            value = float(word)
+        except ValueError:
+            raise RunRefused(f"{where}: {key} value {word!r} is not a number") from None
+        low = _GRID_AXES[key][1]
+        if not math.isfinite(value) or (low is not None and value < low):
+            raise RunRefused(f"{where}: {key} = {value!r}: must be finite" + (f" and >= {low:g}" if low is not None else ""))
+        return value
+
+    def kappa(key: str, value: float) -> float:
+        return value if key == "kappa_per_m" else round(math.radians(value) / length_m, 9)
+
+    path = Path(text)
+    if path.is_file():
+        try:
+            with open(path, newline="") as f:
+                table = list(csv.DictReader(f))
+        except (OSError, UnicodeDecodeError, csv.Error) as exc:
+            raise RunRefused(f"{where}: cannot read it as CSV ({exc})") from None
+        columns = set(table[0]) if table else set()
+        unknown = sorted(columns - set(_GRID_AXES))
+        curvature = [k for k in ("kappa_per_m", "bend_deg") if k in columns]
+        missing = [k for k in ("phi_deg", "tip_mass_kg") if k not in columns] + ([] if curvature else ["kappa_per_m or bend_deg"])
+        if not table or unknown or missing or len(curvature) > 1:
+            raise RunRefused(f"{where}: needs a header row with the columns kappa_per_m (or bend_deg), phi_deg and "
+                             "tip_mass_kg and a row per configuration"
+                             + (f"; unknown column(s) {', '.join(unknown)}" if unknown else "")
+                             + (f"; missing {', '.join(missing)}" if missing and table else "")
+                             + ("; kappa_per_m and bend_deg both given" if len(curvature) > 1 else ""))
+        key = curvature[0]
+        return [(i, kappa(key, number(key, row[key])), number("phi_deg", row["phi_deg"]),
+                 number("tip_mass_kg", row["tip_mass_kg"])) for i, row in enumerate(table)]
+    if "=" not in text:
+        raise RunRefused(f"{where}: neither a file nor a SPEC such as 'bend_deg=0,45,90;phi_deg=0,90;tip_mass_kg=0,0.01'")
+    axes: dict[str, list[float]] = {}
+    for part in filter(None, (p.strip() for p in text.split(";"))):
+        key, _, values = part.partition("=")
+        key = key.strip()
+        if key not in _GRID_AXES:
+            raise RunRefused(f"{where}: unknown axis {key!r}; the axes are {', '.join(_GRID_AXES)}")
+        words = [w.strip() for w in values.split(",") if w.strip()]
+        if not words:
+            raise RunRefused(f"{where}: {key} has no values")
+        axes[key] = [number(key, w) for w in words]
+    if "kappa_per_m" in axes and "bend_deg" in axes:
+        raise RunRefused(f"{where}: give the curvatures as kappa_per_m or as bend_deg, not both")
+    default = validation_grid(params)
+    kappas = ([kappa(k, v) for k in ("kappa_per_m", "bend_deg") if k in axes for v in axes[k]]
+              or list(dict.fromkeys(row[1] for row in default)))
+    phis = axes.get("phi_deg") or list(dict.fromkeys(row[2] for row in default))
+    masses = axes.get("tip_mass_kg") or list(dict.fromkeys(row[3] for row in default))
+    rows = [(k, p, m) for k in kappas for p in phis for m in masses]
+    return [(i, *row) for i, row in enumerate(rows)]
+
+
 def _run_folder(args, command: str, experiment: str, params) -> Path:
     """The run folder: ``--resume``'s once checked, else a new one."""
     if args.twin_overrides and not args.device.startswith("sim://"):
@@ -328,6 +415,8 @@ def _run_folder(args, command: str, experiment: str, params) -> Path:
         except CalibrationFileError as exc:
             raise RunRefused(f"--calibration {args.calibration}: {exc}") from None
         _check_channels(args, cal, params)
+    if getattr(args, "grid", None):
+        grid_from_arg(args.grid, params)  # a bad --grid is refused before a run folder exists
     if getattr(args, "resume", None):
         return _check_resume(args, command, experiment, params)
     return _start_run(args, command)
@@ -384,24 +473,25 @@ def run_validate(args: argparse.Namespace) -> int:
 def _validate(args, folder: Path, params) -> int:
     from twin.data.dataset import RUN_DATASET, read_dataset
     from twin.experiments.analysis import analyse_validation
-    from twin.experiments.protocols import run_validation, unrealisable
+    from twin.experiments.protocols import run_validation, tripped_before, unrealisable
     from twin.experiments.report import write_validation_report
     from twin.live import LiveDevice, live_view_from_args
 
-    grid = validation_grid()
+    grid = grid_from_arg(args.grid, params)
     if args.quick:
-        grid = [g for g in grid if g[1] in (0.0, 13.0, 26.2) and g[2] in (0.0, 90.0, 180.0, 270.0) and g[3] != 0.005]
-    left_out = unrealisable(grid, params)
-    print(f"twin validate: {len(grid) - len(left_out)} configurations on {args.device}, run folder {folder}",
-          file=sys.stderr)
-    if left_out:
-        print(f"twin validate: {len(left_out)} of the grid's {len(grid)} configurations left out: robot "
-              f"{robot_name(args)!r} cannot realise them, {left_out[0]['reason']}: "
-              f"{_configurations(left_out)}", file=sys.stderr)
+        grid = quick_grid(grid)
     start = time.perf_counter()
     device = _open(args, params)
     view = live_view_from_args(args, params, base_rotation=device.base_rotation, command="validate")
     try:
+        left_out = unrealisable(grid, params, device.base_rotation)
+        known = {e["config"] for e in left_out}
+        left_out += [e for e in tripped_before(folder / RUN_DATASET) if e["config"] not in known]
+        print(f"twin validate: {len(grid) - len(left_out)} configurations on {args.device}, run folder {folder}",
+              file=sys.stderr)
+        for reason, entries in _by_reason(left_out).items():
+            print(f"twin validate: {len(entries)} of the grid's {len(grid)} configurations left out: robot "
+                  f"{robot_name(args)!r} {reason}: {_configurations(entries)}", file=sys.stderr)
         calibration = _calibration(args, params, device)
         run_validation(device if view is None else LiveDevice(device, view), folder / RUN_DATASET, params,
                        grid=grid, calibration=calibration, robot=robot_name(args))
@@ -412,6 +502,11 @@ def _validate(args, folder: Path, params) -> int:
             view.close()
     sweep_s = time.perf_counter() - start
     dataset = read_dataset(folder / RUN_DATASET)
+    left_out = dataset.metadata.get("left_out", [])  # with the configurations that tripped the limit
+    if len(dataset) == 0:
+        print(f"twin validate: no configuration was measured: all {len(left_out)} left out (listed in "
+              f"{folder / RUN_DATASET}/metadata.json); nothing to predict", file=sys.stderr)
+        return 4
     result = analyse_validation(dataset, params, progress=True)
     picture = _picture(args, params, folder, pose)
     path = write_validation_report(result, folder, picture=picture, warnings=_twin_warnings(args, params),
@@ -422,10 +517,23 @@ def _validate(args, folder: Path, params) -> int:
           f"prediction error median {s['median_error_mm']:.3f} mm, RMS {s['rms_error_mm']:.3f} mm, "
           f"worst {s['worst_error_mm']:.3f} mm")
     if left_out:
-        print(f"left out: {len(left_out)} configurations robot {robot_name(args)!r} cannot realise (listed in the "
-              "report and the dataset's metadata)")
+        print(f"left out: {len(left_out)} configurations robot {robot_name(args)!r} cannot realise or hold (listed "
+              "with the reason in the report and the dataset's metadata)")
     print(f"report: {path}")
     return 0
+
+
+def _by_reason(entries) -> dict:
+    """Left-out configurations grouped by their reason, as the command line words it."""
+    from twin.experiments.protocols import TRIPPED, UNREALISABLE
+
+    groups: dict[str, list] = {}
+    for entry in entries:
+        reason = entry["reason"]
+        said = ("cannot realise them, " + reason if reason == UNREALISABLE else
+                "cannot hold them: " + (TRIPPED if reason.startswith(TRIPPED) else reason))
+        groups.setdefault(said, []).append(entry)
+    return groups
 
 
 # Left-out configurations a command line names one by one (the report lists them all).
@@ -451,11 +559,13 @@ def _picture(args, params, folder: Path, base_rotation) -> Path | None:
         from twin.sim.render import render_png
 
         plant = Plant(params, base_rotation=base_rotation)
-        plant.set_tensions(pcc_tensions_n(17.5, 30.0, params))
+        # The grid's second-largest curvature (17.5 1/m on the thesis's 60 mm).
+        kappa = sorted({row[1] for row in validation_grid(params)})[-2]
+        plant.set_tensions(pcc_tensions_n(kappa, 30.0, params))
         plant.settle()
         path = folder / "figures" / "endoscope.png"
         path.parent.mkdir(parents=True, exist_ok=True)
-        render_png(plant, path, labelled=True, title="the twin at κ 17.5 1/m, φ 30°, no tip mass")
+        render_png(plant, path, labelled=True, title=f"the twin at κ {kappa:g} 1/m, φ 30°, no tip mass")
         return path
     except Exception as exc:  # rendering is a nicety: report why it is missing, keep the run
         print(f"twin validate: no picture of the endoscope ({exc})", file=sys.stderr)

@@ -8,6 +8,7 @@ interrupted run keeps what it measured and resumes where it stopped.
 from __future__ import annotations
 
 import dataclasses
+import sys
 from pathlib import Path
 from typing import Sequence
 
@@ -20,10 +21,11 @@ from twin.effects import SlidingState
 from twin.params import Params
 from twin.pcc import tendon_length_changes_m, validation_grid
 from twin.pose import matrix_to_quat
-from twin.rod.grid import pcc_realisable
+from twin.rod.grid import holding_tensions_n, pcc_realisable
 
 __all__ = ["ProtocolError", "Measurement", "measure", "wait_for_rest", "pretension", "run_validation",
-           "run_stiffness", "calibrate_device", "nominal_calibration", "apply_calibration", "unrealisable"]
+           "run_stiffness", "calibrate_device", "nominal_calibration", "apply_calibration", "unrealisable", "tripped_before",
+           "HOLDABLE_FRACTION", "TRIPPED"]
 
 
 class ProtocolError(RuntimeError):
@@ -89,11 +91,19 @@ def measure(device, *, duration_s: float = 0.25) -> Measurement:
     )
 
 
-def wait_for_rest(device, *, tension_tolerance_n: float = 0.01, tip_tolerance_m: float = 3e-4, window_s: float = 0.1,
-           timeout_s: float = 4.0) -> float:
+# The tension tolerance of wait_for_rest in HX711 counts: 0.01 N on the thesis's 1 kg cells
+# (45,000 counts/N), twice their ~5 mN noise. The amplifier's noise is in counts, so cells of
+# another sensitivity get the tolerance this many counts make (0.05 N on 5 kg cells).
+REST_TOLERANCE_COUNTS = 450.0
+
+
+def wait_for_rest(device, *, tension_tolerance_n: float | None = None, tip_tolerance_m: float = 3e-4,
+                  window_s: float = 0.1, timeout_s: float = 4.0) -> float:
     """Wait until the endoscope is at rest: the ``window_s`` means of the tensions and of the
     tracked tip change by less than the tolerances (set above the sensors' noise on window means:
-    load cells ~5 mN, tracker ~0.2 mm per sample) from each window to the next, twice in a row.
+    load cells ~5 mN on the thesis's 1 kg cells, tracker ~0.2 mm per sample) from each window to
+    the next, twice in a row. ``tension_tolerance_n`` defaults to :data:`REST_TOLERANCE_COUNTS`
+    at the device's rated load-cell sensitivity (0.01 N on the thesis's cells).
 
     Once is not enough: in tension mode the loaded endoscope swings slowly (~1.7 Hz, damping
     ratio ~0.1), and two windows around a turning point of the swing have nearly the same mean.
@@ -101,6 +111,8 @@ def wait_for_rest(device, *, tension_tolerance_n: float = 0.01, tip_tolerance_m:
 
     Returns the device time it took (s). Raises :class:`ProtocolError` after ``timeout_s``.
     """
+    if tension_tolerance_n is None:
+        tension_tolerance_n = REST_TOLERANCE_COUNTS / getattr(device, "loadcell_gain_counts_per_n", 45000.0)
     start = device.time_s
     last, quiet = None, 0
     while device.time_s - start < timeout_s:
@@ -124,7 +136,7 @@ def wait_for_rest(device, *, tension_tolerance_n: float = 0.01, tip_tolerance_m:
             quiet = 0
         last = now
     raise ProtocolError(f"the endoscope did not come to rest within {timeout_s} s (tensions to "
-                        f"{tension_tolerance_n} N, tip to {tip_tolerance_m * 1e3:.2f} mm)")
+                        f"{tension_tolerance_n:.3g} N, tip to {tip_tolerance_m * 1e3:.2f} mm)")
 
 
 def nominal_calibration(params: Params) -> dict:
@@ -179,14 +191,82 @@ UNREALISABLE = ("the tendon layout cannot bend towards its plane (no two neighbo
                 "bracket it)")
 
 
-def unrealisable(grid: Sequence[tuple], params: Params) -> list[dict]:
-    """The configurations of ``grid`` the robot's tendon layout cannot realise, each as
-    ``{"config", "kappa_cmd_per_m", "phi_cmd_deg", "tip_mass_kg", "reason"}``: a bent one whose
-    plane no pair of neighbouring tendons can pull towards (:func:`twin.rod.grid.pcc_realisable`).
-    A straight one (κ = 0) needs no pull and is always realisable."""
-    return [{"config": int(config), "kappa_cmd_per_m": float(kappa), "phi_cmd_deg": float(phi),
-             "tip_mass_kg": float(mass), "reason": UNREALISABLE}
-            for config, kappa, phi, mass in grid if kappa != 0 and not pcc_realisable(phi, params)]
+# The share of the tension limit the grid's pulls may need: the motors pull with at most 0.9 of
+# it (firmware/PROTOCOL.md, "Tension bound"). The estimate (twin.rod.grid.holding_tensions_n,
+# without the pretension, which the antagonists pay out) is within about 20 % of the tensions the
+# twin's sweeps measure, mostly above (three-tendon at κ 26.2 1/m, φ 150°, 10 g: 4.68 N for
+# 3.85 N measured; stiff-long at 10.48 1/m: 23.8 N for 20.5 N); one that trips the limit all
+# the same is left out when the run is resumed (tripped_before).
+HOLDABLE_FRACTION = 0.9
+
+
+def beyond_limit_reason(limit_n: float) -> str:
+    """Why a configuration of the grid is left out for the tension limit ``limit_n``."""
+    return (f"holding it needs a pull over {HOLDABLE_FRACTION:g} of the {limit_n:g} N tension limit "
+            "(rig.tension_limit_n), which the motors do not reach")
+
+
+def unrealisable(grid: Sequence[tuple], params: Params, base_rotation=None) -> list[dict]:
+    """The configurations of ``grid`` the robot cannot realise, each as ``{"config",
+    "kappa_cmd_per_m", "phi_cmd_deg", "tip_mass_kg", "reason"}``: a bent one whose plane no pair
+    of neighbouring tendons can pull towards (:func:`twin.rod.grid.pcc_realisable`), and one whose
+    estimated holding pull (:func:`twin.rod.grid.holding_tensions_n`, in the clamp pose
+    ``base_rotation``, default ``rig.base_rotation``) is over :data:`HOLDABLE_FRACTION` of
+    ``rig.tension_limit_n``: run, it would trip the limit. A straight one (κ = 0) needs no pull
+    to bend; under a tip mass it may need one to hold."""
+    out = []
+    limit = params.rig.tension_limit_n
+    for config, kappa, phi, mass in grid:
+        if kappa != 0 and not pcc_realisable(phi, params):
+            reason = UNREALISABLE
+        else:
+            try:
+                pull = float(np.max(holding_tensions_n(kappa, phi, mass, params, base_rotation, pretension_n=0.0)))
+            except ValueError:
+                reason = UNREALISABLE
+            else:
+                if pull <= HOLDABLE_FRACTION * limit:
+                    continue
+                reason = beyond_limit_reason(limit)
+        out.append({"config": int(config), "kappa_cmd_per_m": float(kappa), "phi_cmd_deg": float(phi),
+                    "tip_mass_kg": float(mass), "reason": reason})
+    return out
+
+
+# Why a configuration is left out after it tripped the limit once (the reason's first words).
+TRIPPED = "tripped the tension limit when run"
+
+
+def tripped_before(folder: str | Path) -> list[dict]:
+    """The configurations of the dataset in ``folder`` that an earlier attempt tripped the
+    tension limit in (its metadata's ``left_out`` entries whose reason says so); none for a new one."""
+    from twin.data.dataset import METADATA, read_metadata
+
+    if not (Path(folder) / METADATA).exists():
+        return []
+    return [dict(e) for e in read_metadata(folder).get("left_out", []) if str(e.get("reason", "")).startswith(TRIPPED)]
+
+
+def _tension_trip(device) -> int:
+    """The board's fault flags if the tension limit tripped (0 otherwise, or when it is gone)."""
+    from twin.device import codec
+
+    try:
+        flags = int(device.latest().fault_flags)
+    except Exception:  # the board went away: nothing to say about the limit
+        return 0
+    return flags if flags & codec.Fault.TENSION_LIMIT else 0
+
+
+def _record_trip(folder: str | Path, entry: dict) -> None:
+    """Add ``entry`` to the dataset's ``left_out``, so that a resumed run does not run it again."""
+    import json
+
+    from twin.data.dataset import METADATA, read_metadata, write_atomic
+
+    meta = read_metadata(folder)
+    meta["left_out"] = [e for e in meta.get("left_out", []) if e.get("config") != entry["config"]] + [entry]
+    write_atomic(Path(folder) / METADATA, json.dumps(meta, indent=1))
 
 
 def run_validation(device, folder: str | Path, params: Params, *, grid: Sequence[tuple] | None = None,
@@ -203,7 +283,8 @@ def run_validation(device, folder: str | Path, params: Params, *, grid: Sequence
         device: a connected :class:`twin.device.Device` with a fixture and a tracker.
         folder: the dataset folder.
         params: the model's parameter set (recorded in the metadata; its PCC geometry sets the lengths).
-        grid: (config, κ 1/m, φ deg, tip mass kg) rows (default the 216 of thesis §8.3).
+        grid: (config, κ 1/m, φ deg, tip mass kg) rows (default the 216 of thesis §8.3, its
+            curvatures scaled to the robot's length: :func:`twin.pcc.validation_grid`).
         pretension_n: default ``tendons.pretension_n``.
         settle_timeout_s: longest wait for the endoscope to come to rest in a configuration
             (device s). On the twin the slowest robot of the zoo, two-segment, whose six length
@@ -226,8 +307,12 @@ def run_validation(device, folder: str | Path, params: Params, *, grid: Sequence
     lists them with the reason. The dataset records the device's pose
     (:attr:`twin.device.Device.base_rotation`), the one the twin runs in or the rig is mounted in.
     """
-    rows = list(grid or validation_grid())
-    left_out = unrealisable(rows, params)
+    rows = list(grid or validation_grid(params))
+    left_out = unrealisable(rows, params, device.base_rotation)
+    # Configurations an earlier attempt at this run tripped the limit in: run again they would
+    # trip it again, so a resumed run leaves them out too.
+    known = {entry["config"] for entry in left_out}
+    left_out += [e for e in tripped_before(folder) if e["config"] not in known]
     skipped = {entry["config"] for entry in left_out}
     pre = params.tendons.pretension_n if pretension_n is None else pretension_n
     groups: dict[tuple[float, float], list[tuple[int, float]]] = {}
@@ -245,29 +330,55 @@ def run_validation(device, folder: str | Path, params: Params, *, grid: Sequence
         with tqdm(total=sum(len(v) for _, v in todo), desc="validation sweep", unit="config",
                   disable=not progress) as bar:
             for (kappa, phi), configs in todo:
-                device.disable()
-                pretension(device, params, tension_n=pre, settle_s=0.3)
-                device.wait(0.05)
-                _check_state(device.latest())
-                # The relative lengths of the pretensioned straight endoscope: the zero of the PCC setpoints.
-                zero = device.latest().tendon_lengths_m.copy()
-                device.fixture.release_holder()
-                target = zero + tendon_length_changes_m(kappa, phi, params)
-                if overshoot > 0:
-                    move = target - zero
-                    device.set_lengths(target + np.sign(move) * np.maximum(np.abs(move) * overshoot, min_overshoot_m))
-                    wait_for_rest(device, timeout_s=settle_timeout_s)
-                device.set_lengths(target)
-                for config, mass in sorted(configs, key=lambda c: c[1]):
-                    device.fixture.hang_tip_mass(mass)
-                    wait_for_rest(device, timeout_s=settle_timeout_s)
-                    m = measure(device) if config not in done else None
-                    state = sliding.follow(device.drain())  # through the measurement's window
-                    if m is not None:
-                        writer.write(_row(config, kappa, phi, mass, m, zero, sliding=state))
-                    bar.update(1)
-                device.fixture.hang_tip_mass(0.0)
-                device.disable()
+                current, bending = None, False
+                try:
+                    device.disable()
+                    pretension(device, params, tension_n=pre, settle_s=0.3)
+                    device.wait(0.05)
+                    _check_state(device.latest())
+                    bending = True
+                    # The relative lengths of the pretensioned straight endoscope: the zero of the PCC setpoints.
+                    zero = device.latest().tendon_lengths_m.copy()
+                    device.fixture.release_holder()
+                    target = zero + tendon_length_changes_m(kappa, phi, params)
+                    if overshoot > 0:
+                        move = target - zero
+                        device.set_lengths(target + np.sign(move) * np.maximum(np.abs(move) * overshoot, min_overshoot_m))
+                        wait_for_rest(device, timeout_s=settle_timeout_s)
+                    device.set_lengths(target)
+                    for config, mass in sorted(configs, key=lambda c: c[1]):
+                        current = (config, mass)
+                        device.fixture.hang_tip_mass(mass)
+                        wait_for_rest(device, timeout_s=settle_timeout_s)
+                        m = measure(device) if config not in done else None
+                        state = sliding.follow(device.drain())  # through the measurement's window
+                        if m is not None:
+                            writer.write(_row(config, kappa, phi, mass, m, zero, sliding=state))
+                        bar.update(1)
+                    device.fixture.hang_tip_mass(0.0)
+                    device.disable()
+                except Exception:
+                    # A trip in the pretension is every configuration's (a limit under it): the run stops.
+                    flags = _tension_trip(device) if bending else 0
+                    if not flags:
+                        raise
+                    # The configuration being set up (the lightest load first) or loaded trips the
+                    # limit whenever it is run: it is left out, named, and the sweep goes on.
+                    config, mass = current or min(configs, key=lambda c: c[1])
+                    _record_trip(folder, {"config": int(config), "kappa_cmd_per_m": float(kappa),
+                                          "phi_cmd_deg": float(phi), "tip_mass_kg": float(mass),
+                                          "reason": f"{TRIPPED} (fault flags {flags:#x})"})
+                    bar.write(f"validation sweep: configuration {config} (κ {kappa:g} 1/m, φ {phi:g}°, "
+                              f"{mass * 1e3:g} g) {TRIPPED}; left out, going on", file=sys.stderr)
+                    device.disable()
+                    device.fixture.hang_tip_mass(0.0)
+                    # The group's heavier loads need more than the one that tripped: left out too.
+                    for other, other_mass in configs:
+                        if other_mass > mass and other not in done:
+                            _record_trip(folder, {"config": int(other), "kappa_cmd_per_m": float(kappa),
+                                                  "phi_cmd_deg": float(phi), "tip_mass_kg": float(other_mass),
+                                                  "reason": f"{TRIPPED} with a lighter tip mass (configuration {config})"})
+                    bar.update(sum(1 for c, m in configs if m >= mass))
     return Path(folder)
 
 

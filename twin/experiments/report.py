@@ -7,6 +7,7 @@ from pathlib import Path
 from typing import Mapping, Sequence
 
 from twin.experiments.analysis import ValidationResult, plot_validation
+from twin.pose import pose_name
 
 __all__ = ["markdown_table", "write_validation_report"]
 
@@ -53,10 +54,11 @@ def write_validation_report(result: ValidationResult, folder: str | Path, *, tit
     robot = (meta.get("robot") or {}).get("name")
     lines += [f"Device `{meta.get('device')}`, {summary['rows']} static measurements, experiment "
               f"`{meta.get('experiment')}`, recorded {meta.get('created')}"
-              + (f", robot `{robot}` ({result.dataset.tendons} tendons)." if robot else "."), ""]
+              + (f", robot `{robot}` ({result.dataset.tendons} tendons)" if robot else "")
+              + f", base clamped {pose_name(result.dataset.base_rotation)}.", ""]
     if left_out:
-        lines += [f"**{len(left_out)} configurations of the grid left out**: the robot cannot realise them "
-                  "(listed under *Configurations left out*).", ""]
+        lines += [f"**{len(left_out)} configurations of the grid left out**: the robot cannot realise or hold them "
+                  "(listed with the reason under *Configurations left out*).", ""]
     if picture is not None and Path(picture).exists():
         lines += [f"![the endoscope]({Path(picture).relative_to(folder)})", ""]
     lines += ["## Summary", "", markdown_table([{k: v for k, v in summary.items()}]), ""]
@@ -74,8 +76,9 @@ def write_validation_report(result: ValidationResult, folder: str | Path, *, tit
     lines += ["## Worst configurations", "", markdown_table(worst), ""]
     lines += ["## All configurations", "", markdown_table(result.rows_table()), ""]
     if left_out:
-        lines += ["## Configurations left out", "", "The grid's configurations the robot cannot realise: not run, "
-                  "so neither measured nor predicted.", "", markdown_table(left_out), ""]
+        lines += ["## Configurations left out", "", "The grid's configurations the robot cannot realise (its tendon "
+                  "layout) or hold (its tension limit), or that tripped the limit when run: not run, so neither "
+                  "measured nor predicted.", "", markdown_table(left_out), ""]
     path = folder / "report.md"
     path.write_text("\n".join(lines))
     return path

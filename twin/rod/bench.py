@@ -33,7 +33,7 @@ _STANDIN_FLAGS = ("-O3", "-DNDEBUG", "-std=c++17")
 def bench_predictor(params: Params | None = None, *, stream_samples: int = 400) -> dict:
     """Median solve times (CPU s) on one core, and the tip accuracy against a fine-resolution solution.
 
-    cold_s: a solve from no guess, over the thesis grid.
+    cold_s: a solve from no guess, over the robot's validation grid (:func:`twin.pcc.validation_grid`).
     warm_s: the next sample of a 40 Hz stream whose tensions and tip load change slowly
         (a 0.5 Hz sweep), each solve warm-started from the previous one by
         :class:`twin.rod.Predictor` (its base moment and shooting Jacobian).
@@ -47,7 +47,7 @@ def bench_predictor(params: Params | None = None, *, stream_samples: int = 400) 
     model = RodModel.from_params(params)
     pose = params.rig.base_rotation
     g = params.environment.gravity_m_s2
-    full = [(pcc_tensions_n(k, phi, params), GRAVITY_TIP_FORCE_N(m, g)) for _, k, phi, m in validation_grid()]
+    full = [(pcc_tensions_n(k, phi, params), GRAVITY_TIP_FORCE_N(m, g)) for _, k, phi, m in validation_grid(params)]
     cases = full[::7]
     first = solve(model, cases[0][0], tip_force_n=cases[0][1], base_rotation=pose)  # compile / load cache
     tip_jacobian(model, first)

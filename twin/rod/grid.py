@@ -18,7 +18,7 @@ import numpy as np
 
 from twin.params import Params
 
-__all__ = ["GRAVITY_TIP_FORCE_N", "pcc_realisable", "pcc_tensions_n"]
+__all__ = ["GRAVITY_TIP_FORCE_N", "holding_tensions_n", "pcc_realisable", "pcc_tensions_n"]
 
 
 def GRAVITY_TIP_FORCE_N(mass_kg: float, gravity_m_s2: float) -> np.ndarray:
@@ -61,13 +61,20 @@ def pcc_tensions_n(kappa_per_m: float, phi_deg: float, params: Params, pretensio
         ValueError: no two tendons less than 180° apart bracket φ, so no pull bends towards it.
     """
     pre = params.tendons.pretension_n if pretension_n is None else pretension_n
+    bend = params.backbone.bending_stiffness_nm2 * kappa_per_m / params.tendons.radius_m
+    target = bend * np.array([np.cos(np.radians(phi_deg)), np.sin(np.radians(phi_deg))])
+    return _pulls(target, phi_deg, params, pre)
+
+
+def _pulls(target: np.ndarray, phi_deg: float, params: Params, pre: float) -> np.ndarray:
+    """Tensions (N) whose pull, on top of ``pre`` each, is ``target`` (N, towards the body x and
+    y axes, the bending moment over the tendon radius); ``phi_deg`` is the plane it bends in."""
     alpha = np.radians(np.asarray(params.tendons.angles_deg, dtype=float))
     # An uneven layout bends the rod under the pretension alone: that moment is taken out too.
     residual = pre * np.array([np.cos(alpha).sum(), np.sin(alpha).sum()])
     if np.linalg.norm(residual) < 1e-9 * max(pre, 1.0):
         residual = np.zeros(2)
-    bend = params.backbone.bending_stiffness_nm2 * kappa_per_m / params.tendons.radius_m
-    target = bend * np.array([np.cos(np.radians(phi_deg)), np.sin(np.radians(phi_deg))]) - residual
+    target = target - residual
     size = float(np.linalg.norm(target))
     if size == 0.0:
         return np.full(alpha.size, float(pre))
@@ -77,3 +84,36 @@ def pcc_tensions_n(kappa_per_m: float, phi_deg: float, params: Params, pretensio
         raise ValueError(f"phi = {phi_deg!r} deg: tendons.angles_deg = {list(params.tendons.angles_deg)} cannot bend "
                          "towards it (no two neighbours less than 180 deg apart bracket it)")
     return pre + size * weights
+
+
+def holding_tensions_n(kappa_per_m: float, phi_deg: float, tip_mass_kg: float, params: Params,
+                       base_rotation=None, pretension_n: float | None = None) -> np.ndarray:
+    """Tendon tensions (N) that hold the arc (κ, φ) with ``tip_mass_kg`` at the tip, in the clamp
+    pose ``base_rotation`` (default ``rig.base_rotation``): an estimate at the base, where the
+    load's moment is largest. The backbone must bend by EI κ towards φ; the weight of the arc
+    (backbone, discs, tip mass, as the arc places them) bends it by its moment about the base,
+    and the tendons pull for the difference, split as :func:`pcc_tensions_n` splits it.
+
+    Raises:
+        ValueError: the tendons cannot pull towards the plane that difference lies in.
+    """
+    from twin.pcc import arc_tip_position_m
+
+    b, d = params.backbone, params.discs
+    rotation = params.rig.base_rotation if base_rotation is None else np.asarray(base_rotation, dtype=float)
+    pre = params.tendons.pretension_n if pretension_n is None else pretension_n
+    gravity = rotation.T @ np.array([0.0, 0.0, -params.environment.gravity_m_s2])
+    pieces = 4 * d.count
+    at_m = [(k + 0.5) * b.length_m / pieces for k in range(pieces)]
+    masses = [b.mass_kg / pieces] * pieces
+    at_m += [b.length_m * (k + 1) / d.count for k in range(d.count)] + [b.length_m]
+    masses += [d.lumped_mass_kg] * d.count + [tip_mass_kg]
+    moment = np.zeros(3)
+    for s, m in zip(at_m, masses):
+        moment += np.cross(arc_tip_position_m(kappa_per_m, phi_deg, s), m * gravity)
+    # A moment about body x and y bends the backbone towards (M_y, −M_x).
+    weight_bend = np.array([moment[1], -moment[0]])
+    elastic = b.bending_stiffness_nm2 * kappa_per_m * np.array([np.cos(np.radians(phi_deg)), np.sin(np.radians(phi_deg))])
+    target = (elastic - weight_bend) / params.tendons.radius_m
+    plane = float(np.degrees(np.arctan2(target[1], target[0]))) if np.linalg.norm(target) > 0 else phi_deg
+    return _pulls(target, plane, params, pre)

@@ -117,7 +117,7 @@ class RodModel:
             line_mass_kg_per_m=body.line_mass_kg_per_m,
             point_masses=tuple((s, disc_mass) for s in disc_s) if disc_mass > 0 else (),
             gravity_m_s2=params.environment.gravity_m_s2,
-            steps=params.solver.steps if steps is None else steps,
+            steps=params.predictor_steps() if steps is None else steps,
             tolerance=params.solver.tolerance,
             max_iterations=params.solver.max_iterations,
             friction_coeff=body.friction_coeff,

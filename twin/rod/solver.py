@@ -257,9 +257,15 @@ def _run(model: RodModel, rod: RodInputs, m0: np.ndarray, states, strains, log: 
     tol = model.tolerance * model.moment_scale_nm
     out = np.array(jac, dtype=float) if jac is not None else np.zeros((3, 3))
     trace = np.empty((model.max_iterations + 1, kernel.TRACE_COLUMNS))
-    code, res, iters, calls, rows = kernel.shoot(m0, rod, states, strains, tol,
-                                                 model.max_iterations, 1e-7 * model.moment_scale_nm, out,
-                                                 jac is not None, trace)
+    try:
+        code, res, iters, calls, rows = kernel.shoot(m0, rod, states, strains, tol,
+                                                     model.max_iterations, 1e-7 * model.moment_scale_nm, out,
+                                                     jac is not None, trace)
+    except ZeroDivisionError:
+        # A stiffness that underflowed to 0 (a fit's trial with an undetermined modulus run off to
+        # 1e-280): the rod cannot be integrated, which is the caller's failed solve, not a crash.
+        log.append((load_factor, trace[:0]))
+        return int(kernel.SolverStatus.INTEGRATION_FAILED), float("inf"), 0, 1, out
     log.append((load_factor, trace[:rows]))
     return code, res, iters, calls, out
 

@@ -34,6 +34,7 @@ import numpy as np
 from twin.params import Params, load_params
 from twin.robots import description, load_robot, robot_names
 from twin.pcc import GRID_KAPPA_PER_M, GRID_TIP_MASS_KG, validation_grid
+from twin.pose import pose_name
 from twin.rod.grid import pcc_realisable, pcc_tensions_n
 from twin.scaleout import map_ordered
 from twin.sim.plant import Plant
@@ -358,7 +359,7 @@ def write_report(result: CrosscheckResult, studies, out_dir: str | Path, params:
         "",
         f"L = {params.backbone.length_m * 1e3:g} mm, {params.tendons.count} tendons routed "
         f"{params.tendons.routing}, torsion {params.backbone.torsion}, G = {params.backbone.shear_modulus_pa:.4g} Pa. "
-        f"Endoscope horizontal, gravity on; tensions `pcc_tensions_n(κ, φ)` = pretension "
+        f"Base clamped {pose_name(params.rig.base_rotation)}, gravity on; tensions `pcc_tensions_n(κ, φ)` = pretension "
         f"({params.tendons.pretension_n} N) + EI·κ/r·max(0, cos(φ − α_i)); tip mass hung at the tip. Twin: "
         f"N = {sim.elements} elements, {sim.timestep_s * 1e3:g} ms steps, "
         f"{'axial' if sim.axial_joints else 'no axial'} and {'shear' if sim.shear_joints else 'no shear'} "

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import mujoco
 
-from twin.params import Params
+from twin.params import ParameterError, Params
 from twin.robots import MODELS_DIR, description, load_robot, robot_names
 from twin.sim.model import (INEXTENSIBLE_COMPLIANCE_M_PER_N, SPOOL_DAMPING_N_S_PER_M, STATION_JOINTS, model_xml,
                             slide_stations, tendon_stiffness_n_per_m)
@@ -41,7 +41,44 @@ def index_text() -> str:
         lines.append(f"| [{name}]({name}/README.md) | {t.count} at {', '.join(f'{a:g}' for a in t.angles_deg)}° | "
                      f"{routing} | {b.length_m * 1e3:g} mm | {p.discs.count} | {b.youngs_modulus_pa:.3g} / "
                      f"{b.shear_modulus_pa:.3g} Pa | {b.torsion} | {description(name)} |")
-    return "\n".join(lines) + "\n"
+    return "\n".join(lines + DESCRIBING) + "\n"
+
+
+# How a parameter file describes a robot: the constraints the loader checks (twin.params), said.
+DESCRIBING = [
+    "", "## Describing a robot", "",
+    "Copy a parameter file, change what differs (each value `{ value = ..., source = \"...\" }`) and run "
+    "`python -m twin.sim.modelfiles`; a file that does not load is refused in one line naming every wrong key. "
+    "A robot of several segments is best described segment by segment, base first:", "",
+    "```toml",
+    "[[segments]]",
+    "source = \"assumption: the proximal half, three tendons at 120 deg\"",
+    "length_m = 0.03",
+    "discs = 5",
+    "tendons = [{ angle_deg = 0.0 }, { angle_deg = 120.0 }, { angle_deg = 240.0 }]",
+    "",
+    "[[segments]]",
+    "source = \"assumption: the distal half, turned by 60 deg\"",
+    "length_m = 0.03",
+    "discs = 5",
+    "tendons = [{ angle_deg = 60.0, radius_m = 0.0045, routing = \"straight\" }, { angle_deg = 180.0 }, "
+    "{ angle_deg = 300.0 }]",
+    "```", "",
+    "The segments set `backbone.length_m` (their sum), `discs.count` (their sum), `tendons.angles_deg` (every "
+    "segment's tendons in order) and `tendons.end_discs` (each tendon anchored at its segment's last disc); a file "
+    "gives those either as segments or as keys, not both (the arrays are still read). The model has one tendon "
+    "radius and routing (`tendons.radius_m`, `tendons.routing`) and spaces the discs evenly, so segments must agree "
+    "on them.", "",
+    "Checked when a file is read, each named when it fails:", "",
+    "- one entry per tendon in `tendons.end_discs` (when given), `sensors.loadcell_offset_counts` and every "
+    "per-tendon `effects.*` list, as many as `tendons.angles_deg` has;",
+    "- `tendons.end_discs` are disc numbers 1 … `discs.count` (the tip);",
+    "- `sim.elements >= discs.count` (a twin element per disc at least);",
+    "- the tendons lie within the discs, the discs outside the backbone, and the discs fit along it;",
+    "- `rig.tension_limit_n` <= `sensors.loadcell_capacity_n` and <= 50 N (the firmware's largest), and "
+    "`sensors.loadcell_gain_counts_per_n` (the cells' rated sensitivity, which bounds the calibrations the board "
+    "accepts to 25 % either way) within 100 … 117,440 counts/N.",
+]
 
 
 def readme_text(params: Params, name: str) -> str:
@@ -129,6 +166,24 @@ def write_model_files(directory: str | Path = MODELS_DIR) -> list[Path]:
     return paths + [directory / "README.md"]
 
 
-if __name__ == "__main__":
-    for path in write_model_files():
+def main() -> int:
+    """Write the zoo's files; a parameter file that does not load is refused in one line
+    naming the file and every wrong key (exit 2), and nothing is written."""
+    import sys
+
+    import twin.robots
+
+    try:
+        for name in robot_names():
+            load_robot(name)  # every file is checked before any is written
+        paths = write_model_files(twin.robots.MODELS_DIR)
+    except (ParameterError, OSError) as exc:
+        print(f"python -m twin.sim.modelfiles: {exc}", file=sys.stderr)
+        return 2
+    for path in paths:
         print(path)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
