@@ -10,7 +10,9 @@ mode and measure the unloaded tip — the target — and the tensions. Then, per
    known load; wait for the tip to come to rest, measure;
 3. **corrected**: up to ``corrections`` times, re-aim the predictor by the model error the
    tracker's miss reveals (:func:`twin.control.compensation.correct_tensions`), ramp, rest,
-   measure; stop early once that error is within ``correction_tolerance_m``;
+   measure; stop early once that error is within ``correction_tolerance_m``, or, when a
+   correction made the miss worse (tendon friction's hysteresis), after going back to the best
+   tensions measured;
 4. back to length mode at the PCC lengths, for the next mass.
 
 Errors are tracker distances of the resting, loaded tip from the target (means over ``measure_s``).
@@ -77,7 +79,8 @@ class CompensationTrial:
     ``feedforward_reduction_pct``, ``corrected_reduction_pct`` (against uncompensated);
     ``model_residual_mm`` (the predictor's own miss of the target at the feed-forward tensions,
     within the bounds), ``reached`` (that miss is within tolerance), ``corrections`` (applied),
-    ``feedforward_tensions_n``, ``tensions_n`` (the last applied), ``fault`` (empty, or what
+    ``reverted`` (a correction made the miss worse and the tensions went back to the best
+    measured), ``feedforward_tensions_n``, ``tensions_n`` (the last applied), ``fault`` (empty, or what
     stopped the row).
 
     ``floor_n``, ``limit_n`` are the tension bounds (N), ``corrections`` the most corrections per
@@ -394,7 +397,7 @@ def run_compensation_trial(device, params: Params, *, configs: Sequence[tuple[fl
                    "uncompensated_mm": math.nan, "feedforward_mm": math.nan, "corrected_mm": math.nan,
                    "feedforward_reduction_pct": math.nan, "corrected_reduction_pct": math.nan,
                    "model_residual_mm": plan.residual_m * 1e3 if plan else math.nan,
-                   "reached": bool(plan and plan.reached), "corrections": 0,
+                   "reached": bool(plan and plan.reached), "corrections": 0, "reverted": False,
                    "feedforward_tensions_n": plan.tensions_n.round(4).tolist() if plan else [],
                    "tensions_n": plan.tensions_n.round(4).tolist() if plan else [], "fault": fault}
             rows.append(row)
@@ -450,6 +453,7 @@ def _run_mass(device, row: dict, model: RodModel, plan, target, mass: float, loa
     row["feedforward_reduction_pct"] = float(100.0 * (1.0 - np.linalg.norm(miss) / uncompensated))
 
     applied = plan
+    best = (float(np.linalg.norm(miss)), applied)
     for _ in range(corrections):
         # What the predictor expected to miss by (a target out of reach within the bounds) is
         # no model error: a correction would not change it, so it does not count.
@@ -460,6 +464,17 @@ def _run_mass(device, row: dict, model: RodModel, plan, target, mass: float, loa
         applied = corrected
         miss = _rest_and_measure(device, target, correction_rest_s, measure_s, settle_timeout_s)
         row["corrections"] += 1
+        if np.linalg.norm(miss) < best[0]:
+            best = (float(np.linalg.norm(miss)), applied)
+        elif np.linalg.norm(miss) > best[0] + 2 * correction_tolerance_m:
+            # Worse: under tendon friction a tendon whose motion reverses swaps the tension it
+            # loses along the way for one it gains, so a correction can jump past the target by
+            # the friction's band. Back to the best tensions measured, and no further chase.
+            _ramp_tensions(device, applied.tensions_n, best[1].tensions_n, steps)
+            applied = best[1]
+            miss = _rest_and_measure(device, target, correction_rest_s, measure_s, settle_timeout_s)
+            row["reverted"] = True
+            break
     row["tensions_n"] = applied.tensions_n.round(4).tolist()
     row["corrected_mm"] = float(np.linalg.norm(miss)) * 1e3
     row["corrected_reduction_pct"] = float(100.0 * (1.0 - np.linalg.norm(miss) / uncompensated))
