@@ -161,6 +161,16 @@ def test_compensation_on_a_stiff_robot_is_no_worse_than_on_the_endoscope():
     assert max(row["tensions_n"]) > 6.0
 
 
+def test_a_load_the_bounds_cannot_hold_is_left_out_and_named_not_run():
+    # 1.2–1.95 N cannot bend the endoscope up against 5 g at κ 4.5 (the PCC pull is 1.9 N).
+    with open_device("sim://?seed=4", params=PARAMS) as device:
+        trial = run_compensation_trial(device, PARAMS, configs=[(4.5, 180.0)], masses_kg=(0.005,), floor_n=1.2,
+                                       limit_n=1.95)
+    assert trial.rows == [] and len(trial.left_out) == 1
+    assert trial.left_out[0]["mass_g"] == 5.0 and "sag" in trial.left_out[0]["reason"]
+    assert trial.verdict() == (False, ["no row ran to the end"])
+
+
 def test_a_compensation_worse_than_none_is_never_an_ordinary_result():
     row = {"kappa_per_m": 8.7, "phi_deg": 0.0, "mass_g": 10.0, "uncompensated_mm": 1.8, "feedforward_mm": 30.7,
            "corrected_mm": 27.9, "feedforward_reduction_pct": -1600.0, "corrected_reduction_pct": -1450.0,

@@ -384,15 +384,16 @@ def run_compensation_trial(device, params: Params, *, configs: Sequence[tuple[fl
             # The target itself could not be set: every mass of the configuration is a faulted row.
             fault = f"no target: {str(exc).split(';')[0]}"
             unloaded = None
+        first_row = len(rows)
         for mass in masses_kg:
             load = GRAVITY_TIP_FORCE_N(mass, g)
             plan = hold_tensions(model, unloaded.tensions_n, load, **bounds) if unloaded is not None else None
-            if plan is not None and plan.residual_m > _REACH_SHARE * _predicted_sag_m(model, unloaded.tensions_n, load,
-                                                                                      bounds["base_rotation"]):
+            sag = _predicted_sag_m(model, unloaded.tensions_n, load, bounds["base_rotation"]) if plan else 0.0
+            if plan is not None and plan.residual_m > _REACH_SHARE * sag:
                 # At best the row would end above half its uncompensated error: out of reach, not run.
                 left_out.append({"kappa_per_m": kappa, "phi_deg": phi, "mass_g": round(mass * 1e3, 3),
-                                 "reason": f"within {floor_n:.2f}–{limit_n:.2f} N the predictor leaves "
-                                           f"{plan.residual_m * 1e3:.2f} mm of the load's sag"})
+                                 "reason": f"within {floor_n:.2f}–{limit_n:.2f} N the predictor misses the target by "
+                                           f"{plan.residual_m * 1e3:.2f} mm against the load's {sag * 1e3:.2f} mm sag"})
                 continue
             row = {"kappa_per_m": kappa, "phi_deg": phi, "mass_g": round(mass * 1e3, 3),
                    "uncompensated_mm": math.nan, "feedforward_mm": math.nan, "corrected_mm": math.nan,
@@ -418,10 +419,11 @@ def run_compensation_trial(device, params: Params, *, configs: Sequence[tuple[fl
         device.fixture.hang_tip_mass(0.0)
         device.disable()
         if progress is not None:
-            last = rows[-len(masses_kg):]
+            last = rows[first_row:]
             progress(f"κ {kappa:g} φ {phi:g}: " + ", ".join(
                 f"{r['mass_g']:g} g {r['uncompensated_mm']:.2f} → {r['feedforward_mm']:.2f} → "
-                f"{r['corrected_mm']:.2f} mm" + (f" ({r['fault']})" if r["fault"] else "") for r in last))
+                f"{r['corrected_mm']:.2f} mm" + (f" ({r['fault']})" if r["fault"] else "")
+                + (" (WORSE than uncompensated)" if r["corrected_mm"] > r["uncompensated_mm"] else "") for r in last))
     timing = {"ramp_s": ramp_s, "rest_s": rest_s, "correction_rest_s": correction_rest_s, "measure_s": measure_s,
               "target_measure_s": target_measure_s}
     return CompensationTrial(rows=rows, device=device.url, floor_n=floor_n, limit_n=limit_n, corrections=corrections,
