@@ -414,7 +414,7 @@ def run_compensation_trial(device, params: Params, *, configs: Sequence[tuple[fl
             except (ProtocolError, CommandRejected) as exc:
                 # A tripped tension limit is a result, not a crash: record it, skip what is left.
                 row["fault"] = str(exc).split(";")[0]
-                fault = f"not run: the board faulted at {row['mass_g']:g} g"
+                fault = f"not run: the {row['mass_g']:g} g row faulted"
                 for stage, _ in _STAGES[1:]:
                     row[f"{stage}_mm"] = row[f"{stage}_reduction_pct"] = math.nan
         device.fixture.hang_tip_mass(0.0)
