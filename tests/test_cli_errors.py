@@ -5,10 +5,13 @@ run folder behind, and must not exit 0.
 """
 
 import json
+from pathlib import Path
 
 import pytest
 
 from twin.cli import main
+
+DATA = Path(__file__).parent / "data"
 
 MISTAKES = [
     # (argv, exit code, words the one line must hold)
@@ -32,6 +35,12 @@ MISTAKES = [
     (["no-such-command"], 2, ["no-such-command"]),
     (["sim", "--tensions", "1,1,1,1", "--seed", "-5"], 2, ["--seed", "-5"]),
     (["compensate", "--quick", "--corrections", "-1"], 2, ["--corrections", "-1"]),
+    (["compensate", "--quick", "--device", "serial:///dev/null", "--twin-set", "effects.tendon_friction_coeff=0.1"],
+     2, ["--twin-set", "sim://"]),
+    (["compensate", "--quick", "--twin-set", "effects.no_such=1"], 2, ["--twin-set", "effects.no_such"]),
+    (["compensate", "--quick", "--ceiling", "28"], 2, ["--ceiling 28", "5.38 N"]),
+    (["compensate", "--quick", "--params", str(DATA / "stiff150.toml"), "--ceiling", "5"], 2,
+     ["within reach", "above the 5.00 N ceiling"]),
     (["calibrate", "--refit", "--file", "/no/such.json"], 1, ["--file", "/no/such.json"]),
     (["emulate", "--link", "/no/such/dir/port"], 1, ["--link", "/no/such/dir/port"]),
     (["validate", "--quick", "--out", "/proc/no-such"], 1, ["--out", "/proc/no-such"]),

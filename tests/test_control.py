@@ -1,13 +1,16 @@
 """Load compensation, the length-vs-tension study and the tuning example, on the predictor and the twin."""
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
 from twin import load_params
 from twin.control.cocontraction import run_cocontraction_study
 from twin.control.compensation import compensate_tensions, correct_tensions, hold_tensions
-from twin.control.compensation_trial import GOAL_REDUCTION_PCT, run_compensation_trial, tension_ceiling_n
-from twin.control.gains import DEFAULT_TENSION_GAINS, TUNED_TENSION_GAINS
+from twin.control.compensation_trial import (GOAL_REDUCTION_PCT, CompensationTrial, compensation_grid,
+                                             run_compensation_trial, tension_ceiling_n, within_reach)
+from twin.control.gains import DEFAULT_TENSION_GAINS, TUNED_TENSION_GAINS, tension_gains_for
 from twin.tuning import tension_cost
 from twin.device import open_device
 from twin.pose import HORIZONTAL
@@ -113,6 +116,74 @@ def test_tracker_corrections_remove_a_load_cell_error_the_feedforward_cannot_see
     assert row["feedforward_mm"] > row["model_residual_mm"] + 0.2
     assert row["corrected_mm"] < 0.5 * row["feedforward_mm"]
     assert row["corrected_reduction_pct"] >= GOAL_REDUCTION_PCT
+
+
+def test_compensation_reaches_the_goal_under_a_tendon_friction_the_model_does_not_know():
+    # μ = 0.3 hidden on the twin: in tension mode the loop swings by newtons while the friction
+    # holds the tip still, and the tension criterion of rest faulted every row. The tip is at
+    # rest, and the tracker corrections remove what the frictionless model gets wrong.
+    hidden = PARAMS.replace({"effects.tendon_friction_coeff": 0.3})
+    with open_device("sim://?seed=4", params=hidden) as device:
+        trial = run_compensation_trial(device, PARAMS, configs=[(8.7, 0.0)], masses_kg=(0.010,))
+    (row,) = trial.rows
+    assert not row["fault"] and not trial.left_out
+    assert row["corrected_reduction_pct"] >= GOAL_REDUCTION_PCT
+    assert trial.verdict() == (True, [])
+
+
+STIFF = load_params(Path(__file__).parent / "data" / "stiff150.toml")
+
+
+def test_a_stiff_robot_gets_a_grid_and_a_ceiling_its_tensions_can_hold():
+    gains = tension_gains_for(STIFF)
+    ceiling = tension_ceiling_n(STIFF, gains)
+    # The endoscope keeps the tuned clamp and the thesis grid; the 30 N rig may pull ~25 N.
+    assert tension_gains_for(PARAMS)["output_limit"] == pytest.approx(TUNED_TENSION_GAINS["output_limit"])
+    assert compensation_grid(PARAMS, tension_ceiling_n(PARAMS, TUNED_TENSION_GAINS)) == compensation_grid(
+        PARAMS, 1e3)
+    assert 20.0 < ceiling < STIFF.rig.tension_limit_n
+    grid = compensation_grid(STIFF, ceiling)
+    kept, left_out = within_reach(STIFF, grid, limit_n=ceiling)
+    assert len(kept) == 60 and not left_out and max(k for k, _ in grid) < 10.0
+    # The thesis's curvatures need several times the ceiling of the tuned clamp: each is named.
+    kept, left_out = within_reach(STIFF, [(26.2, 0.0), (4.5, 90.0)], limit_n=5.0)
+    assert not kept and all("above the 5.00 N ceiling" in item["reason"] for item in left_out)
+
+
+def test_compensation_on_a_stiff_robot_is_no_worse_than_on_the_endoscope():
+    # Before, the 5.1 N ceiling of the endoscope's clamp let the tip end 17-290x worse than uncompensated.
+    with open_device("sim://?seed=4", params=STIFF) as device:
+        grid = compensation_grid(STIFF, tension_ceiling_n(STIFF, tension_gains_for(STIFF)))
+        trial = run_compensation_trial(device, STIFF, configs=[grid[-1]], masses_kg=(0.010,))
+    (row,) = trial.rows
+    assert not row["fault"] and row["uncompensated_mm"] > 3.0
+    assert row["corrected_reduction_pct"] >= GOAL_REDUCTION_PCT
+    assert max(row["tensions_n"]) > 6.0
+
+
+def test_a_load_the_bounds_cannot_hold_is_left_out_and_named_not_run():
+    # 1.2–1.95 N cannot bend the endoscope up against 5 g at κ 4.5 (the PCC pull is 1.9 N).
+    with open_device("sim://?seed=4", params=PARAMS) as device:
+        trial = run_compensation_trial(device, PARAMS, configs=[(4.5, 180.0)], masses_kg=(0.005,), floor_n=1.2,
+                                       limit_n=1.95)
+    assert trial.rows == [] and len(trial.left_out) == 1
+    assert trial.left_out[0]["mass_g"] == 5.0 and "sag" in trial.left_out[0]["reason"]
+    assert trial.verdict() == (False, ["no row ran to the end"])
+
+
+def test_a_compensation_worse_than_none_is_never_an_ordinary_result():
+    row = {"kappa_per_m": 8.7, "phi_deg": 0.0, "mass_g": 10.0, "uncompensated_mm": 1.8, "feedforward_mm": 30.7,
+           "corrected_mm": 27.9, "feedforward_reduction_pct": -1600.0, "corrected_reduction_pct": -1450.0,
+           "fault": ""}
+    good = dict(row, feedforward_mm=0.1, corrected_mm=0.1, feedforward_reduction_pct=94.4,
+                corrected_reduction_pct=94.4)
+    trial = CompensationTrial(rows=[good, good, row], device="sim://", floor_n=0.3, limit_n=5.0, corrections=2,
+                              timing_s={})
+    met, problems = trial.verdict()
+    assert not met and trial.worse_rows() == [row]
+    assert any("WORSE" in p and "27.90" in p for p in problems)
+    # The median (94.4 %) alone would have passed.
+    assert trial.summary()["all"]["corrected_median_reduction_pct"] >= GOAL_REDUCTION_PCT
 
 
 def test_length_control_lets_the_pair_fight_tension_control_holds_it(twin):

@@ -5,10 +5,12 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 import time
 from pathlib import Path
 
 from twin.cliargs import UsageError, add_param_args, count, new_run_folder, params_from_args, robot_name
+from twin.params import ParameterError, parse_override
 from twin.device.commands import open_device_arg
 
 __all__ = ["register"]
@@ -28,6 +30,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                         "at its duty clamp, with headroom (5.12 N for the tuned gains)")
     p.add_argument("--corrections", type=count, default=2,
                    help="most closed-loop corrections from the tracker per mass (0: feed-forward only)")
+    p.add_argument("--twin-set", dest="twin_overrides", action="append", default=[], metavar="KEY=VALUE",
+                   help="sim:// only: change the simulated rig but not the model (a hidden effect, e.g. "
+                        "effects.tendon_friction_coeff=0.3), repeatable")
     add_param_args(p)
     p.set_defaults(func=run_compensate)
 
@@ -44,19 +49,58 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run_compensate(args: argparse.Namespace) -> int:
-    from twin.control.compensation_trial import QUICK_CONFIGS, run_compensation_trial
+    """Exit 0 when the goal is met; 3 with one line per miss (faulted rows, a row compensated worse
+    than uncompensated, a median reduction under the goal); 2 for a bad argument or a grid out of
+    the compensation's reach; 4 when the device failed half-way (the rows so far are reported)."""
+    from twin.control.compensation_trial import compensation_grid, run_compensation_trial, tension_ceiling_n
+    from twin.control.gains import tension_gains_for
+    from twin.device.errors import DeviceError
+    from twin.sim.plant import SimulationError
 
     params = params_from_args(args)
+    twin = _twin_params(args, params)
+    gains = tension_gains_for(params)
+    holds_n = tension_ceiling_n(params, gains, margin_n=0.0, headroom=1.0)
+    if args.ceiling is not None and not args.floor < args.ceiling <= holds_n:
+        raise UsageError(f"--ceiling {args.ceiling:g}: must be above --floor {args.floor:g} N and at most {holds_n:.2f} N "
+                         f"(what the tension loop holds at its duty clamp {gains['output_limit']:.3f} under the "
+                         f"{params.rig.tension_limit_n:g} N limit)")
+    limit_n = tension_ceiling_n(params, gains) if args.ceiling is None else args.ceiling
+    if not 0 <= args.floor < limit_n:
+        raise UsageError(f"--floor {args.floor:g}: must be in [0, {limit_n:.2f}) N (the ceiling)")
+    configs = compensation_grid(params, limit_n, quick=args.quick)
     start = time.perf_counter()
-    with open_device_arg(args.device, params=params, robot=robot_name(args)) as device:
-        trial = run_compensation_trial(device, params, configs=QUICK_CONFIGS if args.quick else None,
-                                       floor_n=args.floor, limit_n=args.ceiling, corrections=args.corrections,
-                                       progress=print)
-    path = trial.write_report(Path(args.out or new_run_folder("runs", "compensate")),
-                              runtime_s=time.perf_counter() - start)
+    with open_device_arg(args.device, params=twin, robot=robot_name(args)) as device:
+        try:
+            trial = run_compensation_trial(device, params, configs=configs, floor_n=args.floor, limit_n=limit_n,
+                                           corrections=args.corrections, tension_gains=gains, progress=print)
+        except ValueError as exc:  # nothing within reach: refused before anything ran
+            raise UsageError(str(exc)) from None
+        except (DeviceError, SimulationError) as exc:
+            print(f"twin compensate: the device failed: {exc}", file=sys.stderr)
+            return 4
+    path = trial.write_report(Path(args.out or new_run_folder("runs", "compensate")), runtime_s=time.perf_counter() - start)
     print(json.dumps(trial.summary(), indent=1))
+    for item in trial.left_out:
+        print(f"left out: κ {item['kappa_per_m']:g} φ {item['phi_deg']:g}"
+              + (f" {item['mass_g']:g} g" if "mass_g" in item else "") + f": {item['reason']}")
     print(f"report: {path}")
-    return 0
+    met, problems = trial.verdict()
+    for problem in problems:
+        print(f"twin compensate: {problem}", file=sys.stderr)
+    return 0 if met else 3
+
+
+def _twin_params(args: argparse.Namespace, params):
+    """The parameter set the device is built with: the model's, with ``--twin-set`` on sim://."""
+    if not args.twin_overrides:
+        return params
+    if not args.device.startswith("sim://"):
+        raise UsageError(f"--twin-set {args.twin_overrides[0]}: applies to sim:// only, not --device {args.device}")
+    try:
+        return params.replace(dict(parse_override(o) for o in args.twin_overrides), source="twin-set (hidden)")
+    except ParameterError as exc:
+        raise UsageError(f"--twin-set: {exc}") from None
 
 
 def run_cocontraction(args: argparse.Namespace) -> int:
