@@ -22,6 +22,7 @@ from typing import Any, Iterable, Mapping
 
 import numpy as np
 
+from twin.board_limits import MAX_TENSION_LIMIT_N, RATED_GAIN_COUNTS_PER_N
 from twin.effects import PER_TENDON, Key, parameter_keys
 from twin.pose import HORIZONTAL_QUAT, rotation_of_quat
 from twin.resources import resource_path
@@ -624,9 +625,6 @@ def _consistency_problems(p: Params) -> list[str]:
 
 def _rig_problems(p: Params) -> list[str]:
     """The load cells and the tension limit must be ones the board can hold (firmware/PROTOCOL.md)."""
-    # Imported here: the device package reads parameter sets itself.
-    from twin.device.device import MAX_TENSION_LIMIT_N, RATED_GAIN_COUNTS_PER_N
-
     problems = []
     limit, capacity, gain = p.rig.tension_limit_n, p.sensors.loadcell_capacity_n, p.sensors.loadcell_gain_counts_per_n
     if limit > min(capacity, MAX_TENSION_LIMIT_N):

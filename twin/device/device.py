@@ -46,6 +46,7 @@ from typing import TYPE_CHECKING, ContextManager, Iterable, Sequence
 
 import numpy as np
 
+from twin.board_limits import GAIN_TOLERANCE, MAX_OFFSET_COUNTS, MAX_TENSION_LIMIT_N, RATED_GAIN_COUNTS_PER_N
 from twin.device import codec
 from twin.device.errors import (ChannelCountError, CommandRejected, DeviceDisconnected, DeviceError, DeviceTimeout,
                                 ProtocolVersionError)
@@ -86,22 +87,6 @@ def _vector(name: str, values: Iterable[float], count: int) -> tuple[float, ...]
 # Length setpoints the firmware accepts (m): its kMaxLengthSetpointM, a value in mm sent as m
 # must not unwind the spools.
 MAX_LENGTH_SETPOINT_M = 0.05
-
-# Calibrations the firmware accepts (firmware/PROTOCOL.md, its kGainTolerance and
-# kMaxOffsetCounts): counts per N within 25 % either way of the load cells' rated sensitivity
-# (the parameter set's sensors.loadcell_gain_counts_per_n, which the host sends with the limits),
-# and an unloaded offset within 2^20 counts, an eighth of the 24-bit range. Outside them a
-# calibration would blind the tension limit.
-GAIN_TOLERANCE = 1.25
-MAX_OFFSET_COUNTS = float(2**20)
-
-# Largest per-channel tension limit the firmware accepts (N): its kMaxTensionLimitN.
-MAX_TENSION_LIMIT_N = 50.0
-
-# Rated sensitivities the firmware accepts (counts/N; its kMinRatedGainCountsPerN and
-# kMaxRatedGainCountsPerN): the largest limit at the largest calibrated gain on the largest offset
-# reads below the HX711's saturation, and a count is at most 10 mN.
-RATED_GAIN_COUNTS_PER_N = (100.0, (2**23 - 1 - MAX_OFFSET_COUNTS) / (MAX_TENSION_LIMIT_N * GAIN_TOLERANCE))
 
 
 def _bounded(name: str, values: tuple[float, ...], low: float, high: float, unit: str, why: str) -> tuple[float, ...]:
