@@ -1,4 +1,4 @@
-"""The plant loop (twin/sim/native/loop.cpp) and its binding: the twin's numbers, pinned to the bit."""
+"""The plant loop (twin/sim/native/loop.cpp) and its binding: the twin's numbers, pinned to 1e-12 of each value."""
 
 import ctypes
 import math

@@ -1,4 +1,4 @@
-"""Regenerates ``plant_golden.npz``: the twin's trajectories the plant loop must reproduce to the bit.
+"""Regenerates ``plant_golden.npz``: the twin's trajectories the plant loop must reproduce (to 1e-12).
 
 The file pins what the twin does — physics steps, engagement short steps, sensor samples and the
 emulated board's ticks — so that a change to the loop that moves any number is seen. Regenerate
