@@ -191,3 +191,79 @@ def test_igtl_serve_says_serving_only_with_frames_to_send_and_sends_no_burst():
     finally:
         process.terminate()
         process.communicate(timeout=30)
+
+
+# --------------------------------------------------------------------------- the client attacked
+
+from twin.device.igtl_source import MAX_POSE_BODY_BYTES, OpenIGTLinkSource  # noqa: E402
+
+NAMES = ("ProbeAToTracker", "ProbeBToTracker")
+
+
+def pose_message(device=NAMES[0], rotation=np.eye(3), translation=(0.0, 0.0, 100.0), timestamp_s=None) -> bytes:
+    content = np.concatenate([np.asarray(rotation, float).T.ravel(), translation]).astype(">f4").tobytes()
+    return igtl.pack("TRANSFORM", device, content, timestamp_s=time.time() if timestamp_s is None else timestamp_s)
+
+
+@pytest.fixture
+def feed():
+    """A listener our client connects to, and the accepted connection to feed it bytes."""
+    with socket.create_server(("127.0.0.1", 0)) as listener:
+        source = OpenIGTLinkSource("127.0.0.1", listener.getsockname()[1], clock_offset_s=0.0)
+        try:
+            conn, _ = listener.accept()
+            with conn:
+                yield source, conn
+        finally:
+            source.close()
+
+
+def test_a_server_that_accepts_and_closes_is_not_hammered():
+    # Before: ~1,400 connects a second (the back-off applied only to failed connects).
+    with socket.create_server(("127.0.0.1", 0)) as listener:
+        listener.settimeout(0.05)
+        with OpenIGTLinkSource("127.0.0.1", listener.getsockname()[1]) as source:
+            end = time.monotonic() + 2.0
+            while time.monotonic() < end:
+                try:
+                    listener.accept()[0].close()
+                except TimeoutError:
+                    pass
+            assert 2 <= source.connections <= 8  # 50 ms doubling to 1 s: 6 in 2 s
+
+
+def test_an_oversized_pose_with_a_bad_crc_is_passed_over_unread_and_the_next_is_taken(feed):
+    # Before: a 64 MB message with a bad CRC stalled tracking for about a minute (pure-Python
+    # CRC) while the last pose stayed valid.
+    source, conn = feed
+    huge = igtl.pack("TRANSFORM", NAMES[0], b"\0" * (MAX_POSE_BODY_BYTES + 1), timestamp_s=time.time())
+    bad = huge[:50] + b"\xff" * 8 + huge[58:]  # a wrong CRC in the header
+    other = igtl.pack("IMAGE", "Video", b"\1" * (32 << 20), timestamp_s=time.time())  # a type not read
+    conn.sendall(bad + other + pose_message())
+    wait_for(lambda: source.read().probe_a.valid, timeout_s=10.0, what="the pose after them taken")
+    assert source.bad_messages == 1
+
+
+@pytest.mark.parametrize("rotation, translation", [
+    (np.full((3, 3), 1e30), (0.0, 0.0, 100.0)),  # before: valid=True
+    (np.eye(3), (np.nan, 0.0, 100.0)),  # before: valid=True
+    (np.diag([1.0, 1.0, -1.0]), (0.0, 0.0, 100.0)),  # a reflection
+    (2 * np.eye(3), (0.0, 0.0, 100.0)),  # a scale
+])
+def test_a_pose_that_is_not_one_is_refused_and_the_probe_is_invalid(feed, rotation, translation):
+    source, conn = feed
+    conn.sendall(pose_message())
+    wait_for(lambda: source.read().probe_a.valid, what="a good pose")
+    conn.sendall(pose_message(rotation=rotation, translation=translation))
+    wait_for(lambda: source.refused_poses == 1, what="the bad pose refused")
+    assert not source.read().probe_a.valid
+
+
+def test_a_pose_from_the_future_is_refused(feed):
+    # Before: with igtl_clock=0, a sample 0.48 s in the future was taken.
+    source, conn = feed
+    conn.sendall(pose_message(timestamp_s=time.time() + 0.48))
+    wait_for(lambda: source.refused_poses == 1, what="the future pose refused")
+    assert not source.read().probe_a.valid
+    conn.sendall(pose_message())
+    wait_for(lambda: source.read().probe_a.valid, what="a pose of now taken")
