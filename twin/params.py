@@ -537,10 +537,13 @@ def load_params(
             invalid (the message names the file, the key and the value).
         OSError: ``path`` cannot be read (FileNotFoundError when it does not exist).
     """
+    from twin.inputs import PARAMS_MAX_BYTES, InputFileError, read_input
+
     path = Path(path) if path is not None else DEFAULT_PARAMS_PATH
     try:
-        with open(path, "rb") as fh:
-            raw = tomllib.load(fh)
+        raw = tomllib.loads(read_input(path, max_bytes=PARAMS_MAX_BYTES).decode("utf-8"))
+    except InputFileError as exc:
+        raise ParameterError(f"{exc}; a TOML parameter file was expected") from None
     except tomllib.TOMLDecodeError as exc:
         raise ParameterError(f"{path}: not a TOML parameter file (not valid TOML: {exc})") from None
     except UnicodeDecodeError as exc:
