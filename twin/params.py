@@ -340,7 +340,11 @@ def _toml_value(value: Any) -> str:
     if isinstance(value, (int, float)):
         return repr(value) if not isinstance(value, float) else _toml_float(value)
     if isinstance(value, str):
-        return '"' + value.replace("\\", "\\\\").replace('"', '\\"') + '"'
+        # tomli-w escapes what a TOML basic string cannot hold (newlines, control characters);
+        # escaping only quotes and backslashes wrote files that could not be read back.
+        import tomli_w
+
+        return tomli_w.dumps({"v": value}).removeprefix("v = ").rstrip("\n")
     if isinstance(value, (list, tuple)):
         return "[" + ", ".join(_toml_value(v) for v in value) + "]"
     raise TypeError(f"cannot write {value!r} as TOML")
