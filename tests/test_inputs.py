@@ -65,3 +65,15 @@ def test_the_command_line_refuses_dev_zero_in_one_line(argv, tmp_path):
     assert result.returncode != 0
     assert len(result.stderr.strip().splitlines()) == 1 and "/dev/zero: a device" in result.stderr, result.stderr
     assert not (tmp_path / "out").exists()
+
+
+def test_modelfiles_answers_a_bad_parameter_file_in_one_line(tmp_path, monkeypatch, capsys):
+    # Before: a traceback.
+    from twin.sim import modelfiles
+
+    bad = tmp_path / "bad.toml"
+    bad.write_text("[backbone\n")
+    monkeypatch.setattr(modelfiles, "load_robot", lambda name: load_params(bad))
+    assert modelfiles.main() == 1
+    err = capsys.readouterr().err
+    assert len(err.strip().splitlines()) == 1 and str(bad) in err

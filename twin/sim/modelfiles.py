@@ -129,6 +129,21 @@ def write_model_files(directory: str | Path = MODELS_DIR) -> list[Path]:
     return paths + [directory / "README.md"]
 
 
-if __name__ == "__main__":
-    for path in write_model_files():
+def main() -> int:
+    """Write the files and list them; a parameter file that does not load is one line naming it."""
+    import sys
+
+    from twin.params import ParameterError
+
+    try:
+        paths = write_model_files()
+    except (ParameterError, OSError) as exc:
+        print(f"twin.sim.modelfiles: {exc}", file=sys.stderr)
+        return 1
+    for path in paths:
         print(path)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
