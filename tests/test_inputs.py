@@ -77,3 +77,19 @@ def test_modelfiles_answers_a_bad_parameter_file_in_one_line(tmp_path, monkeypat
     assert modelfiles.main() == 1
     err = capsys.readouterr().err
     assert len(err.strip().splitlines()) == 1 and str(bad) in err
+
+
+def test_discrepancy_warns_in_one_line_of_a_parameter_file_of_another_robot(capsys):
+    # Before: it started fitting without a word. (--twin-set without sim:// stops it right after.)
+    from pathlib import Path
+
+    from twin.cli import main
+    from twin.resources import resource_path
+
+    dataset = Path(__file__).parent / "golden" / "dataset_v1"
+    same, other = resource_path("models") / "endoscope" / "endoscope.toml", resource_path("models") / "long" / "long.toml"
+    for params, warned in ((same, False), (other, True)):
+        assert main(["discrepancy", str(dataset), "--params", str(params), "--twin-set",
+                     "effects.tendon_friction_coeff=0.3"]) != 0
+        lines = [line for line in capsys.readouterr().err.splitlines() if "warning" in line]
+        assert len(lines) == warned and (not warned or "backbone.length" in lines[0])
