@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import collections
 import math
+import os
+import sys
 import urllib.parse
 
 import gymnasium as gym
@@ -58,6 +60,11 @@ def default_max_length_m(params: Params) -> float:
     PCC length change of a tendon at the largest target bend (r κ s, s where it is anchored)."""
     return LENGTH_ACTION_MARGIN * params.tendons.radius_m * TARGET_BEND_RAD / params.backbone.length_m * \
         max(params.tendon_ends_m())
+
+
+def _has_display() -> bool:
+    """Whether a window can be opened: always on macOS and Windows, on Linux with X11 or Wayland."""
+    return not sys.platform.startswith("linux") or bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
 
 
 class EndoscopeReachEnv(gym.Env):
@@ -138,7 +145,9 @@ class EndoscopeReachEnv(gym.Env):
             says where once the first :meth:`reset` opened the device. Needs viser.
     """
 
-    metadata = {"render_modes": ["rgb_array", "human"], "render_fps": 40}
+    # "human" opens MuJoCo's GLFW window, and GLFW without a display ends the process: offered
+    # only where there is one, so Gymnasium's check_env (which renders every mode) passes headless.
+    metadata = {"render_modes": ["rgb_array", *(["human"] if _has_display() else [])], "render_fps": 40}
 
     def __init__(self, device_url: str = "sim://", *, action_mode: str = "tensions", params: Params | None = None,
                  randomization: Randomization | None = None, tip_loads: TipLoads | None = None,
@@ -146,6 +155,10 @@ class EndoscopeReachEnv(gym.Env):
                  tension_range_n: tuple[float, float] | None = None, max_length_m: float | None = None,
                  pretension_n: float | None = None, tension_weight: float = 0.1, effort_weight: float = 1.0,
                  fault_penalty: float = 10.0, render_mode: str | None = None, live_port: int | None = None):
+        if render_mode == "human" and not _has_display():
+            raise gym.error.DependencyNotInstalled(
+                'render_mode = "human": needs a display (DISPLAY and WAYLAND_DISPLAY are unset); '
+                'use "rgb_array" for pictures without one')
         if render_mode not in (None, *self.metadata["render_modes"]):
             raise ValueError(f"render_mode = {render_mode!r}: must be None or one of "
                              f"{', '.join(self.metadata['render_modes'])}")

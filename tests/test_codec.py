@@ -324,3 +324,26 @@ def test_the_host_sees_the_encoder_history_as_counts_of_each_tick():
     assert np.array_equal(sample.encoder_history_counts[-1], sample.encoder_counts)
     # Channel 4 (−2,000,000 counts) beyond the int16 range at the oldest ticks: saturated.
     assert sample.encoder_history_counts[0].tolist() == [21709 - 40, -1 + 12, 0, -2_000_000 - 32768]
+
+
+@pytest.mark.parametrize("message, field", [
+    # Before: taken as telemetry with a fault the host had no name for.
+    (c.TelemetryMessage(channels=3, fault_flags=int(c.Fault.TENSION_CHANNEL_4)), "fault_flags"),
+    (c.TelemetryMessage(fault_flags=1 << 4), "fault_flags"),
+    # Before: not counted.
+    (c.Nack(acked_type=c.MsgType.ENABLE, error=99), "error"),
+    (c.Ack(acked_type=0xEE), "acked_type"),
+])
+def test_a_field_the_protocol_does_not_define_is_counted_bad_and_skipped(message, field):
+    channels = getattr(message, "channels", c.DEFAULT_CHANNELS)
+    if isinstance(message, c.TelemetryMessage):
+        n = channels
+        message = dataclasses.replace(message, encoder_counts=(0,) * n, lengths_m=(0.0,) * n, raw_counts=(0,) * n,
+                                      tensions_n=(0.0,) * n, targets=(0.0,) * n, duty=(0.0,) * n,
+                                      drive_modes=(c.Drive.COAST,) * n, encoder_history=(0,) * (c.TELEMETRY_TICKS * n))
+    with pytest.raises(c.MessageError, match=field):
+        c.check_fields(message)
+    decoder = c.FrameDecoder()
+    assert decoder.feed(c.encode_frame(message, 1)) == [] and decoder.bad_messages == 1
+    good = c.TelemetryMessage(fault_flags=int(c.Fault.WATCHDOG | c.Fault.TENSION_CHANNEL_4 | c.Fault.IMPLAUSIBLE_CHANNEL_1))
+    assert len(decoder.feed(c.encode_frame(good, 2))) == 1

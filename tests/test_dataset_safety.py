@@ -416,3 +416,25 @@ def test_emulator_removes_only_the_link_it_made(tmp_path):
     finally:
         board.close()
     assert path.read_text() == "made by someone else meanwhile"
+
+
+def test_emulator_link_never_replaces_what_appeared_at_the_path_nor_a_file_beside_it(tmp_path):
+    # Before: PATH.new was deleted silently, and a file made at PATH after the command's check
+    # was destroyed by the rename over it.
+    from twin.device.pty_board import PtyBoard
+
+    path = tmp_path / "ttyTWIN"
+    beside = tmp_path / "ttyTWIN.new"
+    beside.write_text("someone's file")
+    path.write_text("made after the check")
+    with pytest.raises(ValueError, match=f"link {path}: already exists"):
+        PtyBoard(seed=1, link_path=path).plug()
+    assert path.read_text() == "made after the check" and beside.read_text() == "someone's file"
+    path.unlink()
+    board = PtyBoard(seed=1, link_path=path)
+    board.plug()
+    try:
+        assert path.is_symlink() and beside.read_text() == "someone's file"
+    finally:
+        board.close()
+    assert not path.exists() and beside.read_text() == "someone's file"

@@ -114,7 +114,7 @@ def test_record_writes_the_documented_dataset(clean_run):
     assert abs(np.mean(steps.tensions_n[held, 0]) - target) < 0.1
 
 
-def test_a_dataset_is_read_as_far_as_its_experiments_were_written(tmp_path, clean_run):
+def test_a_dataset_is_read_as_far_as_its_experiments_were_written(tmp_path, clean_run, capsys):
     run_data = read_run(clean_run)
     writer = SeriesWriter(tmp_path / "d", params=NOMINAL, device="sim://", base_rotation=run_data.base_rotation,
                           calibration=None, seed=0, robot=None, planned=["length_steps", "pull_release"], quick=True)
@@ -125,6 +125,10 @@ def test_a_dataset_is_read_as_far_as_its_experiments_were_written(tmp_path, clea
     assert [s.experiment.name for s in partial.series] == ["length_steps"]
     assert np.array_equal(partial.series[0].tensions_n, run_data.series[0].tensions_n)
     assert np.array_equal(np.isnan(partial.series[0].tip_m), np.isnan(run_data.series[0].tip_m))
+    # Replay says which planned experiment is missing (before: not a word).
+    code, out, err = run(capsys, "dynamics", "replay", str(tmp_path / "d"), "--json")
+    assert code == 0 and json.loads(out)["missing"] == ["pull_release"]
+    assert "1 of the 2 planned experiments missing" in err and "pull_release" in err
     with pytest.raises(DatasetError, match="already holds a dynamic dataset"):
         SeriesWriter(tmp_path / "d", params=NOMINAL, device="sim://", base_rotation=run_data.base_rotation,
                      calibration=None, seed=0, robot=None, planned=[], quick=True)

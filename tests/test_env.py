@@ -163,3 +163,32 @@ def test_an_episode_is_saved_as_a_video(tmp_path):
         env.close()
     (video,) = tmp_path.glob("*.mp4")
     assert video.stat().st_size > 1000
+
+
+def test_human_rendering_without_a_display_is_a_gymnasium_error_not_a_dead_process():
+    # Before: GLFW's "could not initialize GLFW" ended the Python process, check_env with it.
+    import os
+    import subprocess
+    import sys
+
+    # Without a display the env does not offer "human" (so check_env, which renders every mode
+    # offered, passes); asked for it directly it refuses; through gym.make, Gymnasium's own
+    # HumanRendering wrapper takes over and raises its own error, the process lives on.
+    script = ("import gymnasium as gym, envs\n"
+              "assert 'human' not in envs.reach.EndoscopeReachEnv.metadata['render_modes']\n"
+              "try:\n"
+              "    envs.reach.EndoscopeReachEnv(render_mode='human')\n"
+              "except gym.error.DependencyNotInstalled as exc:\n"
+              "    print('refused:', exc)\n"
+              "env = gym.make('twin/EndoscopeReach-v0', render_mode='human')\n"
+              "try:\n"
+              "    env.reset(seed=0)\n"
+              "    env.render()\n"
+              "except gym.error.Error as exc:\n"
+              "    print('gymnasium:', type(exc).__name__)\n"
+              "env.close()\n")
+    environment = {k: v for k, v in os.environ.items() if k not in ("DISPLAY", "WAYLAND_DISPLAY")}
+    result = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, env=environment,
+                            timeout=120)
+    assert result.returncode == 0, result.stderr
+    assert result.stdout.startswith('refused: render_mode = "human": needs a display'), result.stdout

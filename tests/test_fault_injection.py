@@ -104,6 +104,20 @@ def test_an_answer_naming_another_command_is_not_taken_for_its_answer():
     assert inbox.answered(5) and isinstance(inbox.take_answer(5), c.Ack)
 
 
+def test_a_stray_answer_is_counted_and_an_unawaited_one_to_a_sent_message_is_not():
+    # Before: an ACK or NACK to no command awaited was dropped without being counted.
+    inbox = Inbox(lambda: 0.0)
+    inbox.sent(7, c.MsgType.PING)  # a keepalive: its answer is nobody's business
+    inbox.feed(c.encode_frame(c.Ack(acked_seq=7, acked_type=c.MsgType.PING), 0))
+    assert inbox.stats().bad_messages == 0
+    inbox.feed(c.encode_frame(c.Ack(acked_seq=8, acked_type=c.MsgType.ENABLE), 1))  # nothing sent as 8
+    assert inbox.stats().bad_messages == 1 and "answers no message this host sent" in inbox.stats().last_error
+    inbox.feed(c.encode_frame(c.Nack(acked_seq=7, acked_type=c.MsgType.ENABLE, error=c.NackError.BAD_VALUE), 2))
+    assert inbox.stats().bad_messages == 2  # seq 7 was a PING, not an ENABLE
+    inbox.feed(c.encode_frame(c.Nack(acked_seq=7, acked_type=c.MsgType.PING, error=99), 3))
+    assert inbox.stats().bad_messages == 3  # an error code the protocol does not define
+
+
 def test_no_bytes_make_the_inbox_raise():
     rng = np.random.default_rng(7)
     inbox = Inbox(lambda: 0.0)

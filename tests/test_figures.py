@@ -136,6 +136,10 @@ def test_the_compensation_figure_fits_a_page_for_the_whole_grid(tmp_path, saved)
     report = trial.write_report(tmp_path, runtime_s=stored["runtime_s"])
     ((fig, path),) = saved
     check_readable(fig, path)
+    # The legend above the axes, not over the bars (before: over them, and clipped at the sides).
+    fig.draw_without_rendering()
+    legend, axes = fig.legends[0].get_window_extent(), fig.axes[0].get_window_extent()
+    assert legend.y0 >= axes.y1 - 1
     # The report opens with it: the first thing after the title.
     first = [line for line in report.read_text().splitlines()[1:] if line.strip()][0]
     assert first.startswith("![") and path.name in first

@@ -67,6 +67,15 @@ def test_round_trip_through_toml(tmp_path):
     assert q.source("backbone.youngs_modulus_pa") == "override"
 
 
+@pytest.mark.parametrize("source", ["measured\non the rig", "tab\tand bell\x07", 'quote " and back\\slash',
+                                    "\x7f delete and \u00e9 accents", "line\r\nend"])
+def test_a_source_with_any_text_round_trips(tmp_path, source):
+    # Before: a newline or control character in a source wrote a file that could not be read.
+    p = load_params().replace({"backbone.youngs_modulus_pa": 7.5e6}, source=source)
+    q = load_params(p.save(tmp_path / "p.toml"))
+    assert q == p and q.source("backbone.youngs_modulus_pa") == source
+
+
 def test_parse_override_bare_word_is_string():
     assert parse_override("backbone.torsion=GJ") == ("backbone.torsion", "GJ")
     with pytest.raises(ParameterError):

@@ -183,3 +183,26 @@ def test_a_ray_head_gives_what_one_core_gives(ray_head, tmp_path):
     _, serial = run_zoo(tmp_path / "serial", configs=QUICK_GRID, robots=ZOO_ROBOTS)
     assert clustered == serial and list(clustered) == ZOO_ROBOTS
     assert _zoo_csvs(out) == _zoo_csvs(tmp_path / "serial")
+
+
+_LOCAL_LISTENERS = """
+from twin import scaleout
+ray = scaleout.connect("local", 1)
+import psutil  # Ray's own copy, on the path once ray is imported
+assert ray.get(ray.remote(lambda: 6 * 7).remote()) == 42
+me = psutil.Process()
+for process in [me] + me.children(recursive=True):
+    for c in process.net_connections(kind="inet"):
+        if c.status == psutil.CONN_LISTEN:
+            print(process.name(), c.laddr.ip, c.laddr.port)
+scaleout.disconnect()
+"""
+
+
+def test_cluster_local_listens_on_loopback_only():
+    # Before: the local Ray instance's GCS, raylet and workers listened on all interfaces (::).
+    pytest.importorskip("ray")
+    result = subprocess.run([sys.executable, "-c", _LOCAL_LISTENERS], capture_output=True, text=True, timeout=300)
+    assert result.returncode == 0, result.stderr[-3000:]
+    listeners = [line.split() for line in result.stdout.splitlines()]
+    assert listeners and all(ip in ("127.0.0.1", "::ffff:127.0.0.1", "::1") for _, ip, _ in listeners), listeners

@@ -299,11 +299,18 @@ def load_calibration(path: str | Path) -> Calibration:
     Raises:
         CalibrationFileError: the file is not JSON or a field is missing or malformed.
     """
+    from twin.inputs import CALIBRATION_MAX_BYTES, InputFileError, read_input
+
     path = Path(path)
     try:
-        data = json.loads(path.read_text())
+        data = json.loads(read_input(path, max_bytes=CALIBRATION_MAX_BYTES).decode("utf-8"))
+    except InputFileError as exc:
+        raise CalibrationFileError(f"{exc}; a calibration file was expected") from None
+    except UnicodeDecodeError as exc:
+        raise CalibrationFileError(f"{path}: not a calibration file (byte {exc.start + 1} is not UTF-8 text; "
+                                   "is it a binary file?)") from None
     except json.JSONDecodeError as exc:
-        raise CalibrationFileError(f"{path}: not valid JSON ({exc})") from exc
+        raise CalibrationFileError(f"{path}: not valid JSON ({exc})") from None
     return _parse(data, str(path))
 
 

@@ -357,7 +357,11 @@ def _toml_value(value: Any) -> str:
     if isinstance(value, (int, float)):
         return repr(value) if not isinstance(value, float) else _toml_float(value)
     if isinstance(value, str):
-        return '"' + value.replace("\\", "\\\\").replace('"', '\\"') + '"'
+        # tomli-w escapes what a TOML basic string cannot hold (newlines, control characters);
+        # escaping only quotes and backslashes wrote files that could not be read back.
+        import tomli_w
+
+        return tomli_w.dumps({"v": value}).removeprefix("v = ").rstrip("\n")
     if isinstance(value, (list, tuple)):
         return "[" + ", ".join(_toml_value(v) for v in value) + "]"
     raise TypeError(f"cannot write {value!r} as TOML")
@@ -671,10 +675,13 @@ def load_params(
             invalid (the message names the file, the key and the value).
         OSError: ``path`` cannot be read (FileNotFoundError when it does not exist).
     """
+    from twin.inputs import PARAMS_MAX_BYTES, InputFileError, read_input
+
     path = Path(path) if path is not None else DEFAULT_PARAMS_PATH
     try:
-        with open(path, "rb") as fh:
-            raw = tomllib.load(fh)
+        raw = tomllib.loads(read_input(path, max_bytes=PARAMS_MAX_BYTES).decode("utf-8"))
+    except InputFileError as exc:
+        raise ParameterError(f"{exc}; a TOML parameter file was expected") from None
     except tomllib.TOMLDecodeError as exc:
         raise ParameterError(f"{path}: not a TOML parameter file (not valid TOML: {exc})") from None
     except UnicodeDecodeError as exc:

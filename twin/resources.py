@@ -23,6 +23,7 @@ import shutil
 import subprocess
 import sys
 import tempfile
+import time
 from pathlib import Path
 from typing import Callable, Iterable
 
@@ -151,19 +152,35 @@ def build_cached(name: str, sources: Iterable[Path], key: Iterable[str], build: 
         folder = cache_dir("native", f"{name.split('.')[0]}-{digest.hexdigest()[:20]}")
         library = folder / name
         with open(folder / ".lock", "w") as lock:
-            fcntl.flock(lock, fcntl.LOCK_EX)
+            try:
+                fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except BlockingIOError:
+                _say(f"waiting for another process compiling {what} into {folder}")
+                fcntl.flock(lock, fcntl.LOCK_EX)
             if force or not library.exists():
+                # Said, so a first run that sits at 0% is not taken for a hang.
+                _say(f"compiling {what} with {Path(compiler).name} (once: its sources or the compiler are new "
+                     f"to the cache {folder.parent}); later runs reuse it")
+                start_s = time.monotonic()
                 with tempfile.TemporaryDirectory(dir=folder, prefix=".build-") as tmp:
                     build(Path(tmp), compiler)
                     built = Path(tmp) / name
                     if not built.exists():
                         raise NativeBuildError(f"building {what} left no {name} in {tmp}")
                     os.replace(built, library)
+                _say(f"compiled {what} in {time.monotonic() - start_s:.0f} s")
     except NativeBuildError as exc:
         if isinstance(exc, error):
             raise
         raise error(str(exc)) from None
     return library
+
+
+def _say(line: str) -> None:
+    """A progress line for the person at the terminal; not written into a captured stderr, where
+    commands promise one line per error."""
+    if sys.stderr is not None and sys.stderr.isatty():
+        print(f"twin: {line}", file=sys.stderr, flush=True)
 
 
 def _compiler_version(compiler: str) -> str:

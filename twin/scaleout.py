@@ -28,6 +28,7 @@ from __future__ import annotations
 import concurrent.futures
 import functools
 import logging
+import os
 import socket
 from typing import Any, Callable, Iterable, TypeVar
 
@@ -155,11 +156,38 @@ def connect(cluster: str, workers: int = 1) -> Any:
             _check_reachable(cluster)
         options = {"address": cluster}
     try:
-        ray.init(logging_level=logging.WARNING, **options)
+        if cluster == "local":
+            _init_on_loopback(ray, options)
+        else:
+            ray.init(logging_level=logging.WARNING, **options)
     except ConnectionError as exc:
         raise ClusterError(f"--cluster {cluster}: no Ray cluster there ({exc})") from None
     _connected = cluster
     return ray
+
+
+def _init_on_loopback(ray, options: dict) -> None:
+    """Start a local Ray instance whose every server (GCS, raylet, workers, agents) listens on
+    127.0.0.1 only: by default on Linux they listen on all interfaces, open to the network.
+
+    Ray takes a loopback node address only where it does not support clusters (its Windows and
+    macOS default); it is made to here for the start, then set back, so a later ``--cluster
+    ADDRESS`` in the same process joins a real cluster as usual.
+    """
+    from ray._private import ray_constants
+
+    saved_constant = ray_constants.ENABLE_RAY_CLUSTER
+    saved_env = os.environ.get(ray_constants.ENABLE_RAY_CLUSTERS_ENV_VAR)
+    ray_constants.ENABLE_RAY_CLUSTER = False
+    os.environ[ray_constants.ENABLE_RAY_CLUSTERS_ENV_VAR] = "0"  # the processes Ray starts read it too
+    try:
+        ray.init(logging_level=logging.WARNING, _node_ip_address="127.0.0.1", **options)
+    finally:
+        ray_constants.ENABLE_RAY_CLUSTER = saved_constant
+        if saved_env is None:
+            os.environ.pop(ray_constants.ENABLE_RAY_CLUSTERS_ENV_VAR, None)
+        else:
+            os.environ[ray_constants.ENABLE_RAY_CLUSTERS_ENV_VAR] = saved_env
 
 
 def _check_reachable(address: str) -> None:

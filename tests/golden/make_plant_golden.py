@@ -1,9 +1,11 @@
-"""Regenerates ``plant_golden.npz``: the twin's trajectories the plant loop must reproduce to the bit.
+"""Regenerates ``plant_golden.npz``: the twin's trajectories the plant loop must reproduce (to 1e-12).
 
 The file pins what the twin does — physics steps, engagement short steps, sensor samples and the
 emulated board's ticks — so that a change to the loop that moves any number is seen. Regenerate
 it (``python tests/golden/make_plant_golden.py``) only for a change meant to move the numbers,
-and say so in the commit.
+and say so in the commit. The tests compare with a tolerance of 1e-12 relative
+(``GOLDEN_RTOL`` in ``tests/test_plant_loop.py``): the last bits of a double differ between CPUs
+and patch releases of numpy and MuJoCo; a change to the loop moves the numbers far more.
 
 Cases: a plant driven through every drive and fixture change (four tendons, three tendons, with
 tendon friction); a short validation sweep through ``sim://`` (default step, a 2.5 ms step, and

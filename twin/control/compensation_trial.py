@@ -150,7 +150,9 @@ class CompensationTrial:
         # configurations are named in the report's table instead of under each bar.
         labels = [f"κ{r['kappa_per_m']:g} φ{r['phi_deg']:g} {r['mass_g']:g}g" for r in self.rows]
         x = np.arange(len(self.rows))  # faulted rows are NaN: an empty slot, not a bar
-        fig, ax = plt.subplots(figsize=(min(13.0, max(6.0, 0.3 * len(x))), 4.2))
+        # Constrained layout with the legend outside, above the axes: inside, it lay over the bars
+        # and tight_layout clipped it.
+        fig, ax = plt.subplots(figsize=(min(13.0, max(6.0, 0.3 * len(x))), 4.6), layout="constrained")
         for k, (stage, label) in enumerate(_STAGES):
             ax.bar(x + 0.27 * (k - 1), [r[f"{stage}_mm"] for r in self.rows], 0.27, label=label)
         if len(x) <= 40:
@@ -162,10 +164,9 @@ class CompensationTrial:
         ax.set_ylabel("tip error under load (mm)")
         ax.set_title("tip error under load: uncompensated, feed-forward, corrected")
         ax.grid(alpha=0.3, axis="y")
-        ax.set_ylim(0.0, 1.2 * ax.get_ylim()[1])  # room for the legend above the bars
-        ax.legend(loc="upper center", ncol=len(_STAGES), fontsize=8)
-        fig.tight_layout()
-        fig.savefig(path, dpi=120)
+        ax.set_ylim(bottom=0.0)
+        fig.legend(loc="outside upper center", ncol=len(_STAGES), fontsize=8)
+        fig.savefig(path, dpi=120, bbox_inches="tight")  # the canvas grows to hold the whole legend
         plt.close(fig)
         return path
 

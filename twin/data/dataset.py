@@ -61,6 +61,7 @@ from typing import Any, Iterable, Mapping
 
 import numpy as np
 
+from twin.inputs import DATASET_MAX_BYTES, METADATA_MAX_BYTES, InputFileError, read_input
 from twin.params import Params, _from_dict, load_params
 from twin.pose import rotation_of_quat
 
@@ -672,7 +673,9 @@ def read_metadata(folder: str | Path) -> dict:
     if not meta_path.exists():
         raise DatasetError(f"{meta_path}: missing (a twin dataset folder holds {MEASUREMENTS} and {METADATA})")
     try:
-        metadata = json.loads(meta_path.read_text())
+        metadata = json.loads(read_input(meta_path, max_bytes=METADATA_MAX_BYTES).decode("utf-8"))
+    except InputFileError as exc:
+        raise DatasetError(str(exc)) from None
     except (json.JSONDecodeError, UnicodeDecodeError) as exc:
         raise DatasetError(f"{meta_path}: not valid JSON: {exc}") from None
     if not isinstance(metadata, dict) or metadata.get("format") != FORMAT:
@@ -756,7 +759,10 @@ def _read(folder: str | Path) -> tuple[Dataset, int, tuple[str, ...]]:
     metadata = read_metadata(folder)
     if not csv_path.exists():
         raise DatasetError(f"{csv_path}: missing (a twin dataset folder holds {MEASUREMENTS} and {METADATA})")
-    data = csv_path.read_bytes()
+    try:
+        data = read_input(csv_path, max_bytes=DATASET_MAX_BYTES)
+    except InputFileError as exc:
+        raise DatasetError(str(exc)) from None
     lines = data.split(b"\n")
     # After the last line end comes either nothing or a row whose write was cut off.
     torn = lines.pop()

@@ -635,6 +635,7 @@ def _check_telemetry(m: TelemetryMessage) -> None:
     # finite exactly when every one is (float32's range is far inside float64's), so the duty
     # bounds are then its extremes.
     if (m.state in _STATES and m.mode in _MODES and _DRIVES.issuperset(m.drive_modes) and not m.stale_mask >> m.channels
+            and not m.fault_flags & ~_defined_faults(m.channels)
             and math.isfinite(sum(m.lengths_m + m.tensions_n + m.targets + duty))
             and -1.0 <= min(duty) and max(duty) <= 1.0):
         return
@@ -646,10 +647,34 @@ def _check_telemetry(m: TelemetryMessage) -> None:
         raise MessageError(f"TelemetryMessage.drive_modes = {m.drive_modes!r}: a motor's drive is not a Drive")
     if m.stale_mask >> m.channels:
         raise MessageError(f"TelemetryMessage.stale_mask = 0x{m.stale_mask:02x}: bits beyond the {m.channels} load cells")
+    if m.fault_flags & ~_defined_faults(m.channels):
+        raise MessageError(f"TelemetryMessage.fault_flags = 0x{m.fault_flags:08x}: bits "
+                           f"0x{m.fault_flags & ~_defined_faults(m.channels):08x} are no fault of {m.channels} channels")
     for name in ("lengths_m", "tensions_n", "targets"):
         if not all(map(math.isfinite, getattr(m, name))):
             raise MessageError(f"TelemetryMessage.{name} = {getattr(m, name)!r}: not finite")
     raise MessageError(f"TelemetryMessage.duty = {duty!r}: not within [-1, 1]")
+
+
+@functools.lru_cache(maxsize=None)
+def _defined_faults(channels: int) -> int:
+    """The fault-flag bits a board of ``channels`` channels can set: the four faults and a
+    tension and an implausible bit per channel."""
+    bits = Fault.WATCHDOG | Fault.TENSION_LIMIT | Fault.LOADCELL_STALE | Fault.LOADCELL_IMPLAUSIBLE
+    for i in range(channels):
+        bits |= Fault[f"TENSION_CHANNEL_{i + 1}"] | Fault[f"IMPLAUSIBLE_CHANNEL_{i + 1}"]
+    return int(bits)
+
+
+_NACK_ERRORS = frozenset(NackError)
+_TYPES = frozenset(MsgType)
+
+
+def _check_reply(m: Ack | Nack) -> None:
+    if m.acked_type not in _TYPES:
+        raise MessageError(f"{type(m).__name__}.acked_type = 0x{m.acked_type:02x}: not a message type")
+    if isinstance(m, Nack) and m.error not in _NACK_ERRORS:
+        raise MessageError(f"Nack.error = {m.error}: not a NackError")
 
 
 def _check_hello_reply(m: HelloReply) -> None:
@@ -663,14 +688,17 @@ def _check_hello_reply(m: HelloReply) -> None:
 
 # Board → host messages whose fields hold enums or physical values. Commands are not checked
 # here: the board answers a bad value with NACK BAD_VALUE, which is the protocol's verdict.
-# Fault flags are not checked either: a fault this host has no name for must still be seen.
-_FIELD_CHECKS = {MsgType.TELEMETRY: _check_telemetry, MsgType.HELLO_REPLY: _check_hello_reply}
+# Fault flags are checked too: the handshake refuses another protocol version, so within this
+# one a bit no fault defines is corruption, not a fault the host has no name for.
+_FIELD_CHECKS = {MsgType.TELEMETRY: _check_telemetry, MsgType.HELLO_REPLY: _check_hello_reply,
+                 MsgType.ACK: _check_reply, MsgType.NACK: _check_reply}
 
 
 def check_fields(message: Message) -> None:
     """Check that a board → host message carries only values the protocol defines: enum fields
-    hold members, floats are finite, duty lies in [-1, 1], a HELLO_REPLY names 1..MAX_CHANNELS
-    channels.
+    hold members, floats are finite, duty lies in [-1, 1], fault flags set only the bits of
+    defined faults and channels, an ACK or NACK names a message type and a NACK a defined
+    error, a HELLO_REPLY names 1..MAX_CHANNELS channels.
 
     Raises:
         MessageError: naming the field and its value.

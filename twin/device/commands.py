@@ -59,7 +59,8 @@ def run_emulate(args: argparse.Namespace) -> int:
                   file=sys.stderr)
             return 2
     if args.link is not None and os.path.lexists(args.link):
-        # The link is made by renaming over PATH and removed on exit: an existing file there would be lost.
+        # Refused at once, before the board is built; the board's own link step refuses it too
+        # if something appears at PATH meanwhile.
         print(f"twin emulate: --link {args.link}: already exists; not replacing it (remove it or choose "
               "another path)", file=sys.stderr)
         return 2

@@ -691,6 +691,7 @@ class Device:
         with self._send_lock:
             self._seq = (self._seq + 1) & 0xFFFF
             seq = self._seq
+            self._inbox.sent(seq, message.TYPE)
             if expect_answer:
                 self._inbox.expect(seq, message.TYPE)
             self._transport.write(codec.encode_frame(message, seq))

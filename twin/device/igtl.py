@@ -84,13 +84,31 @@ def _crc64_table() -> tuple[int, ...]:
 _CRC64_TABLE = _crc64_table()
 
 
-def crc64(data: bytes) -> int:
-    """CRC-64/ECMA-182 of ``data`` as OpenIGTLink computes it (MSB first, init 0, no final XOR)."""
+def _crc64_python(data: bytes) -> int:
     crc = 0
     table = _CRC64_TABLE
     for byte in data:
         crc = table[((crc >> 56) ^ byte) & 0xFF] ^ ((crc << 8) & _MASK64)
     return crc
+
+
+def _crc64_compiled():
+    """crcmod's CRC function when its C extension is built (~40x the table loop: 64 MB in 0.2 s
+    of CPU instead of 8 s), else None."""
+    try:
+        import crcmod
+        import crcmod._crcfunext  # noqa: F401 - only the compiled one is worth taking
+    except ImportError:
+        return None
+    return crcmod.mkCrcFun(_CRC64_POLY | (1 << 64), initCrc=0, rev=False, xorOut=0)
+
+
+_CRC64_C = _crc64_compiled()
+
+
+def crc64(data: bytes) -> int:
+    """CRC-64/ECMA-182 of ``data`` as OpenIGTLink computes it (MSB first, init 0, no final XOR)."""
+    return _CRC64_C(data) if _CRC64_C is not None else _crc64_python(data)
 
 
 class MessageError(ValueError):

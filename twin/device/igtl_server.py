@@ -13,11 +13,14 @@ the base at the origin.
 from __future__ import annotations
 
 import argparse
+import collections
+import math
 import selectors
 import socket
 import sys
 import threading
 import time
+from typing import Callable
 
 import numpy as np
 
@@ -28,32 +31,69 @@ __all__ = ["OpenIGTLinkServer", "probe_rotation", "register", "twin_messages"]
 _MM_PER_M = 1e3
 
 
+class _Client:
+    """One connection: its socket, the frame being written and the frames waiting behind it."""
+
+    def __init__(self, sock: socket.socket, address, now_s: float):
+        self.sock = sock
+        self.address = address
+        self.current = memoryview(b"")  # the rest of the frame being written: never cut mid-message
+        self.queue: collections.deque[bytes] = collections.deque()
+        self.progress_s = now_s  # when it last took a byte, or had nothing to take
+        self.skipped_frames = 0
+
+    @property
+    def pending(self) -> bool:
+        return bool(self.current) or bool(self.queue)
+
+
 class OpenIGTLinkServer:
     """A TCP server sending OpenIGTLink messages to every connected client.
 
-    Messages the clients send (Slicer sends STATUS and GET_ requests) are read and ignored, so
-    their buffers never fill. A client that cannot take a message within ``send_timeout_s`` is
-    dropped rather than allowed to stall the stream.
+    Nothing a client does can slow the stream to the others: every socket is non-blocking, and
+    each client has its own bounded queue of frames. A client that reads slower than frames come
+    skips frames (the oldest waiting ones are dropped; a frame being written is finished first,
+    so its stream stays whole); a client that takes no byte for ``send_timeout_s`` while frames
+    wait is dropped. At most ``max_clients`` are served; a connection beyond that is closed at
+    once. Running out of file descriptors (EMFILE) or any other failure to accept is reported
+    through ``log`` and the server goes on serving the clients it has. Messages the clients send
+    (Slicer sends STATUS and GET_ requests) are read and ignored, so their buffers never fill.
 
     Args:
         host: interface to listen on (``"0.0.0.0"`` for all).
         port: TCP port; 0 picks a free one (see :attr:`port`).
-        send_timeout_s: longest a send to one client may block (s).
+        send_timeout_s: longest a client with frames waiting may take no byte before it is
+            dropped (s).
+        max_clients: connections served at once; more are refused.
+        queue_frames: frames a client may have waiting; beyond it its oldest are skipped.
+        log: where the server reports what it refused or dropped (one line each; default stderr).
 
     Use as a context manager, or call :meth:`close`.
     """
 
-    def __init__(self, host: str = "127.0.0.1", port: int = 18944, *, send_timeout_s: float = 0.5):
+    def __init__(self, host: str = "127.0.0.1", port: int = 18944, *, send_timeout_s: float = 0.5,
+                 max_clients: int = 16, queue_frames: int = 8, log: Callable[[str], None] | None = None):
+        if max_clients < 1 or queue_frames < 1:
+            raise ValueError(f"max_clients = {max_clients}, queue_frames = {queue_frames}: both must be >= 1")
         self._listener = socket.create_server((host, port), reuse_port=False)
         self._listener.setblocking(False)
         self.host, self.port = self._listener.getsockname()[:2]
         self.send_timeout_s = send_timeout_s
-        self._clients: list[socket.socket] = []
+        self.max_clients = max_clients
+        self.queue_frames = queue_frames
+        self._log = log if log is not None else (lambda line: print(line, file=sys.stderr, flush=True))
+        self._clients: dict[socket.socket, _Client] = {}
         self._lock = threading.Lock()
         self._selector = selectors.DefaultSelector()
         self._selector.register(self._listener, selectors.EVENT_READ)
+        self._accept_paused_until = 0.0
+        self._said: dict[str, tuple[float, int]] = {}
         self._stop = threading.Event()
-        self.sent_messages = 0
+        self.sent_messages = 0  # messages handed to clients' queues, summed over clients
+        self.skipped_frames = 0  # frames a slow client did not get
+        self.dropped_clients = 0  # clients dropped for stalling or breaking
+        self.refused_clients = 0  # connections closed at once: over max_clients or out of descriptors
+        self.accept_errors = 0
         self._thread = threading.Thread(target=self._run, name=f"igtl-server :{self.port}", daemon=True)
         self._thread.start()
 
@@ -64,21 +104,31 @@ class OpenIGTLinkServer:
             return len(self._clients)
 
     def send(self, messages: list[bytes]) -> int:
-        """Send packed messages (:func:`twin.device.igtl.pack`) to every client, in order.
+        """Queue packed messages (:func:`twin.device.igtl.pack`), as one frame, to every client.
+
+        Never blocks: each client's socket takes what it can now and the rest is written as it
+        drains; a client whose queue is full skips its oldest waiting frame.
 
         Returns:
-            The number of clients that took them.
+            The number of clients the frame was queued to.
         """
         data = b"".join(messages)
+        now_s = time.monotonic()
+        stalled = []
         with self._lock:
-            clients = list(self._clients)
-        delivered = 0
-        for client in clients:
-            try:
-                client.sendall(data)
-                delivered += 1
-            except OSError:  # includes the timeout: a stalled client must not stall the stream
-                self._drop(client)
+            for client in self._clients.values():
+                if not client.pending:
+                    client.progress_s = now_s
+                client.queue.append(data)
+                if len(client.queue) > self.queue_frames:
+                    client.queue.popleft()
+                    client.skipped_frames += 1
+                    self.skipped_frames += 1
+                if not self._flush(client, now_s):
+                    stalled.append(client)
+            delivered = len(self._clients) - len(stalled)
+        for client in stalled:
+            self._drop(client, "stalled")
         self.sent_messages += len(messages) * delivered
         return delivered
 
@@ -87,9 +137,9 @@ class OpenIGTLinkServer:
         self._stop.set()
         self._thread.join(timeout=2.0)
         with self._lock:
-            clients, self._clients = self._clients, []
+            clients, self._clients = list(self._clients.values()), {}
         for client in clients:
-            client.close()
+            client.sock.close()
         self._selector.close()
         self._listener.close()
 
@@ -99,43 +149,125 @@ class OpenIGTLinkServer:
     def __exit__(self, *exc) -> None:
         self.close()
 
+    # --------------------------------------------------------------------------- thread
+    def _flush(self, client: _Client, now_s: float) -> bool:
+        """Write what ``client`` takes without blocking (lock held); False when it is to be dropped."""
+        while True:
+            if not client.current:
+                if not client.queue:
+                    client.progress_s = now_s
+                    return True
+                client.current = memoryview(client.queue.popleft())
+            try:
+                sent = client.sock.send(client.current)
+            except (BlockingIOError, InterruptedError):
+                return now_s - client.progress_s <= self.send_timeout_s
+            except OSError:
+                return False
+            client.current = client.current[sent:]
+            client.progress_s = now_s
+
     def _run(self) -> None:
         while not self._stop.is_set():
-            for key, _ in self._selector.select(timeout=0.05):
-                sock = key.fileobj
-                if sock is self._listener:
-                    self._accept()
-                    continue
-                try:
-                    data = sock.recv(65536)
-                except (BlockingIOError, InterruptedError):
-                    continue
-                except OSError:
-                    data = b""
-                if not data:
-                    self._drop(sock)
+            try:
+                self._turn()
+            except Exception as exc:  # noqa: BLE001 - the thread must outlive anything one turn meets
+                self._say("error", f"{type(exc).__name__}: {exc}; still serving")
+                self._stop.wait(0.05)
+
+    def _turn(self) -> None:
+        now_s = time.monotonic()
+        if self._accept_paused_until and now_s >= self._accept_paused_until:
+            self._accept_paused_until = 0.0
+            self._selector.register(self._listener, selectors.EVENT_READ)
+        with self._lock:
+            for client in self._clients.values():
+                events = selectors.EVENT_READ | (selectors.EVENT_WRITE if client.pending else 0)
+                if self._selector.get_key(client.sock).events != events:
+                    self._selector.modify(client.sock, events, client)
+        stalled = []
+        for key, events in self._selector.select(timeout=0.02):
+            sock = key.fileobj
+            if sock is self._listener:
+                self._accept()
+                continue
+            client = key.data
+            if events & selectors.EVENT_READ and not self._discard_input(client):
+                stalled.append((client, "closed"))
+                continue
+            if events & selectors.EVENT_WRITE:
+                with self._lock:
+                    if not self._flush(client, time.monotonic()):
+                        stalled.append((client, "stalled"))
+        now_s = time.monotonic()
+        with self._lock:
+            stalled += [(c, "stalled") for c in self._clients.values()
+                        if c.pending and now_s - c.progress_s > self.send_timeout_s]
+        for client, why in stalled:
+            self._drop(client, why)
+
+    def _discard_input(self, client: _Client) -> bool:
+        try:
+            return bool(client.sock.recv(65536))
+        except (BlockingIOError, InterruptedError):
+            return True
+        except OSError:
+            return False
 
     def _accept(self) -> None:
         try:
-            client, _ = self._listener.accept()
+            sock, address = self._listener.accept()
         except (BlockingIOError, InterruptedError):
             return
-        client.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
-        client.settimeout(self.send_timeout_s)
+        except OSError as exc:
+            # EMFILE/ENFILE/ENOBUFS/ENOMEM leave the connection in the backlog and the listener
+            # readable: stop accepting for a moment instead of spinning, and say so.
+            self.accept_errors += 1
+            self.refused_clients += 1
+            self._selector.unregister(self._listener)
+            self._accept_paused_until = time.monotonic() + 0.1
+            self._say("accept", f"cannot accept a connection ({exc.strerror or exc}); "
+                                f"serving the {self.clients} connected, accepting again in 0.1 s")
+            return
         with self._lock:
-            self._clients.append(client)
-        self._selector.register(client, selectors.EVENT_READ)
+            full = len(self._clients) >= self.max_clients
+        if full:
+            sock.close()
+            self.refused_clients += 1
+            self._say("refused", f"refused {address[0]}:{address[1]}: {self.max_clients} clients already served")
+            return
+        sock.setblocking(False)
+        sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        client = _Client(sock, address, time.monotonic())
+        with self._lock:
+            self._clients[sock] = client
+        self._selector.register(sock, selectors.EVENT_READ, client)
 
-    def _drop(self, client: socket.socket) -> None:
+    def _drop(self, client: _Client, why: str) -> None:
         with self._lock:
-            if client not in self._clients:
+            if self._clients.pop(client.sock, None) is None:
                 return
-            self._clients.remove(client)
-        try:
-            self._selector.unregister(client)
-        except (KeyError, ValueError):
-            pass
-        client.close()
+            try:
+                self._selector.unregister(client.sock)
+            except (KeyError, ValueError):
+                pass
+            client.sock.close()
+        if why == "stalled":
+            self.dropped_clients += 1
+            self._say("dropped", f"dropped {client.address[0]}:{client.address[1]}: "
+                                 f"took nothing for {self.send_timeout_s:g} s")
+
+    def _say(self, kind: str, line: str) -> None:
+        """Log ``line``, at most once a second per kind (a flood of refused connections is one
+        line a second, with how many more there were)."""
+        now_s = time.monotonic()
+        last_s, unsaid = self._said.get(kind, (-math.inf, 0))
+        if now_s - last_s < 1.0:
+            self._said[kind] = (last_s, unsaid + 1)
+            return
+        more = f" (and {unsaid} more like it in the last second)" if unsaid else ""
+        self._said[kind] = (now_s, 0)
+        self._log(f"igtl-server :{self.port}: {line}{more}")
 
 
 def probe_rotation(axis) -> np.ndarray:
@@ -254,13 +386,12 @@ def run_serve(args: argparse.Namespace) -> int:
     predictor = Predictor(RodModel.from_params(params))
     g = params.environment.gravity_m_s2
     with sigterm_event() as stop, OpenIGTLinkServer(args.host, args.port) as server:
-        print(f"serving OpenIGTLink on {server.host}:{server.port}", flush=True)
         frame_s = 1.0 / args.rate_hz
-        start = time.monotonic()
-        frames = 0
+        start = None
+        frames = skipped = slot = 0
         try:
             while not stop.is_set():
-                elapsed_s = time.monotonic() - start
+                elapsed_s = 0.0 if start is None else time.monotonic() - start
                 if args.duration_s is not None and elapsed_s >= args.duration_s:
                     break
                 tensions = pcc_tensions_n(args.kappa, 360.0 * elapsed_s / args.period_s, params)
@@ -279,9 +410,21 @@ def run_serve(args: argparse.Namespace) -> int:
                     predicted_backbone_m=None if sol is None else sol.positions_m,
                     probe_names=names, version=args.header_version))
                 frames += 1
-                stop.wait(max(0.0, start + frames * frame_s - time.monotonic()))
+                if start is None:
+                    # The first frame (the predictor's compile) is made before the clock starts and
+                    # before "serving" is said, so no frames are owed and none come in a burst.
+                    start = time.monotonic()
+                    print(f"serving OpenIGTLink on {server.host}:{server.port}", flush=True)
+                # A frame that comes late is not made up for: the schedule moves on to the slot now running.
+                slot += 1
+                running = int((time.monotonic() - start) / frame_s)
+                if running > slot:
+                    skipped, slot = skipped + running - slot, running
+                stop.wait(max(0.0, start + slot * frame_s - time.monotonic()))
         except KeyboardInterrupt:
             pass
-        print(f"stopped after {frames} frames ({time.monotonic() - start:.1f} s), "
-              f"{server.sent_messages} messages sent", flush=True)
+        elapsed_s = 0.0 if start is None else time.monotonic() - start
+        print(f"stopped after {frames} frames ({elapsed_s:.1f} s; {skipped} late slots skipped), "
+              f"{server.sent_messages} messages sent, {server.dropped_clients} clients dropped for stalling, "
+              f"{server.refused_clients} refused", flush=True)
     return 0

@@ -54,6 +54,9 @@ class IgtlSettings:
         idle_timeout_s: a connection that delivers nothing for this long is taken as dead and
             reopened (s): long enough for PLUS to be quiet while every tool is out of view
             without the client reconnecting all the time, short enough to notice a hung server.
+        future_tolerance_s: a pose stamped further than this ahead of our clock (plus the
+            offset) is refused (s): two clocks a measured offset apart agree to the jitter of
+            the stream's latency, a few ms on a LAN; 50 ms leaves room for it.
     """
 
     device_a: str = "ProbeAToTracker"
@@ -63,6 +66,7 @@ class IgtlSettings:
     position_scale_m: float = 1e-3
     clock_offset_s: float | None = None
     idle_timeout_s: float = 5.0
+    future_tolerance_s: float = 0.05
 
     def __post_init__(self):
         if self.axis_column not in (0, 1, 2):
@@ -80,6 +84,8 @@ class IgtlSettings:
             raise ValueError(f"clock_offset_s = {self.clock_offset_s!r}: must be finite (or None to measure it)")
         if not (math.isfinite(self.idle_timeout_s) and self.idle_timeout_s > 0):
             raise ValueError(f"idle_timeout_s = {self.idle_timeout_s!r}: must be finite and > 0")
+        if not (math.isfinite(self.future_tolerance_s) and self.future_tolerance_s >= 0):
+            raise ValueError(f"future_tolerance_s = {self.future_tolerance_s!r}: must be finite and >= 0")
 
 
 def settings_from_options(options: dict[str, str]) -> IgtlSettings:
@@ -185,8 +191,9 @@ class OpenIGTLinkSource:
     ``clock()`` plus the clock offset (given, or measured from the stream). A message stamped 0
     ("no time") is stamped with its arrival instead.
 
-    The connection lives in a thread. It reconnects (backing off from 50 ms to 1 s) when the
-    server closes it, when it breaks, or when nothing arrives for ``idle_timeout_s``; TCP
+    The connection lives in a thread. It reconnects (backing off from 50 ms to 1 s, the wait
+    reset only by a connection that delivered a pose) when the server closes it, when it
+    breaks, or when nothing arrives for ``idle_timeout_s``; TCP
     keep-alive probes catch a peer that vanished without closing.
 
     Args:
@@ -221,6 +228,8 @@ class OpenIGTLinkSource:
         self.messages = 0  # messages received
         self.bad_messages = 0  # CRC mismatches and undecodable bodies
         self.connections = 0  # successful connects (1 + reconnects)
+        self.refused_poses = 0  # pose messages refused: not finite, not a rotation, from the future
+        self._delivered = False
         self._thread = threading.Thread(target=self._run, name=f"igtl-client {host}:{port}", daemon=True)
         self._thread.start()
 
@@ -271,57 +280,88 @@ class OpenIGTLinkSource:
 
     # --------------------------------------------------------------------------- thread
     def _run(self) -> None:
+        # The wait grows after every connection that ends without delivering a pose, whether the
+        # connect failed or the server accepted and closed: a server that hangs up at once is not
+        # hammered (it was, ~1,400 connects a second, when only failed connects backed off).
         backoff_s = 0.05
         while not self._stop.is_set():
+            delivered = False
             try:
                 sock = socket.create_connection((self.host, self.port), timeout=1.0)
             except OSError:
-                self._stop.wait(backoff_s)
-                backoff_s = min(2 * backoff_s, 1.0)
-                continue
-            backoff_s = 0.05
-            self._socket = sock
-            try:
-                self._serve(sock)
-            except OSError:
-                pass
-            finally:
-                self._connected = False
-                self._socket = None
-                sock.close()
+                sock = None
+            if sock is not None:
+                self._socket = sock
+                try:
+                    delivered = self._serve(sock)
+                except OSError:
+                    pass
+                finally:
+                    delivered = delivered or self._delivered
+                    self._connected = False
+                    self._socket = None
+                    sock.close()
+            if delivered:
+                backoff_s = 0.05
+            self._stop.wait(backoff_s)
+            backoff_s = min(2 * backoff_s, 1.0)
 
-    def _serve(self, sock: socket.socket) -> None:
-        """Read messages until the connection ends, breaks or idles past the timeout."""
+    def _serve(self, sock: socket.socket) -> bool:
+        """Read messages until the connection ends, breaks or idles past the timeout.
+
+        Only the bodies of messages this client reads (TRANSFORM and POSITION of its probes, at
+        most :data:`MAX_POSE_BODY_BYTES`) are kept and CRC-checked; any other body is passed
+        over as it arrives, never held in memory. Returns whether a pose was taken."""
         _keepalive(sock)
         sock.settimeout(0.1)
         self._offset.restart()
+        self._delivered = False
         self.connections += 1
         self._connected = True
         buffer = bytearray()
+        skip = 0  # bytes of a body being passed over
         last_rx = time.monotonic()
         while not self._stop.is_set():
             try:
                 chunk = sock.recv(65536)
             except socket.timeout:
                 if time.monotonic() - last_rx > self.settings.idle_timeout_s:
-                    return
+                    return self._delivered
                 continue
             if not chunk:
-                return  # the server closed the connection
+                return self._delivered  # the server closed the connection
             last_rx = time.monotonic()
+            if skip:
+                taken = min(skip, len(chunk))
+                skip -= taken
+                chunk = chunk[taken:]
             buffer += chunk
-            while len(buffer) >= igtl.HEADER_SIZE:
+            while not skip and len(buffer) >= igtl.HEADER_SIZE:
+                header = bytes(buffer[:igtl.HEADER_SIZE])
                 try:
-                    size = igtl.unpack_header(bytes(buffer[:igtl.HEADER_SIZE]))[4]
+                    _, type_, device, timestamp_s, size, _ = igtl.unpack_header(header)
                 except igtl.MessageError:
                     self.bad_messages += 1
-                    return  # no way to find the next header in a foreign stream: start afresh
+                    return self._delivered  # no way to find the next header in a foreign stream: start afresh
+                wanted = type_ in ("TRANSFORM", "POSITION") and device in self._latest
+                if not wanted or size > MAX_POSE_BODY_BYTES:
+                    if wanted:
+                        self.bad_messages += 1  # a pose message no sender makes this large
+                    else:
+                        self.messages += 1
+                        if timestamp_s > 0:
+                            self._offset.add(timestamp_s, self._clock())
+                    taken = min(igtl.HEADER_SIZE + size, len(buffer))
+                    skip = igtl.HEADER_SIZE + size - taken
+                    del buffer[:taken]
+                    continue
                 end = igtl.HEADER_SIZE + size
                 if len(buffer) < end:
                     break
-                header, body = bytes(buffer[:igtl.HEADER_SIZE]), bytes(buffer[igtl.HEADER_SIZE:end])
+                body = bytes(buffer[igtl.HEADER_SIZE:end])
                 del buffer[:end]
                 self._handle(header, body)
+        return self._delivered
 
     def _handle(self, header: bytes, body: bytes) -> None:
         arrival_s = self._clock()
@@ -343,14 +383,44 @@ class OpenIGTLinkSource:
         if pose.rotation is None:
             return  # a position without orientation has no probe axis: nothing a 5-DOF fusion can use
         timestamp_s = message.timestamp_s if message.timestamp_s > 0 else arrival_s + self.clock_offset_s
+        if timestamp_s > arrival_s + self.clock_offset_s + self.settings.future_tolerance_s:
+            # From the future of our clock: a wrong offset or a forged stamp; taken, it would
+            # pass every staleness check for as long as it is ahead.
+            self.bad_messages += 1
+            self.refused_poses += 1
+            return
         if message.metadata.get("TransformStatus", "OK").upper() != "OK":
+            reading = ProbeReading(np.full(3, np.nan), np.full(3, np.nan), timestamp_s, valid=False)
+        elif not _is_pose(pose):
+            # Not a pose (a NaN, or a "rotation" that is not one): the probe is unknown now,
+            # not where it was.
+            self.bad_messages += 1
+            self.refused_poses += 1
             reading = ProbeReading(np.full(3, np.nan), np.full(3, np.nan), timestamp_s, valid=False)
         else:
             s = self.settings
             reading = ProbeReading(pose.translation * s.position_scale_m,
                                    s.axis_sign * pose.rotation[:, s.axis_column], timestamp_s)
+            self._delivered = True
         with self._lock:
             self._latest[message.device] = reading
+
+
+# A rotation sent as float32 is orthonormal to ~1e-7; 1e-3 also passes one PLUS composed from
+# several float32 transforms, and refuses anything that is not a rotation at all.
+_ROTATION_TOLERANCE = 1e-3
+# The largest pose message body read (TRANSFORM is 48 bytes, POSITION at most 28, pyigtl's
+# POSITION 152 per element; version 2 adds the extended header and metadata): a larger one is
+# counted bad and passed over unread.
+MAX_POSE_BODY_BYTES = 64 * 1024
+
+
+def _is_pose(pose: igtl.Pose) -> bool:
+    """Finite translation and a proper rotation (orthonormal, determinant +1, within float32 rounding)."""
+    r = pose.rotation
+    if not (np.isfinite(pose.translation).all() and np.isfinite(r).all()):
+        return False
+    return bool(np.abs(r.T @ r - np.eye(3)).max() < _ROTATION_TOLERANCE and np.linalg.det(r) > 0)
 
 
 def _keepalive(sock: socket.socket) -> None:

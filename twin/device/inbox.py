@@ -46,6 +46,10 @@ class LinkStats:
     dropped_samples: int
 
 
+# Sent messages remembered for matching answers that nobody awaits: far more than the board can
+# have unanswered (it answers each command within a tick), far fewer than the 65536 seqs.
+_SENT_KEPT = 1024
+
 class Inbox:
     """Decoded traffic from one board.
 
@@ -67,6 +71,7 @@ class Inbox:
         self._samples: collections.deque[Telemetry] = collections.deque(maxlen=queue_size)
         # seq of an awaited command → (its type, its answer or None).
         self._awaited: dict[int, tuple[int, codec.Ack | codec.Nack | None]] = {}
+        self._sent: collections.OrderedDict[int, int] = collections.OrderedDict()  # seq → type, the latest
         self.decoder = codec.FrameDecoder()
         self.latest: Telemetry | None = None
         self.sample_count = 0
@@ -109,6 +114,15 @@ class Inbox:
             self._on_lost(error)
 
     # ------------------------------------------------------------------ client side
+    def sent(self, seq: int, msg_type: int) -> None:
+        """Note that message ``seq`` of type ``msg_type`` went out: an answer to it that nobody
+        awaits (a keepalive PING's) is dropped; an answer to no message sent is counted as bad."""
+        with self.condition:
+            self._sent[seq] = msg_type
+            self._sent.move_to_end(seq)
+            if len(self._sent) > _SENT_KEPT:
+                self._sent.popitem(last=False)
+
     def expect(self, seq: int, msg_type: int) -> None:
         """Keep the answer to command ``seq`` of type ``msg_type`` (answers nobody expects,
         e.g. to keepalive PINGs, are dropped; one naming another type is counted as bad)."""
@@ -166,6 +180,14 @@ class Inbox:
         elif isinstance(message, (codec.Ack, codec.Nack)):
             awaited = self._awaited.get(message.acked_seq)
             if awaited is None:
+                sent_type = self._sent.get(message.acked_seq)
+                if sent_type is None or sent_type != message.acked_type:
+                    # A stray answer (to nothing this host sent, or naming another type): not the
+                    # board's, or corrupted past its CRC.
+                    self.decoder.bad_messages += 1
+                    self.decoder.last_error = (
+                        f"{type(message).__name__} of seq {message.acked_seq} (type 0x{message.acked_type:02x}) "
+                        "answers no message this host sent")
                 return
             if message.acked_type != awaited[0]:
                 self.decoder.bad_messages += 1

@@ -117,10 +117,16 @@ class PtyBoard:
         self._fds = (master, slave)
         self._device_path = os.ttyname(slave)
         if self.link_path is not None:
-            temporary = self.link_path.with_name(self.link_path.name + ".new")
-            temporary.unlink(missing_ok=True)
-            temporary.symlink_to(self._device_path)
-            temporary.replace(self.link_path)
+            # Made in one step that fails if anything is at the path (no temporary beside it, no
+            # rename over it): what someone else put there, even a moment ago, is never lost.
+            try:
+                os.symlink(self._device_path, self.link_path)
+            except FileExistsError:
+                for fd in self._fds:
+                    os.close(fd)
+                self._fds = None
+                raise ValueError(f"link {self.link_path}: already exists; not replacing it "
+                                 "(remove it or choose another path)") from None
         self._stop.clear()
         self._thread = threading.Thread(target=self._run, name=f"PtyBoard {self._device_path}", daemon=True)
         self._thread.start()

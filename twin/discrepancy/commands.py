@@ -26,6 +26,26 @@ _EPILOG = """verdicts and exit codes:
   bad input    2  a dataset, parameter file or option that cannot be used (one line on stderr)"""
 
 
+# Geometry a discrepancy study does not fit: a parameter file off the recorded one by more than
+# this is another robot (a re-measured length differs by well under 1%).
+_GEOMETRY_TOLERANCE = 0.02
+
+
+def _other_geometry(recorded, params) -> str:
+    """How ``params``' geometry differs from the dataset's ``recorded`` one ('' when it does not):
+    backbone length and radius, tendon radius and angles."""
+    differences = []
+    for section, key, unit, scale in (("backbone", "length_m", "m", 1.0), ("backbone", "radius_m", "mm", 1e3),
+                                      ("tendons", "radius_m", "mm", 1e3)):
+        a, b = getattr(getattr(recorded, section), key), getattr(getattr(params, section), key)
+        if abs(b - a) > _GEOMETRY_TOLERANCE * abs(a):
+            differences.append(f"{section}.{key.removesuffix('_m')} {b * scale:g} {unit}, recorded {a * scale:g} {unit}")
+    angles_a, angles_b = np.asarray(recorded.tendons.angles_deg), np.asarray(params.tendons.angles_deg)
+    if angles_a.shape == angles_b.shape and np.abs((angles_b - angles_a + 180.0) % 360.0 - 180.0).max() > 1.0:
+        differences.append(f"tendons.angles {list(angles_b)} deg, recorded {list(angles_a)} deg")
+    return "; ".join(differences)
+
+
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "discrepancy",
@@ -80,6 +100,12 @@ def run_discrepancy_command(args: argparse.Namespace) -> int:
             if args.overrides:
                 params = params.replace(dict(parse_override(o) for o in args.overrides))
         dataset.check_robot(params, robot=Path(args.params).stem if args.params else dataset.robot)
+        if args.params is not None:
+            other = _other_geometry(dataset.params, params)
+            if other:
+                # Same tendon count, another robot: the fit would run and blame effects for geometry.
+                print(f"twin discrepancy: warning: --params {args.params} is not the robot dataset {args.dataset} "
+                      f"was recorded with ({other}); its gaps will include that difference", file=sys.stderr)
     except (DatasetError, ParameterError) as exc:
         return refuse(str(exc))
     except FileNotFoundError:

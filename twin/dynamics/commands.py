@@ -179,8 +179,15 @@ def run_replay(args: argparse.Namespace) -> int:
 
     run, params = _load(args)
     comparison = compare(run.series, replay(run.series, params, run.base_rotation))
+    recorded = {s.experiment.name for s in run.series}
+    missing = [name for name in run.metadata.get("planned", []) if name not in recorded]
+    if missing:
+        # A run stopped part-way: the gap below is of the experiments it holds, not of the set.
+        print(f"twin dynamics replay: RUN_FOLDER {args.run}: {len(missing)} of the {len(run.metadata['planned'])} "
+              f"planned experiments missing (the recording stopped before them): {', '.join(missing)}",
+              file=sys.stderr)
     if args.json:
-        print(json.dumps({"experiments": comparison.names, **comparison.to_dict()}))
+        print(json.dumps({"experiments": comparison.names, "missing": missing, **comparison.to_dict()}))
         return 0
     print(f"replay of {', '.join(comparison.names)} on the twin; per-channel RMS gap (measured - twin):")
     for group in GROUPS:
