@@ -169,7 +169,12 @@ class Plant:
         s.spool_dof[:n] = [int(m.jnt_dofadr[j]) for j in spool_joints]
         self._set_dynamics(effects.plant_dynamics(p), spool_joints)
         m.opt.timestep = self._dt / base_substeps
-        if self._hooks:
+        # Tendon friction runs inside the loop; other hooks are called back into Python.
+        for hook in self._hooks:
+            if isinstance(hook, TendonFriction):
+                hook.attach(s)
+        self._python_hooks = [hook for hook in self._hooks if not isinstance(hook, TendonFriction)]
+        if self._python_hooks:
             self.loop.set_hook(self._before_step)
         self.reset(seed)
 
@@ -431,5 +436,5 @@ class Plant:
 
     def _before_step(self) -> None:
         tensions = self.true_tensions_n()
-        for hook in self._hooks:
+        for hook in self._python_hooks:
             hook.before_step(self.model, self.data, tensions)
