@@ -154,6 +154,8 @@ class Plant:
             s.geometry_index = self._geometry_index.ctypes.data
             s.stiffened_joints = geometry.joints.shape[0]
             s.coupled_pairs = geometry.pairs.shape[0]
+            # The backbone's damping (twin.sim.model) follows the tendons' stiffening too.
+            s.damping_per_stiffness_s = p.sim.damping_time_s * effects.plant_dynamics(p).damping_scale
         s.loadcell_offset_counts[:n] = [float(x) for x in p.sensors.loadcell_offset_counts]
         s.loadcell_gain[:n] = np.asarray(gain, dtype=float).tolist()
         s.loadcell_offset_n[:n] = np.asarray(offset_n, dtype=float).tolist()

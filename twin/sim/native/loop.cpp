@@ -20,7 +20,7 @@
 
 #include <mujoco/mujoco.h>
 
-#define BL_ABI_VERSION 9
+#define BL_ABI_VERSION 10
 // Tendons (spools, motors, load cells) a plant can have.
 #define BL_MAX_CHANNELS 12
 // The tracker's two probes: three position and three axis components each.
@@ -87,6 +87,7 @@ enum { BL_DRIVE_COAST = 0, BL_DRIVE_ON = 1 };
   S(f64, latency_s)             /* actuation latency (s) (effects; 0: none) */                          \
   S(f64, loadcell_lag_s)        /* load cells' first-order lag (s) (effects; 0: none) */                \
   S(f64, backlash_m)            /* play between spool and encoder (m) (effects; 0: none) */             \
+  S(f64, damping_per_stiffness_s) /* a stiffened joint's damping per stiffness (s); 0: as built */     \
   S(f64, friction_coeff)        /* tendon friction μ per radian of wrap (effects; 0: none) */           \
   S(f64, presliding_m)          /* spool travel over which the friction turns round (m) */              \
   S(f64, friction_lag_s)        /* time constant of the tension the friction follows (s) */             \
@@ -349,7 +350,8 @@ static void sample_tracker(const mjData* d, bl_state* s) {
 // The continuous tendons to second order in the joint coordinates ξ (twin.sim.model.TendonLength):
 // MuJoCo's fixed tendon is c·ξ, the tendon's length ℓ0 + c·ξ + ½ ξᵀHξ. With each tendon's tension
 // T from the last step: a stiffened joint's stiffness is its own plus Σ T_i H_i,jj, which the
-// discrete integrator takes implicitly like the joint's own; a coupled pair of joints pulls on each
+// discrete integrator takes implicitly like the joint's own (its damping too, damping_per_stiffness_s
+// times it); a coupled pair of joints pulls on each
 // other with −Σ T_i H_i,ab ξ, explicitly (small beside the joints' own stiffness, which damps it);
 // and each tendon's slack edge moves in by ½ ξᵀH_iξ, so that its spring stretches with its length.
 static void tendon_geometry(mjModel* m, mjData* d, bl_state* s) {
@@ -369,6 +371,10 @@ static void tendon_geometry(mjModel* m, mjData* d, bl_state* s) {
       lengthening[i] += 0.5 * row[1 + i] * q * q;
     }
     m->jnt_stiffness[index[0]] = stiffness;
+    // Stiffness-proportional damping of the stiffness the joint has now: undamped, the tension's
+    // share leaves a soft shear slide ringing (the thesis's G = 4.76e4 Pa: 224 N/m of its own
+    // under some 1000 N/m of tension, damping ratio a fifth of the others').
+    if (s->damping_per_stiffness_s > 0) m->dof_damping[m->jnt_dofadr[index[0]]] = s->damping_per_stiffness_s * stiffness;
   }
   for (int p = 0; p < s->coupled_pairs; ++p) {
     d->qfrc_applied[index[4 * p + 1]] = 0.0;
