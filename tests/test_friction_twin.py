@@ -43,3 +43,26 @@ def test_ctrl_c_stops_a_friction_twins_validation_within_a_second_with_the_resum
     assert "Exception ignored" not in err and "Traceback" not in err, err
     # Within a second of the signal (the margin: two cores shared with the rest of the suite).
     assert latency_s < 2.0, f"{latency_s:.2f} s"
+
+
+def test_a_friction_twin_runs_the_quick_sweep_at_its_full_step_without_diverging(tmp_path):
+    # mu = 0.3 per radian on the endoscope, the quick grid's 24 rows at the twin's 5 ms step (the
+    # friction runs in the plant loop, without substeps): every row measured, the most bent ones
+    # holding friction in both sliding directions.
+    import numpy as np
+
+    from twin.data.dataset import read_dataset
+    from twin.device import open_device
+    from twin.experiments.protocols import run_validation, validation_grid
+    from twin.params import load_params
+
+    params = load_params()
+    grid = [g for g in validation_grid() if g[1] in (0.0, 13.0, 26.2) and g[2] in (0.0, 90.0, 180.0, 270.0)
+            and g[3] != 0.005]
+    with open_device("sim://", params=params.replace({"effects.tendon_friction_coeff": 0.3}), seed=2) as device:
+        device.connect()
+        run_validation(device, tmp_path / "d", params, grid=grid, progress=False)
+    data = read_dataset(tmp_path / "d")
+    assert len(data) == len(grid) == 24
+    bent = np.asarray(data["kappa_cmd_per_m"]) == 26.2
+    assert (data.sliding_state[bent] > 0.9).any() and (data.sliding_state[bent] < -0.9).any()
