@@ -115,11 +115,14 @@ def run_discrepancy_command(args: argparse.Namespace) -> int:
             result, decision = _decide(args, device, result, dataset, params, workflow)
     except ValueError as exc:
         return refuse(str(exc))
-    except (ProtocolError, DeviceError, SimulationError, KeyboardInterrupt) as exc:
-        why = "interrupted" if isinstance(exc, KeyboardInterrupt) else f"{type(exc).__name__}: {exc}"
-        print(f"twin discrepancy: --device {args.device}: a deciding experiment stopped ({why}); {args.dataset} "
-              "holds none of its rows; run the same command again to continue", file=sys.stderr)
-        return EXIT_INTERRUPTED if isinstance(exc, KeyboardInterrupt) else EXIT_STOPPED
+    except (ProtocolError, DeviceError, SimulationError) as exc:
+        print(f"twin discrepancy: --device {args.device}: a deciding experiment stopped ({type(exc).__name__}: {exc}); "
+              f"{args.dataset} holds none of its rows; run the same command again to continue", file=sys.stderr)
+        return EXIT_STOPPED
+    except KeyboardInterrupt:
+        print(f"twin discrepancy: interrupted; {args.dataset} holds no row of an experiment that did not complete; "
+              "run the same command again to continue", file=sys.stderr)
+        return EXIT_INTERRUPTED
     finally:
         if device is not None:
             device.close()
