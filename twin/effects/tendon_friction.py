@@ -34,10 +34,11 @@ __all__ = ["EFFECT", "FRICTION_MAX_STEP_S", "FRICTION_TENSION_LAG_S", "FRICTION_
 # presliding (Dahl) displacement of a braided line in a printed hole, an assumption of a few
 # hundredths of a millimetre, well above an encoder count (0.94 µm).
 PRESLIDING_M = 2e-5
-# Longest physics step (s) the friction is stable at: the twin's default 5 ms step. Measured on
-# the quick validation sweep through sim:// (seed 2) with the lags below: no divergence at
-# μ = 0.1, 0.3 and 0.6 per radian at 5 ms, where without the travel lag μ = 0.6 diverged at
-# 0.83 ms steps already (a tendon's sliding state flipping every step with its spool's chatter).
+# Longest physics step (s) the friction is taken at: the twin's default 5 ms step. Measured with
+# the lags below through sim:// (seed 2): the endoscope's full validation sweep completes at
+# μ = 0.1 and 0.3 per radian, three-tendon's quick one too; shorter steps (2.5, 1.67, 0.83 ms)
+# did not remove the divergences left (μ = 0.3 on long and endoscope-soft-g, μ = 0.6 on most
+# robots): those grow out of a limit cycle of the length loop with the friction, not the step.
 FRICTION_MAX_STEP_S = 5e-3
 # Time constant (s) of the spool tension the twin's friction forces follow. The forces are
 # explicit (set before each step from the last step's tension), so a tension spike of one step
@@ -52,8 +53,8 @@ FRICTION_TENSION_LAG_S = 2e-3
 # 2 T₀ sinh(μθ) (7 N at μ = 0.6 over a quarter turn), which an explicit step cannot follow. The
 # rig's sliding is the spool's slower motion; followed through 20 ms of lag (4 board ticks) the
 # state ends where the encoder's record puts it (test_friction_history) and the twin stays stable
-# at 5 ms steps; 5 and 10 ms still diverged at μ = 0.6 (a 10 g tip mass taken off a bend of
-# κ = 26.2 1/m in tension mode).
+# at 5 ms steps through that case; 5 and 10 ms still diverged at μ = 0.6 (a 10 g tip mass taken
+# off a bend of κ = 26.2 1/m in tension mode).
 FRICTION_TRAVEL_LAG_S = 20e-3
 # Starting value of μ for a fit when it is off (0) in the parameter set: log(0) cannot start one.
 _FIT_START = 0.02
