@@ -106,3 +106,31 @@ def test_a_device_in_another_pose_than_the_dataset_is_refused_before_any_work(tm
     _sweep(tmp_path / "d", {})
     code, out = run(capsys, "discrepancy", tmp_path / "d", "--device", "sim://?pose=up")
     assert code == 2 and "another base pose" in out.err and len(out.err.strip().splitlines()) == 1
+
+
+def test_a_deciding_experiment_the_twin_diverges_in_leaves_the_dataset_as_it_was(tmp_path, capsys, monkeypatch):
+    from twin.device.fixture import SimFixture
+
+    data = tmp_path / "data"
+    _older_friction_dataset(data)
+    before = {name: (data / name).read_bytes() for name in ("measurements.csv", "metadata.json")}
+    hang = SimFixture.hang_tip_mass
+    hung = []
+
+    def diverging(self, mass_kg):
+        # Past the first configurations of the deciding experiment (their rows written), the twin
+        # goes unstable as a diverging step leaves it: MuJoCo itself detects it on the next step.
+        hang(self, mass_kg)
+        hung.append(mass_kg)
+        if len(hung) == 5:
+            self._board.plant.data.qvel[:] = 1e30
+
+    monkeypatch.setattr(SimFixture, "hang_tip_mass", diverging)
+    code, out = run(capsys, "discrepancy", data, "--device", "sim://", "--twin-set", FRICTION)
+    assert code == 4, out.err
+    last = out.err.strip().splitlines()[-1]
+    assert "a deciding experiment stopped (SimulationError: MuJoCo warned" in last and "holds none of its rows" in last
+    assert "Traceback" not in out.err and out.out == ""
+    assert {name: (data / name).read_bytes() for name in before} == before
+    # No copy of the dataset is left beside it.
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["data"]

@@ -8,7 +8,7 @@ import pytest
 from twin.data.dataset import read_dataset
 from twin.device import open_device
 from twin.effects import SlidingState
-from twin.effects.tendon_friction import PRESLIDING_M, slide
+from twin.effects.tendon_friction import FRICTION_TRAVEL_LAG_S, PRESLIDING_M, slide
 from twin.experiments import protocols
 from twin.params import load_params
 
@@ -31,20 +31,28 @@ class _TickSample(_Sample):
 def test_the_sliding_state_moves_over_the_presliding_travel_and_holds_when_the_tendon_stands():
     state = SlidingState(tendon_m_per_count=PRESLIDING_M / 10)
     assert state.follow([_Sample([0, 0])]).tolist() == [0.0, 0.0]
-    # Tendon 1 paid out 5 counts (half the presliding travel), tendon 2 pulled in 30.
-    assert state.follow([_Sample([5, -15]), _Sample([5, -30])]).tolist() == pytest.approx([-0.5, 1.0])
-    assert state.follow([_Sample([5, -30])] * 3).tolist() == pytest.approx([-0.5, 1.0])
+    # Tendon 1 paid out 5 counts (half the presliding travel), tendon 2 pulled in 30: in one tick
+    # σ moves by the share of the travel the friction's lag lets through (a fifth, 5 ms of 25).
+    blend = 5e-3 / (FRICTION_TRAVEL_LAG_S + 5e-3)
+    assert state.follow([_Sample([5, -30])]).tolist() == pytest.approx([-0.5 * blend, 3 * blend])
+    # Then, the spools standing, all of it: σ ends half way and at +1, and holds there.
+    assert state.follow([_Sample([5, -30])] * 80).tolist() == pytest.approx([-0.5, 1.0], abs=1e-6)
+    assert state.follow([_Sample([5, -30])] * 3).tolist() == pytest.approx([-0.5, 1.0], abs=1e-6)
     assert slide([1.0, -1.0], [-PRESLIDING_M, 3 * PRESLIDING_M]).tolist() == pytest.approx([0.0, 1.0])
 
 
 def test_the_sliding_state_follows_every_tick_a_sample_carries():
-    # Between two samples tendon 1 is pulled in 20 counts (twice the presliding travel), then
-    # paid out 5: the samples alone show a pull of 15 (σ = +1); its ticks turn half of it back.
-    ticks = [[-20, 0], [-20, 0], [-20, 0], [-20, 0], [-15, 0]]
+    # Between two samples tendon 1 is pulled in 40 counts (four presliding travels) for four ticks,
+    # then let back: the samples alone show no motion (σ = 0). Its ticks show the pull: through
+    # the lag the travel reaches 40 (1 − 0.8⁴) = 23.6 counts (σ = +1), and the last tick turns a
+    # fifth of that back.
+    assert FRICTION_TRAVEL_LAG_S == 20e-3
+    ticks = [[-40, 0], [-40, 0], [-40, 0], [-40, 0], [0, 0]]
     state = SlidingState(tendon_m_per_count=PRESLIDING_M / 10)
-    assert state.follow([_TickSample([[0, 0]] * 5), _TickSample(ticks)]).tolist() == pytest.approx([0.5, 0.0])
+    back = 0.2 * 40 * (1 - 0.8 ** 4) / 10
+    assert state.follow([_TickSample([[0, 0]] * 5), _TickSample(ticks)]).tolist() == pytest.approx([1 - back, 0.0])
     coarse = SlidingState(tendon_m_per_count=PRESLIDING_M / 10)
-    assert coarse.follow([_Sample([0, 0]), _Sample(ticks[-1])]).tolist() == pytest.approx([1.0, 0.0])
+    assert coarse.follow([_Sample([0, 0]), _Sample(ticks[-1])]).tolist() == pytest.approx([0.0, 0.0])
 
 
 def test_each_sample_carries_the_encoder_counts_of_every_board_tick_since_the_one_before():

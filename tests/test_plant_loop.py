@@ -11,6 +11,7 @@ import pytest
 from twin import load_params
 from twin.device import open_device
 from twin.sim import native_loop
+from twin.effects.tendon_friction import FRICTION_MAX_STEP_S
 from twin.sim.plant import Plant
 
 sys.path.insert(0, str(Path(__file__).parent / "golden"))
@@ -81,13 +82,19 @@ def test_the_golden_runs_take_short_steps_and_refill_the_noise():
     assert record[-1, -2] > 4096 / draws_per_s
 
 
-def test_friction_acts_through_a_hook_before_every_short_step():
+def test_friction_runs_inside_the_loop_at_the_twins_own_step():
+    # No call back into Python per physics step (which made a friction twin several times slower
+    # and swallowed Ctrl-C), and no shorter steps at the default 5 ms.
     plant = Plant(load_params().replace({"effects.tendon_friction_coeff": 0.1}))
     state = plant.loop.state
-    assert state.hook_fn
-    assert state.base_substeps == math.ceil(plant.timestep_s / 0.84e-3 - 1e-9)
-    assert np.isclose(plant.model.opt.timestep * state.base_substeps, plant.timestep_s)
-    assert not Plant(load_params()).loop.state.hook_fn
+    assert not state.hook_fn and state.friction_coeff == 0.1 and state.friction_sites
+    assert state.base_substeps == math.ceil(plant.timestep_s / FRICTION_MAX_STEP_S - 1e-9) == 1
+    plant.set_tensions([3.0, 1.0, 0.5, 1.0])
+    plant.step(0.2)
+    assert plant.sliding_state[0] == 1.0 and plant.sliding_state[2] == -1.0
+    assert np.abs(plant.data.xfrc_applied).max() > 0.1
+    free = Plant(load_params()).loop.state
+    assert not free.hook_fn and free.friction_coeff == 0.0
 
 
 def test_a_plant_takes_any_tendon_count_the_loop_holds():

@@ -39,6 +39,8 @@ TARGETS = {
     # 40 Hz live estimates on one core; the accuracy goals of the tip force estimate (twin.force.bench).
     "force": ("twin.force.bench", "bench_force", {"estimate_s": ("<=", 5e-3), "worst_median_error_over_goal": ("<=", 1.0),
                                                   "coverage": (">=", 0.9), "converged_fraction": (">=", 1.0)}),
+    # A friction twin's validation sweep at most twice the CPU time of a frictionless one.
+    "friction": ("twin.sim.bench", "bench_friction", {"cpu_ratio": ("<=", 2.0), "completed": ("==", True)}),
 }
 
 
@@ -101,8 +103,10 @@ def run_bench(args: argparse.Namespace) -> int:
                 print(f"{key:16s} {value}{wall}")
             continue
         op, goal = goals[key]
-        met = value <= goal if op == "<=" else value >= goal
-        print(f"{key:16s} {value:.4g}{wall}   (goal {op} {goal:g}: {'met' if met else 'NOT met'})")
+        met = value <= goal if op == "<=" else value >= goal if op == ">=" else value == goal
+        shown = f"{value:.4g}" if isinstance(value, float) else str(value)
+        goal_text = goal if isinstance(goal, bool) else f"{goal:g}"
+        print(f"{key:16s} {shown}{wall}   (goal {op} {goal_text}: {'met' if met else 'NOT met'})")
         if not met:
             missed.append(key)
     if missed:

@@ -130,11 +130,24 @@ def main(argv: list[str] | None = None) -> int:
 
     Returns:
         The command's exit code; 2 for a bad parameter, argument or dataset, 1 for a file that cannot
-        be read or written or a native part that cannot be built, 130 on Ctrl-C.
+        be read or written or a native part that cannot be built, 130 on Ctrl-C. Called without
+        ``argv`` (the ``twin`` command itself), a Ctrl-C ends the process at once instead of
+        returning, without the interpreter's teardown.
     """
     argv = values_as_arguments(sys.argv[1:] if argv is None else list(argv))
     args = build_parser(argv).parse_args(argv)
     warnings.formatwarning = _format
+    code = _run_command(args)
+    if code == 130 and argv is None:
+        # Ctrl-C on the command line: gone now. Tearing the interpreter down (MuJoCo, SciPy and
+        # the rest) takes seconds on a loaded machine, and everything measured is on disk already.
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os._exit(code)
+    return code
+
+
+def _run_command(args: argparse.Namespace) -> int:
     try:
         return int(args.func(args) or 0)
     except ParameterError as exc:

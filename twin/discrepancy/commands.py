@@ -17,13 +17,20 @@ __all__ = ["EXIT_CODES", "register"]
 EXIT_CODES = {"effect": 0, "none": 0, "ambiguous": 3, "unexplained": 3}
 # Exit code for a dataset, parameter file or option the command cannot use.
 EXIT_BAD_INPUT = 2
+# Exit code for a deciding experiment that the device, the protocol or a diverging twin stopped
+# (as for twin validate), and for Ctrl-C (the shell's 128 + SIGINT).
+EXIT_STOPPED = 4
+EXIT_INTERRUPTED = 130
 
 _EPILOG = """verdicts and exit codes:
   effect       0  the named effect(s) leave residuals consistent with noise
   none         0  no structured disagreement beyond noise
   ambiguous    3  two or more candidates explain the data equally (listed); none is named for it
   unexplained  3  structure remains that no candidate nor pair removes (where and how much shown)
-  bad input    2  a dataset, parameter file or option that cannot be used (one line on stderr)"""
+  bad input    2  a dataset, parameter file or option that cannot be used (one line on stderr)
+  stopped      4  a deciding experiment on --device stopped (the device, the protocol or a diverging
+                  twin; one line on stderr); 130 on Ctrl-C. Either leaves the dataset with the
+                  experiments completed before it, and no row of the one that stopped"""
 
 
 # Geometry a discrepancy study does not fit: a parameter file off the recorded one by more than
@@ -86,6 +93,9 @@ def run_discrepancy_command(args: argparse.Namespace) -> int:
     from twin.discrepancy.report import write_report
     from twin.discrepancy.workflow import run_discrepancy
     from twin.data.dataset import DatasetError, read_dataset
+    from twin.device.errors import DeviceError
+    from twin.experiments.protocols import ProtocolError
+    from twin.sim.plant import SimulationError
 
     def refuse(message: str) -> int:
         print(f"twin discrepancy: {message}", file=sys.stderr)
@@ -131,6 +141,14 @@ def run_discrepancy_command(args: argparse.Namespace) -> int:
             result, decision = _decide(args, device, result, dataset, params, workflow)
     except ValueError as exc:
         return refuse(str(exc))
+    except (ProtocolError, DeviceError, SimulationError) as exc:
+        print(f"twin discrepancy: --device {args.device}: a deciding experiment stopped ({type(exc).__name__}: {exc}); "
+              f"{args.dataset} holds none of its rows; run the same command again to continue", file=sys.stderr)
+        return EXIT_STOPPED
+    except KeyboardInterrupt:
+        print(f"twin discrepancy: interrupted; {args.dataset} holds no row of an experiment that did not complete; "
+              "run the same command again to continue", file=sys.stderr)
+        return EXIT_INTERRUPTED
     finally:
         if device is not None:
             device.close()

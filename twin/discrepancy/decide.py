@@ -4,7 +4,9 @@ them leaves structure), measure what tells them apart, on the rig or the twin, a
 Each effect names the experiments that reveal it (:attr:`twin.effects.Effect.deciding_experiments`);
 for a set of contenders the workflow runs the union of theirs (:func:`designs_for`), through the
 device interface, appends the rows to the dataset (their ``experiment`` column names the design)
-and runs the workflow again on the whole (:func:`decide`).
+and runs the workflow again on the whole (:func:`decide`). An experiment's rows join the dataset
+only once it has completed: it runs on a copy, which then replaces the dataset's files, so one
+that stops half-way (the device, a diverging twin, Ctrl-C) leaves the dataset as it was.
 
 =============  ==========================================================  ==========================
 design         what it measures                                            tells apart
@@ -25,6 +27,9 @@ design         what it measures                                            tells
 from __future__ import annotations
 
 import dataclasses
+import os
+import shutil
+import tempfile
 from pathlib import Path
 from typing import Callable, Sequence
 
@@ -196,6 +201,11 @@ def decide(result, device, dataset_folder: str | Path, params: Params, *, progre
 
     Returns:
         the decision, or None when nothing needs deciding or no design applies.
+
+    Raises:
+        whatever stops an experiment (:class:`twin.device.errors.DeviceError`,
+        :class:`twin.experiments.protocols.ProtocolError`, :class:`twin.sim.plant.SimulationError`,
+        ``KeyboardInterrupt``): the dataset then holds the experiments completed before it.
     """
     from twin.data.dataset import read_dataset
     from twin.discrepancy.workflow import run_discrepancy
@@ -217,11 +227,27 @@ def decide(result, device, dataset_folder: str | Path, params: Params, *, progre
             grid, options = design.plan(dataset, params)
             rows = [(first + i, k, p, m) for i, (k, p, m) in enumerate(grid)]
             first += len(rows)
-            run_validation(device, dataset_folder, params, grid=rows, experiment=design.experiment,
-                           progress=progress, **options)
+            _staged(dataset_folder, lambda folder: run_validation(
+                device, folder, params, grid=rows, experiment=design.experiment, progress=progress, **options))
             ran.append(design.name)
         dataset = read_dataset(dataset_folder)
         result = run(dataset)
     if not ran:
         return None
     return Decision(tuple(seen), tuple(ran), len(dataset) - before, result)
+
+
+def _staged(dataset_folder: str | Path, experiment: Callable[[Path], object]) -> None:
+    """Run ``experiment(folder)`` on a copy of the dataset beside it and, once it returns, move
+    the copy's files over the dataset's (each replaced atomically); when it raises, the copy is
+    removed and the dataset is untouched."""
+    from twin.data.dataset import MEASUREMENTS, METADATA
+
+    folder = Path(dataset_folder)
+    with tempfile.TemporaryDirectory(prefix=f".{folder.name}-deciding-", dir=folder.parent) as scratch:
+        copy = Path(scratch) / folder.name
+        shutil.copytree(folder, copy)
+        experiment(copy)
+        # The rows first: metadata an appending writer rewrote describes them.
+        for name in (MEASUREMENTS, METADATA):
+            os.replace(copy / name, folder / name)

@@ -27,18 +27,19 @@ import numpy as np
 
 from twin.effects.base import BodySpec, Candidate, Effect, FitParameter, Key, Params
 
-__all__ = ["EFFECT", "FRICTION_MAX_STEP_S", "PRESLIDING_M", "SlidingState", "TendonFriction", "friction_direction",
+__all__ = ["EFFECT", "FRICTION_MAX_STEP_S", "FRICTION_TENSION_LAG_S", "FRICTION_TRAVEL_LAG_S", "PRESLIDING_M", "SlidingState", "TendonFriction", "friction_direction",
            "slide", "slide_path"]
 
 # Tendon travel over which the friction turns from one direction to the other (m): the
 # presliding (Dahl) displacement of a braided line in a printed hole, an assumption of a few
 # hundredths of a millimetre, well above an encoder count (0.94 µm).
 PRESLIDING_M = 2e-5
-# Longest physics step (s) the explicit friction update is stable at: measured, a spool pulled in
-# tension mode settles at 1 ms and chatters (±0.03 N of spool tension) at 2.5 ms; in the twin's
-# friction sweep (tests/test_discrepancy_twin.py) 1 ms steps diverged once, in tension mode after
-# 124 s, and 0.83 ms steps (2.5 ms / 3, 5 ms / 6) never did.
-FRICTION_MAX_STEP_S = 0.84e-3
+# Longest physics step (s) the friction is taken at: the twin's default 5 ms step. Measured with
+# the lags below through sim:// (seed 2): the endoscope's full validation sweep completes at
+# μ = 0.1 and 0.3 per radian, three-tendon's quick one too; shorter steps (2.5, 1.67, 0.83 ms)
+# did not remove the divergences left (μ = 0.3 on long and endoscope-soft-g, μ = 0.6 on most
+# robots): those grow out of a limit cycle of the length loop with the friction, not the step.
+FRICTION_MAX_STEP_S = 5e-3
 # Time constant (s) of the spool tension the twin's friction forces follow. The forces are
 # explicit (set before each step from the last step's tension), so a tension spike of one step
 # (a tendon snapping taut) would return at once as a friction force and, with the sliding state
@@ -46,6 +47,15 @@ FRICTION_MAX_STEP_S = 0.84e-3
 # μ = 0.15, κ = 26.2 1/m: 100 N within 2 ms, then NaN). A few milliseconds of lag damp that and
 # change nothing at rest nor in motions slower than the board's 5 ms tick.
 FRICTION_TENSION_LAG_S = 2e-3
+# Time constant (s) of the spool travel that moves the sliding state. A spool on an ideal tension
+# source is a light carriage on a 200 kN/m tendon: it chatters by tens of µm from one 5 ms step
+# to the next, beyond the presliding travel, and each flip of σ swings the friction forces by
+# 2 T₀ sinh(μθ) (7 N at μ = 0.6 over a quarter turn), which an explicit step cannot follow. The
+# rig's sliding is the spool's slower motion; followed through 20 ms of lag (4 board ticks) the
+# state ends where the encoder's record puts it (test_friction_history) and the twin stays stable
+# at 5 ms steps through that case; 5 and 10 ms still diverged at μ = 0.6 (a 10 g tip mass taken
+# off a bend of κ = 26.2 1/m in tension mode).
+FRICTION_TRAVEL_LAG_S = 20e-3
 # Starting value of μ for a fit when it is off (0) in the parameter set: log(0) cannot start one.
 _FIT_START = 0.02
 
@@ -77,7 +87,8 @@ class SlidingState:
     records σ with every measurement and the prediction uses it instead of guessing a direction.
 
     Feed it every telemetry sample in order (:meth:`follow`); it starts at 0 (unknown), as the
-    twin's friction does, and the first move of more than :data:`PRESLIDING_M` sets it.
+    twin's friction does, and the first move of more than :data:`PRESLIDING_M` sets it. The
+    travel moves σ through the friction's lag (:data:`FRICTION_TRAVEL_LAG_S`), as in the twin.
 
     Example:
         >>> state = SlidingState(device.info.tendon_m_per_count)
@@ -85,14 +96,18 @@ class SlidingState:
         >>> state.state
     """
 
-    def __init__(self, tendon_m_per_count: float):
+    def __init__(self, tendon_m_per_count: float, tick_s: float = 5e-3):
         """Args:
             tendon_m_per_count: tendon length per encoder count (m; positive = paid out), the
                 handshake's :attr:`twin.device.DeviceInfo.tendon_m_per_count`.
+            tick_s: the board's tick (s), the period of the counts a sample carries (the
+                firmware's 5 ms IntervalTimer).
         """
         self.tendon_m_per_count = float(tendon_m_per_count)
         self.state: np.ndarray | None = None
-        self._counts: np.ndarray | None = None
+        self._lagged_m: np.ndarray | None = None
+        # The friction's travel lag (FRICTION_TRAVEL_LAG_S) over one tick, as the twin's at 5 ms steps.
+        self._blend = tick_s / (FRICTION_TRAVEL_LAG_S + tick_s)
 
     def follow(self, samples) -> np.ndarray | None:
         """Advance over telemetry samples (oldest first) and, within each, over the counts of
@@ -109,12 +124,17 @@ class SlidingState:
             rows.append(np.atleast_2d(np.asarray(sample.encoder_counts if ticks is None else ticks, dtype=float)))
         if not rows:
             return self.state
-        counts = np.concatenate(rows)
-        if self._counts is None:
-            self.state, self._counts = np.zeros(counts.shape[1]), counts[0]
-        path = np.concatenate([self._counts[None, :], counts])
-        self.state = slide_path(self.state, -np.diff(path, axis=0) * self.tendon_m_per_count)
-        self._counts = counts[-1]
+        positions_m = np.concatenate(rows) * self.tendon_m_per_count
+        if self._lagged_m is None:
+            self.state, self._lagged_m = np.zeros(positions_m.shape[1]), positions_m[0].copy()
+        # The spool's travel through the friction's lag, tick by tick (a plain loop: few tendons).
+        lagged, moves = self._lagged_m.tolist(), []
+        for row in positions_m.tolist():
+            move = [(x - y) * self._blend for x, y in zip(row, lagged)]
+            lagged = [y + m for y, m in zip(lagged, move)]
+            moves.append(move)
+        self._lagged_m = np.array(lagged)
+        self.state = slide_path(self.state, -np.array(moves))
         return self.state
 
 
@@ -130,11 +150,13 @@ class TendonFriction:
     tendon stops, so a static state remembers how it was reached. The difference between the
     friction profile and MuJoCo's uniform one is added at each disc site as a force (and its
     moment about the body's centre of mass) through ``xfrc_applied``; the forces include the
-    friction on the disc, so momentum balances.
+    friction on the disc, so momentum balances. T₀ is the spool's tension through a first-order
+    lag of :data:`FRICTION_TENSION_LAG_S`, and σ follows the spool's travel through one of
+    :data:`FRICTION_TRAVEL_LAG_S`.
 
-    A :class:`twin.effects.StepHook`: call :meth:`before_step` before every step of at most
-    :attr:`max_step_s`. The plant loop calls it back into Python before every physics step, so a
-    twin with friction steps several times slower than one without.
+    A :class:`twin.effects.StepHook` that the plant loop (``twin/sim/native/loop.cpp``,
+    ``tendon_friction``) applies itself before every physics step: :meth:`attach` hands it the
+    paths, μ and the constants; this class finds the paths and reads the state back.
     """
 
     max_step_s = FRICTION_MAX_STEP_S
@@ -151,19 +173,16 @@ class TendonFriction:
         """
         self.coeff = float(coeff)
         sites = np.array(sites)
-        count = sites.shape[1] if passed is None else np.asarray(passed, dtype=int)
-        # Segment k (site k → k + 1) is the tendon's while k + 1 < its count; the sites beyond its
-        # anchor repeat the anchor so that the arrays stay rectangular.
-        self._segment = np.arange(sites.shape[1] - 1)[None, :] + 1 < np.broadcast_to(count, (len(sites),))[:, None]
-        last = np.broadcast_to(count, (len(sites),)) - 1
-        beyond = np.arange(sites.shape[1])[None, :] > last[:, None]
-        sites[beyond] = np.broadcast_to(sites[np.arange(len(sites)), last][:, None], sites.shape)[beyond]
+        if passed is not None:
+            # The sites beyond a tendon's anchor repeat the anchor, so that the paths stay
+            # rectangular: the plant loop ends a path at its first zero-length segment.
+            last = np.asarray(passed, dtype=int) - 1
+            beyond = np.arange(sites.shape[1])[None, :] > last[:, None]
+            sites[beyond] = np.broadcast_to(sites[np.arange(len(sites)), last][:, None], sites.shape)[beyond]
         self._sites = sites
-        self._bodies = model.site_bodyid[self._sites]
-        self._own_bodies = np.unique(self._bodies)
         self._spool_dofs = np.asarray(spool_dofs)
-        self.state = np.zeros(len(self._sites))
-        self._tension_n: np.ndarray | None = None
+        self._loop_sites = np.ascontiguousarray(self._sites, dtype=np.int32)
+        self._loop_state = None
 
     @classmethod
     def in_model(cls, model, coeff: float, tendons: int, passed=None) -> "TendonFriction":
@@ -180,40 +199,31 @@ class TendonFriction:
         dofs = [model.jnt_dofadr[model.joint(f"spool{i}").id] for i in range(tendons)]
         return cls(model, coeff, np.array(dofs), np.array(sites), None if passed is None else np.asarray(passed) + 2)
 
+    def attach(self, state) -> None:
+        """Have the plant loop whose state (:class:`twin.sim.native_loop.LoopState`) is ``state``
+        apply this friction before every physics step. The loop reads the paths from this
+        object's buffer, which lives as long as it does; its spool dofs must be the loop's."""
+        if list(self._spool_dofs) != list(state.spool_dof[:len(self._spool_dofs)]):
+            raise ValueError(f"spool dofs {self._spool_dofs.tolist()}: not the plant loop's spools")
+        self._loop_state = state
+        state.friction_sites = self._loop_sites.ctypes.data
+        state.friction_sites_per_tendon = self._loop_sites.shape[1]
+        state.presliding_m = PRESLIDING_M
+        state.friction_lag_s = FRICTION_TENSION_LAG_S
+        state.friction_travel_lag_s = FRICTION_TRAVEL_LAG_S
+        state.friction_coeff = self.coeff
+
+    @property
+    def state(self) -> np.ndarray:
+        """Each tendon's sliding state σ (−1 … +1) as the loop left it (zeros before attaching)."""
+        n = len(self._spool_dofs)
+        return np.zeros(n) if self._loop_state is None else np.array(self._loop_state.sliding_state[:n])
+
     def reset(self) -> None:
-        self.state[:] = 0.0
-        self._tension_n = None
+        """The loop's reset (``bl_plant_reset``) zeroes σ and the lagged tension."""
 
     def before_step(self, model, data, spool_tensions_n: np.ndarray) -> None:
-        """Update the sliding state over the last step and set ``data.xfrc_applied``."""
-        pull_speed = -data.qvel[self._spool_dofs]
-        self.state = slide(self.state, pull_speed * model.opt.timestep)
-        p = data.site_xpos[self._sites]                          # (n, S, 3)
-        seg = np.diff(p, axis=1)
-        norm = np.linalg.norm(seg, axis=2, keepdims=True)
-        u = np.divide(seg, norm, out=np.zeros_like(seg), where=self._segment[:, :, None])  # (n, S-1, 3)
-        cos = np.clip(np.einsum("nkj,nkj->nk", u[:, :-1], u[:, 1:]), -1.0, 1.0)
-        wrap = np.cumsum(np.arccos(cos), axis=1)                  # at sites 1 .. S-2
-        tension = np.asarray(spool_tensions_n, dtype=float)
-        if self._tension_n is None:
-            self._tension_n = tension.copy()
-        else:
-            dt = model.opt.timestep
-            self._tension_n += (tension - self._tension_n) * (dt / (FRICTION_TENSION_LAG_S + dt))
-        t0 = self._tension_n[:, None]
-        decay = np.exp(-self.state[:, None] * self.coeff * wrap)
-        excess = np.concatenate([np.zeros_like(t0), t0 * (decay - 1.0)], axis=1)  # T_k − T₀
-        pulls = excess[:, :, None] * u                            # per segment (none beyond an anchor)
-        force = np.zeros_like(p)
-        force[:, 1:] -= pulls                                     # towards the previous site
-        force[:, :-1] += pulls                                    # towards the next site
-        # Only the rows of the bodies the tendons pass: others carry other loads (the tip load's).
-        data.xfrc_applied[self._own_bodies] = 0.0
-        bodies = self._bodies.ravel()
-        f = force.reshape(-1, 3)
-        torque = np.cross(p.reshape(-1, 3) - data.xipos[bodies], f)
-        np.add.at(data.xfrc_applied[:, :3], bodies, f)
-        np.add.at(data.xfrc_applied[:, 3:], bodies, torque)
+        raise RuntimeError("tendon friction runs inside the plant loop: attach it (TendonFriction.attach)")
 
 
 def friction_direction(relative_lengths_m, sense: float = 1.0, sliding_state=None) -> np.ndarray:

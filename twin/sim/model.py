@@ -17,7 +17,8 @@ one element:
     bend x, y (hinges):  EI / h         twist z (hinge): K_t / h  (E(Ixx+Iyy) or GJ, backbone.torsion)
     shear x, y (slides): GA / h         axial z (slide): backbone.axial_stiffness_n / h
 
-and stiffness-proportional damping ``sim.damping_time_s`` × stiffness. The slides need not be at
+and stiffness-proportional damping ``sim.damping_time_s`` × stiffness (with continuous routing the
+plant loop damps the tendons' stiffening of the twist hinges and shear slides alike). The slides need not be at
 every station: with ``sim.slide_stride`` = k the middle station of each block of k takes the
 block's shear and axial compliance (:func:`slide_stations`), which keeps the chain short where
 those strains are small (with an isotropic G shear is ~0.5% of a tip-loaded cantilever's

@@ -134,7 +134,8 @@ def readme_text(params: Params, name: str) -> str:
         "other twist station twists before its bends |",
         f"| slide stiffness shear / axial, per element lumped | {b.shear_stiffness_n / h:.6g} / "
         f"{b.axial_stiffness_n / h:.6g} N/m | GA/h, EA/h, divided by the elements a slide lumps |",
-        f"| joint damping | sim.damping_time_s × stiffness | stiffness-proportional |",
+        "| joint damping | sim.damping_time_s × stiffness | stiffness-proportional, the tension stiffening "
+        "included |",
         f"| tendon stiffness | {tendon_stiffness_n_per_m(params):.6g} N/m | 1 / max(effects.tendon_compliance_m_per_n, {INEXTENSIBLE_COMPLIANCE_M_PER_N:g}) |",
         "| tension stiffening (continuous routing) | + ΣT·ρ²/h on each twist hinge, + ΣT/h on each shear slide "
         "(divided by the elements it lumps; straight routing) | the tendons' second-order length "

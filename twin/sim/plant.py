@@ -154,6 +154,8 @@ class Plant:
             s.geometry_index = self._geometry_index.ctypes.data
             s.stiffened_joints = geometry.joints.shape[0]
             s.coupled_pairs = geometry.pairs.shape[0]
+            # The backbone's damping (twin.sim.model) follows the tendons' stiffening too.
+            s.damping_per_stiffness_s = p.sim.damping_time_s * effects.plant_dynamics(p).damping_scale
         s.loadcell_offset_counts[:n] = [float(x) for x in p.sensors.loadcell_offset_counts]
         s.loadcell_gain[:n] = np.asarray(gain, dtype=float).tolist()
         s.loadcell_offset_n[:n] = np.asarray(offset_n, dtype=float).tolist()
@@ -169,7 +171,12 @@ class Plant:
         s.spool_dof[:n] = [int(m.jnt_dofadr[j]) for j in spool_joints]
         self._set_dynamics(effects.plant_dynamics(p), spool_joints)
         m.opt.timestep = self._dt / base_substeps
-        if self._hooks:
+        # Tendon friction runs inside the loop; other hooks are called back into Python.
+        for hook in self._hooks:
+            if isinstance(hook, TendonFriction):
+                hook.attach(s)
+        self._python_hooks = [hook for hook in self._hooks if not isinstance(hook, TendonFriction)]
+        if self._python_hooks:
             self.loop.set_hook(self._before_step)
         self.reset(seed)
 
@@ -431,5 +438,5 @@ class Plant:
 
     def _before_step(self) -> None:
         tensions = self.true_tensions_n()
-        for hook in self._hooks:
+        for hook in self._python_hooks:
             hook.before_step(self.model, self.data, tensions)

@@ -20,7 +20,7 @@
 
 #include <mujoco/mujoco.h>
 
-#define BL_ABI_VERSION 8
+#define BL_ABI_VERSION 10
 // Tendons (spools, motors, load cells) a plant can have.
 #define BL_MAX_CHANNELS 12
 // The tracker's two probes: three position and three axis components each.
@@ -66,6 +66,7 @@ enum { BL_DRIVE_COAST = 0, BL_DRIVE_ON = 1 };
   S(ptr, pending_fn)            /* the firmware's count of bytes queued for the host */                 \
   S(f64p, geometry)             /* tendons' second-order length (twin.sim.model.GeometricStiffness) */  \
   S(ptr, geometry_index)        /* int32: its joints' ids and addresses */                              \
+  S(ptr, friction_sites)        /* int32 (channels × friction_sites_per_tendon): each tendon's path */  \
   /* plant constants */                                                                                 \
   S(f64, step_s)                /* physics step sim.timestep_s (s) */                                   \
   S(f64, engage_stretch_m)      /* a tendon stretched less than this gets the engagement check */       \
@@ -86,6 +87,11 @@ enum { BL_DRIVE_COAST = 0, BL_DRIVE_ON = 1 };
   S(f64, latency_s)             /* actuation latency (s) (effects; 0: none) */                          \
   S(f64, loadcell_lag_s)        /* load cells' first-order lag (s) (effects; 0: none) */                \
   S(f64, backlash_m)            /* play between spool and encoder (m) (effects; 0: none) */             \
+  S(f64, damping_per_stiffness_s) /* a stiffened joint's damping per stiffness (s); 0: as built */     \
+  S(f64, friction_coeff)        /* tendon friction μ per radian of wrap (effects; 0: none) */           \
+  S(f64, presliding_m)          /* spool travel over which the friction turns round (m) */              \
+  S(f64, friction_lag_s)        /* time constant of the tension the friction follows (s) */             \
+  S(f64, friction_travel_lag_s) /* ... and of the spool travel that moves σ (s) */                      \
   A(f64, slack_length_m, BL_MAX_CHANNELS)       /* slack edge of each tendon's spring now (m) */       \
   A(f64, taut_length_m, BL_MAX_CHANNELS)        /* ... in the straight pose (m) */                     \
   A(f64, loadcell_offset_counts, BL_MAX_CHANNELS)                                                       \
@@ -109,6 +115,9 @@ enum { BL_DRIVE_COAST = 0, BL_DRIVE_ON = 1 };
   A(f64, peak_tension_n, BL_MAX_CHANNELS)       /* ground truth: the largest tension since cleared */  \
   A(f64, lagged_tension_n, BL_MAX_CHANNELS)     /* the load cells' low-passed tensions (N) */          \
   A(f64, encoder_position_m, BL_MAX_CHANNELS)   /* where each encoder is behind the play (m) */        \
+  A(f64, sliding_state, BL_MAX_CHANNELS)        /* the friction's Dahl state σ per tendon (−1 … +1) */ \
+  A(f64, friction_tension_n, BL_MAX_CHANNELS)   /* the lagged spool tension it follows (N) */          \
+  A(f64, friction_spool_m, BL_MAX_CHANNELS)     /* the lagged spool position σ follows (m) */          \
   S(f64, jump_accel_m_s2)       /* spool acceleration step since the last physics step */               \
   S(i32, channels)              /* tendons of the plant */                                              \
   S(i32, noise_size)            /* draws in the buffer */                                               \
@@ -116,6 +125,8 @@ enum { BL_DRIVE_COAST = 0, BL_DRIVE_ON = 1 };
   S(i32, tip_site)                                                                                      \
   S(i32, stiffened_joints)      /* rows of geometry: joints the tendons' tension stiffens */           \
   S(i32, coupled_pairs)         /* ... then pairs of joints it couples */                              \
+  S(i32, friction_sites_per_tendon)  /* sites of each path: spool, base hole, then towards the tip */   \
+  S(i32, friction_primed)       /* 0 until friction_tension_n holds a tension */                        \
   S(i32, base_substeps)         /* physics steps each step is cut into always (effects' stability) */  \
   S(i32, engage_substeps)       /* ... while a tendon could engage */                                   \
   S(i32, current_substeps)      /* what mjModel.opt.timestep is cut to now */                           \
@@ -339,7 +350,8 @@ static void sample_tracker(const mjData* d, bl_state* s) {
 // The continuous tendons to second order in the joint coordinates ξ (twin.sim.model.TendonLength):
 // MuJoCo's fixed tendon is c·ξ, the tendon's length ℓ0 + c·ξ + ½ ξᵀHξ. With each tendon's tension
 // T from the last step: a stiffened joint's stiffness is its own plus Σ T_i H_i,jj, which the
-// discrete integrator takes implicitly like the joint's own; a coupled pair of joints pulls on each
+// discrete integrator takes implicitly like the joint's own (its damping too, damping_per_stiffness_s
+// times it); a coupled pair of joints pulls on each
 // other with −Σ T_i H_i,ab ξ, explicitly (small beside the joints' own stiffness, which damps it);
 // and each tendon's slack edge moves in by ½ ξᵀH_iξ, so that its spring stretches with its length.
 static void tendon_geometry(mjModel* m, mjData* d, bl_state* s) {
@@ -359,6 +371,10 @@ static void tendon_geometry(mjModel* m, mjData* d, bl_state* s) {
       lengthening[i] += 0.5 * row[1 + i] * q * q;
     }
     m->jnt_stiffness[index[0]] = stiffness;
+    // Stiffness-proportional damping of the stiffness the joint has now: undamped, the tension's
+    // share leaves a soft shear slide ringing (the thesis's G = 4.76e4 Pa: 224 N/m of its own
+    // under some 1000 N/m of tension, damping ratio a fifth of the others').
+    if (s->damping_per_stiffness_s > 0) m->dof_damping[m->jnt_dofadr[index[0]]] = s->damping_per_stiffness_s * stiffness;
   }
   for (int p = 0; p < s->coupled_pairs; ++p) {
     d->qfrc_applied[index[4 * p + 1]] = 0.0;
@@ -429,6 +445,77 @@ static void dynamics_reset(const mjData* d, bl_state* s) {
   }
   s->delay_head = 0;
   s->delay_filled = 0;
+  for (int i = 0; i < s->channels; ++i) s->sliding_state[i] = 0.0;
+  s->friction_primed = 0;
+}
+
+// Capstan friction of the tendons at the disc holes (twin.effects.tendon_friction.TendonFriction,
+// which documents the model): MuJoCo's tendon carries the spool's tension T0 along its whole
+// path; with friction the tension in segment k is T0 exp(−σ μ θ_k), θ_k the wrap from the spool to
+// site k, σ each tendon's Dahl sliding state. The difference is applied at the path's sites as
+// forces (and their moments about each body's centre of mass) through xfrc_applied. Computed
+// here, before every physics step, so that a twin with friction steps at the speed of one without
+// and a Ctrl-C reaches Python between the loop's calls.
+static void tendon_friction(const mjModel* m, mjData* d, bl_state* s) {
+  int n = s->channels, sites = s->friction_sites_per_tendon;
+  const int32_t* path = (const int32_t*)s->friction_sites;
+  double dt = m->opt.timestep;
+  for (int i = 0; i < n; ++i) {
+    double tension = spring_tension_n(d, s, i), spool_m = d->qpos[s->spool_qpos[i]];
+    if (!s->friction_primed) {
+      s->friction_tension_n[i] = tension;
+      s->friction_spool_m[i] = spool_m;
+      continue;
+    }
+    s->friction_tension_n[i] += (tension - s->friction_tension_n[i]) * (dt / (s->friction_lag_s + dt));
+    // The spool pulls tendon in while its position (tendon paid out) falls.
+    double moved_m = (spool_m - s->friction_spool_m[i]) * (dt / (s->friction_travel_lag_s + dt));
+    s->friction_spool_m[i] += moved_m;
+    double step = -moved_m / s->presliding_m;
+    if (step != 0.0) {
+      double value = s->sliding_state[i] + step;
+      s->sliding_state[i] = value > 1.0 ? 1.0 : value < -1.0 ? -1.0 : value;
+    }
+  }
+  s->friction_primed = 1;
+  for (int k = 0; k < n * sites; ++k) {
+    double* f = d->xfrc_applied + 6 * m->site_bodyid[path[k]];
+    for (int j = 0; j < 6; ++j) f[j] = 0.0;
+  }
+  for (int i = 0; i < n; ++i) {
+    const int32_t* row = path + i * sites;
+    double t0 = s->friction_tension_n[i], decay = -s->sliding_state[i] * s->friction_coeff;
+    double wrap = 0.0, before[3] = {0.0, 0.0, 0.0};
+    for (int k = 0; k + 1 < sites; ++k) {
+      const double* a = d->site_xpos + 3 * row[k];
+      const double* b = d->site_xpos + 3 * row[k + 1];
+      double u[3] = {b[0] - a[0], b[1] - a[1], b[2] - a[2]};
+      double norm = sqrt(u[0] * u[0] + u[1] * u[1] + u[2] * u[2]);
+      if (norm <= 0.0) break;  // past the tendon's anchor: its path repeats the anchor site
+      u[0] /= norm, u[1] /= norm, u[2] /= norm;
+      if (k > 0) {
+        double c = before[0] * u[0] + before[1] * u[1] + before[2] * u[2];
+        wrap += acos(c > 1.0 ? 1.0 : c < -1.0 ? -1.0 : c);
+        // Segment k pulls site k towards site k + 1 and site k + 1 back, with T_k − T0.
+        double excess = t0 * (exp(decay * wrap) - 1.0);
+        for (int end = 0; end < 2; ++end) {
+          int site = row[k + end];
+          double sign = end ? -excess : excess;
+          double force[3] = {sign * u[0], sign * u[1], sign * u[2]};
+          int body = m->site_bodyid[site];
+          const double* at = d->site_xpos + 3 * site;
+          const double* com = d->xipos + 3 * body;
+          double r[3] = {at[0] - com[0], at[1] - com[1], at[2] - com[2]};
+          double* out = d->xfrc_applied + 6 * body;
+          out[0] += force[0], out[1] += force[1], out[2] += force[2];
+          out[3] += r[1] * force[2] - r[2] * force[1];
+          out[4] += r[2] * force[0] - r[0] * force[2];
+          out[5] += r[0] * force[1] - r[1] * force[0];
+        }
+      }
+      before[0] = u[0], before[1] = u[1], before[2] = u[2];
+    }
+  }
 }
 
 // ``chunk`` physics steps, cut into shorter ones where a tendon could engage, then the samples
@@ -449,8 +536,10 @@ static int plant_chunk(mjModel* m, mjData* d, bl_state* s, int chunk) {
   }
   bool geometry = s->stiffened_joints || s->coupled_pairs;
   bool dynamics = s->loadcell_lag_s > 0 || s->backlash_m > 0;
+  bool friction = s->friction_coeff > 0;
   for (int k = 0; k < chunk * substeps; ++k) {
     if (geometry) tendon_geometry(m, d, s);
+    if (friction) tendon_friction(m, d, s);
     if (hook) hook();
     step(m, d);
     if (dynamics) dynamics_after_step(m, d, s);
