@@ -11,7 +11,6 @@ import pytest
 
 from twin.cli import main
 
-DATA = Path(__file__).parent / "data"
 
 MISTAKES = [
     # (argv, exit code, words the one line must hold)
@@ -39,7 +38,7 @@ MISTAKES = [
      2, ["--twin-set", "sim://"]),
     (["compensate", "--quick", "--twin-set", "effects.no_such=1"], 2, ["--twin-set", "effects.no_such"]),
     (["compensate", "--quick", "--ceiling", "28"], 2, ["--ceiling 28", "5.38 N"]),
-    (["compensate", "--quick", "--params", str(DATA / "stiff150.toml"), "--ceiling", "5"], 2,
+    (["compensate", "--quick", "--robot", "stiff-long", "--ceiling", "5"], 2,
      ["within reach", "above the 5.00 N ceiling"]),
     (["calibrate", "--refit", "--file", "/no/such.json"], 1, ["--file", "/no/such.json"]),
     (["emulate", "--link", "/no/such/dir/port"], 1, ["--link", "/no/such/dir/port"]),

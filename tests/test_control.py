@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from twin import load_params
+from twin.robots import load_robot
 from twin.control.cocontraction import run_cocontraction_study
 from twin.control.compensation import compensate_tensions, correct_tensions, hold_tensions
 from twin.control.compensation_trial import (GOAL_REDUCTION_PCT, CompensationTrial, compensation_grid,
@@ -131,7 +132,7 @@ def test_compensation_reaches_the_goal_under_a_tendon_friction_the_model_does_no
     assert trial.verdict() == (True, [])
 
 
-STIFF = load_params(Path(__file__).parent / "data" / "stiff150.toml")
+STIFF = load_robot("stiff-long")
 
 
 def test_a_stiff_robot_gets_a_grid_and_a_ceiling_its_tensions_can_hold():
