@@ -13,6 +13,9 @@ and the tendons enter only the constitutive law, in the body frame:
     Rᵀ n = K_se (v − v*) + Σ τ_i t_i          t_i = q_i / |q_i|,  q_i = u × r_i + r_i' + v
     Rᵀ m = K_bt (u − u*) + Σ τ_i r_i × t_i                            (R&W 2011, eqs. 9, 12)
 
+with v* = (0, 0, 1) and u* the rod's intrinsic (unloaded) curvature, constant along it (zero for
+a straight rod).
+
 which is solved for (v, u) by Newton at every stage (its Jacobian is R&W's
 [[K_se + A, G], [B, K_bt + H]] matrix). The free tip gives n(L) = F_e, m(L) = M_e because the
 tendon termination forces are internal too. Since f_e (weight) does not depend on the shape,
@@ -95,6 +98,7 @@ class RodInputs(NamedTuple):
         line_mass_kg_per_m: distributed mass of the rod.
         point_mass_s_m: arc lengths of the lumped masses (np,).
         point_mass_kg: the lumped masses (np,).
+        precurvature_per_m: the intrinsic curvature u* (body frame, 1/m) (3,).
     """
 
     base_position_m: np.ndarray
@@ -112,6 +116,7 @@ class RodInputs(NamedTuple):
     line_mass_kg_per_m: float
     point_mass_s_m: np.ndarray
     point_mass_kg: np.ndarray
+    precurvature_per_m: np.ndarray
 
 
 @njit(cache=True)
@@ -306,7 +311,7 @@ def internal_forces(rod, out):
 
 
 @njit(cache=True)
-def _deriv(y, s, mid, vu, kse, kbt, tendons, nt, length, mu, tip_force, grav, line_mass,
+def _deriv(y, s, mid, vu, kse, kbt, ustar, tendons, nt, length, mu, tip_force, grav, line_mass,
            pm_s, pm_m, dy, work6, jac, rhs, dx, r, rp, q, work, routes):
     """dy/ds of the state; updates the strains vu in place. Returns False if the local solve failed."""
     n = _internal_force(s, mid, length, tip_force, grav, line_mass, pm_s, pm_m, work6[6:9])
@@ -315,7 +320,8 @@ def _deriv(y, s, mid, vu, kse, kbt, tendons, nt, length, mu, tip_force, grav, li
     mb = work6[3:6]
     for i in range(3):
         nb[i] = y[3 + i] * n[0] + y[6 + i] * n[1] + y[9 + i] * n[2]
-        mb[i] = y[3 + i] * y[12] + y[6 + i] * y[13] + y[9 + i] * y[14]
+        # K_bt u* moved to this side: the law then reads Rᵀ m + K_bt u* = K_bt u + ….
+        mb[i] = y[3 + i] * y[12] + y[6 + i] * y[13] + y[9 + i] * y[14] + kbt[i] * ustar[i]
     wraps = y[15:15 + nt]
     if _strains(nb, mb, s, mid, wraps, kse, kbt, tendons, nt, length, mu, vu, jac, rhs, dx, r, rp,
                 work[0], work[1], work[2], routes) < 0:
@@ -372,6 +378,7 @@ def integrate(m0, rod, states, strains):
     intervals = rod.intervals
     kse = rod.kse
     kbt = rod.kbt
+    ustar = rod.precurvature_per_m
     tendons = rod.tendons
     length = rod.length_m
     mu = rod.friction_coeff
@@ -409,7 +416,7 @@ def integrate(m0, rod, states, strains):
     states[0, :] = y
     nsteps = nodes.shape[0] - 1
     # Strains at the base (warm start for the first stage, and the output at station 0).
-    if not _deriv(y, nodes[0], intervals[0], vu, kse, kbt, tendons, nt, length, mu, tip_force, grav,
+    if not _deriv(y, nodes[0], intervals[0], vu, kse, kbt, ustar, tendons, nt, length, mu, tip_force, grav,
                   line_mass, pm_s, pm_m, k1, work6, jac, rhs, dx, r, rp, q, work, routes):
         return False, res
     strains[0, :] = vu
@@ -417,22 +424,22 @@ def integrate(m0, rod, states, strains):
         s = nodes[k]
         h = nodes[k + 1] - s
         mid = intervals[k]
-        if not _deriv(y, s, mid, vu, kse, kbt, tendons, nt, length, mu, tip_force, grav, line_mass,
+        if not _deriv(y, s, mid, vu, kse, kbt, ustar, tendons, nt, length, mu, tip_force, grav, line_mass,
                       pm_s, pm_m, k1, work6, jac, rhs, dx, r, rp, q, work, routes):
             return False, res
         for i in range(ny):
             yt[i] = y[i] + 0.5 * h * k1[i]
-        if not _deriv(yt, s + 0.5 * h, mid, vu, kse, kbt, tendons, nt, length, mu, tip_force, grav,
+        if not _deriv(yt, s + 0.5 * h, mid, vu, kse, kbt, ustar, tendons, nt, length, mu, tip_force, grav,
                       line_mass, pm_s, pm_m, k2, work6, jac, rhs, dx, r, rp, q, work, routes):
             return False, res
         for i in range(ny):
             yt[i] = y[i] + 0.5 * h * k2[i]
-        if not _deriv(yt, s + 0.5 * h, mid, vu, kse, kbt, tendons, nt, length, mu, tip_force, grav,
+        if not _deriv(yt, s + 0.5 * h, mid, vu, kse, kbt, ustar, tendons, nt, length, mu, tip_force, grav,
                       line_mass, pm_s, pm_m, k3, work6, jac, rhs, dx, r, rp, q, work, routes):
             return False, res
         for i in range(ny):
             yt[i] = y[i] + h * k3[i]
-        if not _deriv(yt, s + h, mid, vu, kse, kbt, tendons, nt, length, mu, tip_force, grav,
+        if not _deriv(yt, s + h, mid, vu, kse, kbt, ustar, tendons, nt, length, mu, tip_force, grav,
                       line_mass, pm_s, pm_m, k4, work6, jac, rhs, dx, r, rp, q, work, routes):
             return False, res
         for i in range(ny):
