@@ -23,6 +23,7 @@ from pathlib import Path
 from typing import Iterable
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from twin import effects
 from twin.data.dataset import Dataset, write_dataset
@@ -41,7 +42,8 @@ def synthetic_validation_dataset(folder: str | Path, nominal: Params, truth: Par
                                  grid: Iterable[tuple[int, float, float, float]] | None = None,
                                  repeats: int = 1, seed: int = 0, tracker_noise_m: float | None = None,
                                  loadcell_noise_n: float | None = None, base_rotation=HORIZONTAL,
-                                 tip_moment_nm=None) -> Dataset:
+                                 tip_moment_nm=None, tracker_rotation_deg=None,
+                                 precurvature_per_m=None) -> Dataset:
     """Write a validation dataset measured on the ``truth`` endoscope, labelled with ``nominal``.
 
     Args:
@@ -56,6 +58,12 @@ def synthetic_validation_dataset(folder: str | Path, nominal: Params, truth: Par
         base_rotation: nominal clamp orientation (3×3, body → world).
         tip_moment_nm: a constant moment at the tip (N·m, world frame), as a cable or a contact
             would put there: an effect no parameter of the model carries.
+        tracker_rotation_deg: the tracker's frame turned about the base origin by this rotation
+            vector (deg, world axes; e.g. (0, 0, 1): 1° about the vertical), as a registration
+            error would leave it: every measured position is R · p. No parameter carries it.
+        precurvature_per_m: the backbone's intrinsic curvature (body frame, 1/m, 3 components:
+            bending about the body x and y axes, twist), as a backbone set in a curve would have
+            (:attr:`twin.rod.RodModel.precurvature_per_m`). No parameter carries it.
 
     Returns:
         The dataset as read back. Configurations the true model cannot solve are left out (none
@@ -64,7 +72,12 @@ def synthetic_validation_dataset(folder: str | Path, nominal: Params, truth: Par
     rng = np.random.default_rng(seed)
     tracker_sigma = truth.sensors.tracker_noise_m if tracker_noise_m is None else tracker_noise_m
     loadcell_sigma = truth.sensors.loadcell_noise_n if loadcell_noise_n is None else loadcell_noise_n
-    predictor = Predictor(RodModel.from_params(truth))
+    model = RodModel.from_params(truth)
+    if precurvature_per_m is not None:
+        model = model.replace(precurvature_per_m=tuple(float(u) for u in precurvature_per_m))
+    predictor = Predictor(model)
+    registration = np.eye(3) if tracker_rotation_deg is None else \
+        Rotation.from_rotvec(np.radians(np.asarray(tracker_rotation_deg, dtype=float))).as_matrix()
     clamp = effects.clamp_rotation(truth, base_rotation)
     gain, offset = effects.loadcell_response(truth)
     count_m = truth.rig.tendon_m_per_count
@@ -85,7 +98,7 @@ def synthetic_validation_dataset(folder: str | Path, nominal: Params, truth: Par
             if not sol.converged:
                 predictor.reset()
                 continue
-            tip = effects.tracked_point_m(truth, sol.tip_position_m, sol.tip_rotation)
+            tip = registration @ effects.tracked_point_m(truth, sol.tip_position_m, sol.tip_rotation)
             tip = tip + rng.normal(0.0, tracker_sigma, 3)
             reported = gain * tensions + offset + rng.normal(0.0, loadcell_sigma, tensions.size)
             row = {"config": repeat * stride + config, "repeat": repeat, "kappa_cmd_per_m": kappa,
