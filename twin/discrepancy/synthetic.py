@@ -43,7 +43,7 @@ def synthetic_validation_dataset(folder: str | Path, nominal: Params, truth: Par
                                  repeats: int = 1, seed: int = 0, tracker_noise_m: float | None = None,
                                  loadcell_noise_n: float | None = None, base_rotation=HORIZONTAL,
                                  tip_moment_nm=None, tracker_rotation_deg=None,
-                                 precurvature_per_m=None) -> Dataset:
+                                 precurvature_per_m=None, frames: int = 1) -> Dataset:
     """Write a validation dataset measured on the ``truth`` endoscope, labelled with ``nominal``.
 
     Args:
@@ -53,8 +53,11 @@ def synthetic_validation_dataset(folder: str | Path, nominal: Params, truth: Par
         grid: (config, κ 1/m, φ deg, tip mass kg) tuples; default the 216 of thesis §8.3.
         repeats: measurements per configuration (fresh pretension and noise each).
         seed: random seed of pretensions and noise.
-        tracker_noise_m: tracker noise per axis (m); default ``truth.sensors.tracker_noise_m``.
-        loadcell_noise_n: load-cell noise (N); default ``truth.sensors.loadcell_noise_n``.
+        tracker_noise_m: tracker noise per axis and frame (m); default ``truth.sensors.tracker_noise_m``.
+        loadcell_noise_n: load-cell noise per sample (N); default ``truth.sensors.loadcell_noise_n``.
+        frames: tracker frames (and load-cell samples) averaged into each row, as the rig's
+            measurement window does; with more than one, each row records them and its tip's
+            standard error (``tip_frames``, ``tip_sem_*_m``).
         base_rotation: nominal clamp orientation (3×3, body → world).
         tip_moment_nm: a constant moment at the tip (N·m, world frame), as a cable or a contact
             would put there: an effect no parameter of the model carries.
@@ -99,10 +102,14 @@ def synthetic_validation_dataset(folder: str | Path, nominal: Params, truth: Par
                 predictor.reset()
                 continue
             tip = registration @ effects.tracked_point_m(truth, sol.tip_position_m, sol.tip_rotation)
-            tip = tip + rng.normal(0.0, tracker_sigma, 3)
-            reported = gain * tensions + offset + rng.normal(0.0, loadcell_sigma, tensions.size)
+            seen = tip + rng.normal(0.0, tracker_sigma, (frames, 3))
+            tip = seen.mean(axis=0)
+            reported = gain * tensions + offset + rng.normal(0.0, loadcell_sigma, (frames, tensions.size)).mean(axis=0)
             row = {"config": repeat * stride + config, "repeat": repeat, "kappa_cmd_per_m": kappa,
                    "phi_cmd_deg": phi, "tip_mass_kg": mass, "tip_x_m": tip[0], "tip_y_m": tip[1], "tip_z_m": tip[2]}
+            if frames > 1:
+                sem = seen.std(axis=0, ddof=1) / np.sqrt(frames)
+                row.update({"tip_frames": frames, "tip_sem_x_m": sem[0], "tip_sem_y_m": sem[1], "tip_sem_z_m": sem[2]})
             for i in range(tensions.size):
                 row[f"tension_{i + 1}_n"] = reported[i]
                 row[f"length_{i + 1}_m"] = lengths[i]
