@@ -107,10 +107,11 @@ def estimate_noise(dataset: Dataset, params: Params, errors_m: np.ndarray, conve
     recorded = ok & np.all(np.isfinite(sem), axis=1) & np.isfinite(frames) & (frames > 1)
     if recorded.sum() >= _MIN_FRAME_SHARE * max(1, ok.sum()) and recorded.any():
         count = float(np.mean(frames[recorded]))
-        variance = np.mean(sem[recorded] ** 2, axis=0) + _carried_variance(dataset, params, ok, sigma_l / np.sqrt(count))
+        carried = _carried_variance(dataset, params, ok, sigma_l / np.sqrt(count))
+        variance = np.mean(sem[recorded] ** 2, axis=0) + carried
         return NoiseEstimate(np.sqrt(variance), "frames",
-                             f"the scatter of the {count:.3g} tracker frames averaged into each of {int(recorded.sum())} "
-                             f"rows (their standard error), and load-cell noise {sigma_l:.3g} N "
+                             f"the scatter of the {count:.3g} tracker frames averaged into each of "
+                             f"{int(recorded.sum())} rows (their standard error), and load-cell noise {sigma_l:.3g} N "
                              "(sensors.loadcell_noise_n) over as many samples, carried through the model")
     variance = np.full(3, sigma_t**2) + _carried_variance(dataset, params, ok, sigma_l)
     return NoiseEstimate(np.sqrt(variance), "prior",
