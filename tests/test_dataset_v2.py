@@ -46,6 +46,7 @@ def test_a_version_1_dataset_reads_as_it_always_did():
     assert d.params.tendons.count == 4 and d.params.backbone.length_m == pytest.approx(0.06)
     # Version 1's columns are version 2's for four tendons, without the optional groups added since.
     optional = {c for g in TENDON_GROUPS if g.name not in ("tensions", "lengths") for c in g.columns(4)}
+    optional |= {"tip_frames", "tip_sem_x_m", "tip_sem_y_m", "tip_sem_z_m"}
     assert (V1_FIXTURE / "measurements.csv").read_text().splitlines()[0].split(",") == [
         c for c in COLUMNS if c not in optional]
     assert np.isnan(d.tip_quaternions).all() and d["time_s"].tolist() == [1.0, 2.0, 3.0]

@@ -23,6 +23,9 @@ in short, a folder with
     tip_x_m, tip_y_m, tip_z_m   tip position, base frame: origin at the base centre, world axes (m)
     tip_qw … tip_qz             tip orientation quaternion (w, x, y, z), world axes, when measured
     time_s                      device time of the measurement (s)
+    tip_frames                  tracker frames averaged into the row's tip position, when recorded
+    tip_sem_x_m … tip_sem_z_m   standard error of the row's tip position per axis (m): the
+                                frames' scatter over √frames, when recorded
     ==========================  ====================================================================
 
     The per-tendon columns are the groups of :data:`TENDON_GROUPS`, in its order.
@@ -133,12 +136,14 @@ TENDON_GROUPS = (
 _INT_COLUMNS = ("config", "repeat")
 _STR_COLUMNS = ("experiment",)
 _LEADING_COLUMNS = ("config", "experiment", "repeat", "kappa_cmd_per_m", "phi_cmd_deg", "tip_mass_kg")
-_TRAILING_COLUMNS = ("tip_x_m", "tip_y_m", "tip_z_m", "tip_qw", "tip_qx", "tip_qy", "tip_qz", "time_s")
+_TRAILING_COLUMNS = ("tip_x_m", "tip_y_m", "tip_z_m", "tip_qw", "tip_qx", "tip_qy", "tip_qz", "time_s", "tip_frames",
+                     "tip_sem_x_m", "tip_sem_y_m", "tip_sem_z_m")
 # Columns that may be left out of a row (the writer fills in the experiment and repeat 0).
 _DEFAULTED = ("experiment", "repeat")
 # Columns that may be empty (not measured), besides the optional per-tendon groups. The command
 # (κ, φ) is empty, both cells, for a free pose: one taken off any grid (an imported lab's data).
-_NULLABLE = ("kappa_cmd_per_m", "phi_cmd_deg", "tip_qw", "tip_qx", "tip_qy", "tip_qz", "time_s")
+_NULLABLE = ("kappa_cmd_per_m", "phi_cmd_deg", "tip_qw", "tip_qx", "tip_qy", "tip_qz", "time_s",
+             "tip_frames", "tip_sem_x_m", "tip_sem_y_m", "tip_sem_z_m")
 _COMMAND = ("kappa_cmd_per_m", "phi_cmd_deg")
 _HALF_COMMAND = "has a command κ or φ without the other (a free pose leaves both empty)"
 # Lowest tension (N) a row may report: a slack tendon reads its load cell's noise around zero

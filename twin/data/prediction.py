@@ -65,7 +65,7 @@ class Predictions:
 
 def predict_rows(params: Params, base_rotation, tensions_n, tip_mass_kg, lengths_m, *, progress: bool = False,
                  model: RodModel | None = None, guesses: list | None = None,
-                 sliding_state=None) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+                 sliding_state=None, tip_moment_nm=None) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Predict tracker positions (base frame, m) for arrays of measurements.
 
     Args:
@@ -76,6 +76,9 @@ def predict_rows(params: Params, base_rotation, tensions_n, tip_mass_kg, lengths
             None: each row starts from its own entry instead of the previous row's solution, and
             its entry is replaced by the new one. Repeated predictions of the same rows under
             nearby parameter sets (a fit's evaluations) then converge in a Newton step or two.
+        tip_moment_nm: a constant external moment at the tip (N·m, world frame) on every row, as a
+            cable or a contact would put there (no parameter carries it; the discrepancy
+            workflow's probes do), or None.
 
     Returns:
         (tip_m (n, 3), converged (n,), residual_nm (n,), solve_time_s (n,)).
@@ -102,7 +105,8 @@ def predict_rows(params: Params, base_rotation, tensions_n, tip_mass_kg, lengths
             if starts[0] is None:
                 starts[0] = last
             solutions = solve_batch(model, tensions[rows.start:rows.stop], tip_force_n=forces[rows.start:rows.stop],
-                                    base_rotation=rotation, friction_direction=directions[rows.start:rows.stop],
+                                    tip_moment_nm=tip_moment_nm, base_rotation=rotation,
+                                    friction_direction=directions[rows.start:rows.stop],
                                     guesses=starts, raise_on_failure=False)
             for i, sol in zip(rows, solutions):
                 converged[i] = sol.converged

@@ -78,6 +78,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--holdout", type=float, default=1 / 3, metavar="FRACTION",
                    help="share of configurations held out (default 1/3)")
     p.add_argument("--max-effects", type=int, default=3, metavar="N", help="name at most N effects (default 3)")
+    p.add_argument("--model-form-mm", type=float, default=None, metavar="MM",
+                   help="structured RMS (mm) the model's form may leave on a perfect rig's data, below which no "
+                   "effect is sought (default 0.17, the predictor against the twin; a rig's is larger)")
     p.add_argument("--device", metavar="URL",
                    help="when the static data cannot decide (a tie, or structure the best candidates leave), run the "
                    "experiments that tell the contenders apart on this device (the rig the data were taken on, or "
@@ -122,6 +125,8 @@ def run_discrepancy_command(args: argparse.Namespace) -> int:
         return refuse(f"--params {args.params}: no such file")
     except OSError as exc:
         return refuse(f"--params {args.params}: cannot be read ({exc.strerror})")
+    if args.model_form_mm is not None and not (np.isfinite(args.model_form_mm) and args.model_form_mm >= 0):
+        return refuse(f"--model-form-mm {args.model_form_mm!r}: must be a finite length >= 0 (mm)")
     if args.twin_overrides and not (args.device or "").startswith("sim://"):
         return refuse("--twin-set applies to --device sim:// only")
     # Opened (not connected) before the long work, so a bad URL or --twin-set is refused at once.
@@ -131,8 +136,9 @@ def run_discrepancy_command(args: argparse.Namespace) -> int:
         return refuse(str(exc))
 
     def workflow(data):
+        form = {} if args.model_form_mm is None else {"model_form_m": args.model_form_mm * 1e-3}
         return run_discrepancy(data, params, holdout_fraction=args.holdout, seed=args.seed,
-                               max_effects=args.max_effects, progress=True)
+                               max_effects=args.max_effects, progress=True, **form)
 
     decision = None
     try:

@@ -22,6 +22,22 @@ design         what it measures                                            tells
 ``planes``     bending planes between those measured                       tracker offset from base
                                                                            tilt
 =============  ==========================================================  ==========================
+
+The causes outside the library (:mod:`twin.discrepancy.probes`) mimic library effects on every
+static sweep of one pose; what tells them apart needs a hand on the rig, so ``--device`` does not
+run these (:data:`MANUAL_EXPERIMENTS`), the verdict names them:
+
+=============  ==========================================================  ==========================
+experiment     what it measures                                            tells apart
+=============  ==========================================================  ==========================
+``pose``       the sweep again with the base turned (another dataset)      a world-fixed tip moment
+                                                                           from anything the robot
+                                                                           carries with it
+``register``   the clamp's pose measured with the tracker's probe          a tracker-frame rotation
+                                                                           from a tilt or an offset
+``zero``       each load cell read with its tendon unhooked                a load-cell offset from a
+                                                                           curved backbone
+=============  ==========================================================  ==========================
 """
 
 from __future__ import annotations
@@ -40,7 +56,7 @@ from twin.data.dataset import Dataset
 from twin.discrepancy.residuals import grouping_values
 from twin.params import Params
 
-__all__ = ["DESIGNS", "Design", "contenders", "decide", "designs_for"]
+__all__ = ["DESIGNS", "MANUAL_EXPERIMENTS", "Design", "contenders", "decide", "designs_for", "experiments_for"]
 
 # (κ, φ) groups a design re-measures: 12 groups × the dataset's tip masses is about a sixth of
 # the thesis sweep (216 rows), enough rows for each tied parameter to be fitted on both sides.
@@ -139,26 +155,48 @@ DESIGNS: dict[str, Design] = {d.name: d for d in (
 )}
 
 
+# Experiments that tell a cause outside the library from the library's effects, by name: what to
+# do, by hand (see the module doc).
+MANUAL_EXPERIMENTS = {
+    "pose": "the sweep again with the base turned (a new dataset): a moment fixed in the world keeps its direction "
+            "while the robot turns, a load-cell offset or a curved backbone turns with it",
+    "register": "the clamp's position and axis measured with the tracker's probe: a turned tracker frame shows "
+                "there, a tilted clamp or an offset cap does not",
+    "zero": "each load cell read with its tendon unhooked: an offset reads its offset, a curved backbone's cells "
+            "read zero",
+}
+
+
+def experiments_for(names: Sequence[str]) -> list[str]:
+    """The experiments that tell ``names`` (effects, or causes outside the library) from the
+    rest: the union of each one's ``deciding_experiments``, in their order; a pair ``a+b`` counts
+    as both."""
+    from twin.discrepancy.probes import PROBES
+
+    out: list[str] = []
+    for name in names:
+        for part in name.split("+"):
+            entry = effects.EFFECTS.get(part) or PROBES.get(part)
+            out += [e for e in (entry.deciding_experiments if entry else ()) if e not in out]
+    return out
+
+
 def designs_for(effect_names: Sequence[str]) -> list[Design]:
-    """The deciding experiments of ``effect_names``: the union of each effect's
-    :attr:`twin.effects.Effect.deciding_experiments`, in the effects' order."""
-    names: list[str] = []
-    for effect in effect_names:
-        entry = effects.EFFECTS.get(effect)
-        for design in (entry.deciding_experiments if entry else ()):
-            if design not in names:
-                names.append(design)
-    return [DESIGNS[n] for n in names]
+    """The deciding experiments of ``effect_names`` that a device can run: the union of each
+    effect's :attr:`twin.effects.Effect.deciding_experiments` (:func:`experiments_for`) without
+    the :data:`MANUAL_EXPERIMENTS`, in the effects' order."""
+    return [DESIGNS[n] for n in experiments_for(effect_names) if n in DESIGNS]
 
 
 def contenders(result) -> tuple[str, ...]:
     """The effects the static data could not tell apart in ``result``
     (:class:`twin.discrepancy.workflow.DiscrepancyResult`): when the answer is ``ambiguous`` or
-    ``unexplained``, a tie's candidates, what was named, and every first-round candidate whose
-    held-out RMS is within a quarter of the best's. Empty when the verdict needs no deciding."""
+    ``unexplained``, a tie's candidates, the stand-ins, the causes outside the library that
+    explain as well, and every first-round candidate whose held-out RMS is within a quarter of
+    the best's. Empty when the verdict needs no deciding."""
     if result.verdict not in ("ambiguous", "unexplained"):
         return ()
-    names = list(result.named) + [e for s in result.tied for e in s.effects]
+    names = list(result.named) + [e for s in result.tied + result.stand_ins + result.outside for e in s.effects]
     scores = [s for s in result.rounds[0].scores if np.isfinite(s.score)] if result.rounds else []
     if scores:
         best = min(s.heldout_rms_m for s in scores)

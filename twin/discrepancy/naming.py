@@ -33,7 +33,7 @@ The rule (documented here because the ranking and the verdict follow from it):
   effect. If the best does not beat noise, nothing is named.
 * **Ties.** Another candidate that beats noise *ties* with the winner when its held-out squared
   error exceeds the winner's by less than :data:`TIE_Z` standard errors of that difference
-  (:func:`_worse_z`): the held-out data cannot tell the two apart, and the workflow answers
+  (:func:`worse_z`): the held-out data cannot tell the two apart, and the workflow answers
   ``ambiguous`` instead of picking one (:mod:`twin.discrepancy.workflow`).
 * **Pairs.** When no single candidate beats noise, the best :data:`PAIR_POOL` are fitted in
   pairs (:func:`rank_pairs`), scored the same way with both effects' parameters counted.
@@ -57,8 +57,8 @@ from twin.data.prediction import predict_rows
 from twin.data.fitting import FitParameter, ParameterFit, current_value, fit_determined
 from twin.params import Params
 
-__all__ = ["NAME_ALPHA", "MIN_HELDOUT_GAIN", "TIE_Z", "PAIR_POOL", "CandidateScore", "Round", "split_rows",
-           "row_errors", "rank_candidates", "rank_pairs"]
+__all__ = ["NAME_ALPHA", "MIN_HELDOUT_GAIN", "TIE_Z", "PAIR_POOL", "Baseline", "CandidateScore", "Round",
+           "split_rows", "row_errors", "rank_candidates", "rank_pairs", "worse_z"]
 
 NAME_ALPHA = 1e-3
 # Smallest relative drop of the held-out RMS that names an effect (see the module rule).
@@ -195,7 +195,7 @@ class Round:
 
 
 @dataclasses.dataclass
-class _Baseline:
+class Baseline:
     """The current model on both splits, and what every candidate of a round shares."""
 
     dataset: Dataset
@@ -211,7 +211,7 @@ class _Baseline:
     test_guesses: list
 
     @classmethod
-    def of(cls, dataset, params, train, test, *, source, max_evaluations, tries, guesses=None) -> "_Baseline":
+    def of(cls, dataset, params, train, test, *, source, max_evaluations, tries, guesses=None) -> "Baseline":
         guesses = guesses if guesses is not None else [None] * len(dataset)
         train_guesses = [guesses[i] for i in np.flatnonzero(train)]
         test_guesses = [guesses[i] for i in np.flatnonzero(test)]
@@ -223,8 +223,6 @@ class _Baseline:
     def score(self, effect: str, named: Sequence[FitParameter], own: Sequence[FitParameter], x0: Sequence[float],
               variants: Sequence[dict]) -> CandidateScore:
         """Fit ``own`` jointly with ``named`` (each variant; the best training fit kept) and score it."""
-        rss0, mse0 = float(np.sum(self.base_train**2)), float(np.mean(self.base_test**2))
-        n_train, n_test = self.base_train.size, self.base_test.size
         parameters = list(named) + list(own)
         start = [current_value(self.params, p) for p in named] + list(x0)
         source = f"{self.source}: {effect}"
@@ -244,6 +242,14 @@ class _Baseline:
         k = len(kept) + (1 if len(variants) > 1 else 0)
         fitted_test, _ = row_errors(self.dataset, fit.params, self.test, list(self.test_guesses))
         rss1 = fit.rms_m**2 * len(self.base_train)  # the fit's rows carry the same failure penalty
+        return self.judge(effect, fit, k, rss1, fit.rms_m, fitted_test, note)
+
+    def judge(self, effect: str, fit, k: int, rss1: float, train_rms_m: float, fitted_test: np.ndarray,
+              note: str = "") -> CandidateScore:
+        """Score a fitted explanation with ``k`` parameters of its own (module rule) from its
+        training residual sum of squares ``rss1`` (m²) and its held-out errors (rows, 3) m."""
+        rss0, mse0 = float(np.sum(self.base_train**2)), float(np.mean(self.base_test**2))
+        n_train, n_test = self.base_train.size, self.base_test.size
         mse1 = float(np.mean(fitted_test**2))
         score = n_test * math.log(mse1 / mse0) + k * math.log(n_train)
         f_stat, p_value = _f_test(rss0, rss1, k, n_train)
@@ -251,7 +257,7 @@ class _Baseline:
         beats = score < 0 and p_value < self.alpha and gain >= MIN_HELDOUT_GAIN
         if score < 0 and p_value < self.alpha and not beats:
             note = (note + "; " if note else "") + f"held-out RMS only {gain:.0%} lower"
-        return CandidateScore(effect, fit, k, fit.rms_m, _rms3(fitted_test), score, float(f_stat), p_value,
+        return CandidateScore(effect, fit, k, train_rms_m, _rms3(fitted_test), score, float(f_stat), p_value,
                               bool(beats), note, fitted_test)
 
     def round(self, scores: list[CandidateScore]) -> Round:
@@ -266,7 +272,7 @@ class _Baseline:
             for i, s in enumerate(scores[1:], start=1):
                 if s.heldout_errors_m is None:
                     continue
-                scores[i] = s = dataclasses.replace(s, worse_z=_worse_z(best.heldout_errors_m, s.heldout_errors_m))
+                scores[i] = s = dataclasses.replace(s, worse_z=worse_z(best.heldout_errors_m, s.heldout_errors_m))
                 if s.beats_noise and s.worse_z < TIE_Z:
                     ties.append(s)
         return Round(_rms3(self.base_train), _rms3(self.base_test), tuple(scores), best, tuple(ties))
@@ -280,7 +286,7 @@ def _f_test(rss0: float, rss1: float, k: int, n: int) -> tuple[float, float]:
     return 0.0, 1.0
 
 
-def _worse_z(best_m: np.ndarray, other_m: np.ndarray) -> float:
+def worse_z(best_m: np.ndarray, other_m: np.ndarray) -> float:
     """How many standard errors Σ|e_other|² exceeds Σ|e_best|² over the held-out rows.
 
     With δ = e_other − e_best (the two models' predictions differ by it, not by noise), the
@@ -321,7 +327,7 @@ def rank_candidates(dataset: Dataset, params: Params, candidates: Sequence[Candi
         guesses: per row of ``dataset``, a solution to start its solves from (e.g. of a nearby
             model; not changed).
     """
-    base = _Baseline.of(dataset, params, train, test, source=source, max_evaluations=max_evaluations,
+    base = Baseline.of(dataset, params, train, test, source=source, max_evaluations=max_evaluations,
                         tries=len(candidates), guesses=guesses)
     scores = []
     bar = tqdm(candidates, desc=label, unit="effect", disable=not progress, leave=False)
@@ -347,7 +353,7 @@ def rank_pairs(dataset: Dataset, params: Params, candidates: Sequence[Candidate]
         tries: how many candidates and pairs are tried in all (the Bonferroni divisor).
         (others as for :func:`rank_candidates`)
     """
-    base = _Baseline.of(dataset, params, train, test, source=source, max_evaluations=max_evaluations, tries=tries,
+    base = Baseline.of(dataset, params, train, test, source=source, max_evaluations=max_evaluations, tries=tries,
                         guesses=guesses)
     usable = [c for c in candidates if _applicable(c, dataset, train)]
     pairs = list(itertools.combinations(usable, 2))

@@ -1,15 +1,22 @@
 """How large the residuals of a perfect model would be: the measurement noise of a dataset.
 
-Two estimates, the first that applies:
+Three estimates, the first that applies:
 
 ``repeats``
     Configurations measured more than once (same κ, φ and tip mass): the pooled scatter of the
     residuals within each configuration, per axis. Residuals rather than raw positions, so a
     repeat that settled under slightly different tensions is not counted as noise.
+``frames``
+    Rows that record their tip's standard error (``tip_sem_x_m`` …: the scatter of the tracker
+    frames averaged into the row, over √frames; ``docs/dataset.md``): its mean square per axis,
+    plus the load-cell noise carried through the model as for the prior, over √frames too (the
+    telemetry is averaged over the same window). The noise a row's mean really carries, not a
+    single frame's.
 ``prior``
     The stated tracker noise ``sensors.tracker_noise_m`` per axis, plus the load-cell noise
     ``sensors.loadcell_noise_n`` carried through the model to the tip (each channel's
-    sensitivity by a finite difference, every row), added in quadrature.
+    sensitivity by a finite difference, every row), added in quadrature: the noise of one frame,
+    an upper bound for a row that averages several.
 
 Neither sees systematic errors that repeat with the configuration; those are what the
 discrepancy workflow is looking for.
@@ -29,6 +36,9 @@ __all__ = ["NoiseEstimate", "estimate_noise", "configuration_keys"]
 
 # Fewest configurations with repeats that make a pooled estimate worth more than the prior.
 _MIN_REPEATED_CONFIGS = 5
+# Share of rows that must record their tip's standard error for the ``frames`` estimate: a
+# dataset resumed from an older file may have a few rows without it.
+_MIN_FRAME_SHARE = 0.5
 # Tension step of the sensitivity difference (N): well above rounding, well inside linearity.
 _TENSION_STEP_N = 0.05
 
@@ -39,7 +49,7 @@ class NoiseEstimate:
 
     Attributes:
         sigma_m: (3,) standard deviation per axis (m).
-        source: ``repeats`` or ``prior``.
+        source: ``repeats``, ``frames`` or ``prior``.
         detail: how it was obtained, one sentence.
     """
 
@@ -73,7 +83,8 @@ def configuration_keys(dataset: Dataset) -> np.ndarray:
 
 
 def estimate_noise(dataset: Dataset, params: Params, errors_m: np.ndarray, converged: np.ndarray) -> NoiseEstimate:
-    """Estimate the noise from repeated configurations if there are enough, else from the prior.
+    """Estimate the noise from repeated configurations if there are enough, else from the
+    frames each row averaged if recorded, else from the prior (module doc).
 
     Args:
         dataset: the measurements.
@@ -95,22 +106,39 @@ def estimate_noise(dataset: Dataset, params: Params, errors_m: np.ndarray, conve
                              f"pooled residual scatter within {groups} repeated configurations ({dof} degrees of freedom)")
     sigma_t = params.sensors.tracker_noise_m
     sigma_l = params.sensors.loadcell_noise_n
-    variance = np.full(3, sigma_t**2)
-    if sigma_l > 0 and ok.any():
-        data = dataset.subset(ok)
-        args = (data["tip_mass_kg"], data.lengths_m)
-        solutions = [None] * len(data)
-        tip0, ok0, _, _ = predict_rows(params, data.base_rotation, data.tensions_n, *args, guesses=solutions,
-                                     sliding_state=data.sliding_state)
-        carried = np.zeros((len(data), 3))
-        for channel in range(data.tensions_n.shape[1]):
-            bumped = data.tensions_n.copy()
-            bumped[:, channel] += _TENSION_STEP_N
-            tip1, ok1, _, _ = predict_rows(params, data.base_rotation, bumped, *args, guesses=list(solutions),
-                                         sliding_state=data.sliding_state)
-            step = np.where((ok0 & ok1)[:, None], tip1 - tip0, 0.0)
-            carried += (step * sigma_l / _TENSION_STEP_N) ** 2
-        variance = variance + carried.mean(axis=0)
+    sem = np.stack([np.asarray(dataset[f"tip_sem_{a}_m"], dtype=float) for a in "xyz"], axis=1)
+    frames = np.asarray(dataset["tip_frames"], dtype=float)
+    recorded = ok & np.all(np.isfinite(sem), axis=1) & np.isfinite(frames) & (frames > 1)
+    if recorded.sum() >= _MIN_FRAME_SHARE * max(1, ok.sum()) and recorded.any():
+        count = float(np.mean(frames[recorded]))
+        carried = _carried_variance(dataset, params, ok, sigma_l / np.sqrt(count))
+        variance = np.mean(sem[recorded] ** 2, axis=0) + carried
+        return NoiseEstimate(np.sqrt(variance), "frames",
+                             f"the scatter of the {count:.3g} tracker frames averaged into each of "
+                             f"{int(recorded.sum())} rows (their standard error), and load-cell noise {sigma_l:.3g} N "
+                             "(sensors.loadcell_noise_n) over as many samples, carried through the model")
+    variance = np.full(3, sigma_t**2) + _carried_variance(dataset, params, ok, sigma_l)
     return NoiseEstimate(np.sqrt(variance), "prior",
                          f"tracker noise {sigma_t * 1e3:.3g} mm per axis (sensors.tracker_noise_m) and load-cell "
                          f"noise {sigma_l:.3g} N (sensors.loadcell_noise_n) carried through the model")
+
+
+def _carried_variance(dataset: Dataset, params: Params, ok: np.ndarray, sigma_l: float) -> np.ndarray:
+    """(3,) mean variance of the tip (m²) that load-cell noise ``sigma_l`` (N) on each channel
+    makes through the model (each channel's sensitivity by a finite difference, every row)."""
+    if not (sigma_l > 0 and ok.any()):
+        return np.zeros(3)
+    data = dataset.subset(ok)
+    args = (data["tip_mass_kg"], data.lengths_m)
+    solutions = [None] * len(data)
+    tip0, ok0, _, _ = predict_rows(params, data.base_rotation, data.tensions_n, *args, guesses=solutions,
+                                   sliding_state=data.sliding_state)
+    carried = np.zeros((len(data), 3))
+    for channel in range(data.tensions_n.shape[1]):
+        bumped = data.tensions_n.copy()
+        bumped[:, channel] += _TENSION_STEP_N
+        tip1, ok1, _, _ = predict_rows(params, data.base_rotation, bumped, *args, guesses=list(solutions),
+                                       sliding_state=data.sliding_state)
+        step = np.where((ok0 & ok1)[:, None], tip1 - tip0, 0.0)
+        carried += (step * sigma_l / _TENSION_STEP_N) ** 2
+    return carried.mean(axis=0)

@@ -126,9 +126,20 @@ def write_report(result: DiscrepancyResult, folder: str | Path) -> Path:
              f"![held-out tip error before and after]({paths['before_after'].relative_to(folder)})", "",
              "## Verdict", "", result.statement(), ""]
     if result.tied:
-        lines += ["### Tied candidates", "", markdown_table([
-            {"effect": c["effect"], "heldout_rms_mm": c["heldout_rms_m"] * 1e3, "score": c["score"],
-             "worse_than_best_sigma": c["worse_z"]} for c in result.candidates()])]
+        lines += ["### Tied candidates", ""]
+    if result.candidates():
+        lines += ["### Candidates (none of them named)" if not result.tied else "", markdown_table([
+            {"effect": c["effect"], "role": c["role"], "heldout_rms_mm": c["heldout_rms_m"] * 1e3, "score": c["score"],
+             "worse_than_best_sigma": c["worse_z"],
+             "fitted": "; ".join(f"{k} = {v['value']:.4g} ± {v['std_error']:.2g}" for k, v in c["parameters"].items()),
+             "told_apart_by": ", ".join(c["deciding_experiments"])} for c in result.candidates()])]
+    if result.separations():
+        from twin.discrepancy.decide import DESIGNS, MANUAL_EXPERIMENTS
+
+        lines += ["### What would tell them apart", "", markdown_table([
+            {"between": " / ".join(s["between"]), "experiment": name,
+             "what": DESIGNS[name].purpose if name in DESIGNS else MANUAL_EXPERIMENTS[name],
+             "run_by_device": name in s["runnable"]} for s in result.separations() for name in s["experiments"]])]
     if result.verdict == "unexplained":
         where = result.where()
         lines += ["### What remains (all rows, the fitted model)", "", markdown_table(where["by_axis"]),

@@ -23,6 +23,7 @@ from pathlib import Path
 from typing import Iterable
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from twin import effects
 from twin.data.dataset import Dataset, write_dataset
@@ -41,7 +42,8 @@ def synthetic_validation_dataset(folder: str | Path, nominal: Params, truth: Par
                                  grid: Iterable[tuple[int, float, float, float]] | None = None,
                                  repeats: int = 1, seed: int = 0, tracker_noise_m: float | None = None,
                                  loadcell_noise_n: float | None = None, base_rotation=HORIZONTAL,
-                                 tip_moment_nm=None) -> Dataset:
+                                 tip_moment_nm=None, tracker_rotation_deg=None,
+                                 precurvature_per_m=None, frames: int = 1) -> Dataset:
     """Write a validation dataset measured on the ``truth`` endoscope, labelled with ``nominal``.
 
     Args:
@@ -51,11 +53,20 @@ def synthetic_validation_dataset(folder: str | Path, nominal: Params, truth: Par
         grid: (config, κ 1/m, φ deg, tip mass kg) tuples; default the 216 of thesis §8.3.
         repeats: measurements per configuration (fresh pretension and noise each).
         seed: random seed of pretensions and noise.
-        tracker_noise_m: tracker noise per axis (m); default ``truth.sensors.tracker_noise_m``.
-        loadcell_noise_n: load-cell noise (N); default ``truth.sensors.loadcell_noise_n``.
+        tracker_noise_m: tracker noise per axis and frame (m); default ``truth.sensors.tracker_noise_m``.
+        loadcell_noise_n: load-cell noise per sample (N); default ``truth.sensors.loadcell_noise_n``.
+        frames: tracker frames (and load-cell samples) averaged into each row, as the rig's
+            measurement window does; with more than one, each row records them and its tip's
+            standard error (``tip_frames``, ``tip_sem_*_m``).
         base_rotation: nominal clamp orientation (3×3, body → world).
         tip_moment_nm: a constant moment at the tip (N·m, world frame), as a cable or a contact
             would put there: an effect no parameter of the model carries.
+        tracker_rotation_deg: the tracker's frame turned about the base origin by this rotation
+            vector (deg, world axes; e.g. (0, 0, 1): 1° about the vertical), as a registration
+            error would leave it: every measured position is R · p. No parameter carries it.
+        precurvature_per_m: the backbone's intrinsic curvature (body frame, 1/m, 3 components:
+            bending about the body x and y axes, twist), as a backbone set in a curve would have
+            (:attr:`twin.rod.RodModel.precurvature_per_m`). No parameter carries it.
 
     Returns:
         The dataset as read back. Configurations the true model cannot solve are left out (none
@@ -64,7 +75,12 @@ def synthetic_validation_dataset(folder: str | Path, nominal: Params, truth: Par
     rng = np.random.default_rng(seed)
     tracker_sigma = truth.sensors.tracker_noise_m if tracker_noise_m is None else tracker_noise_m
     loadcell_sigma = truth.sensors.loadcell_noise_n if loadcell_noise_n is None else loadcell_noise_n
-    predictor = Predictor(RodModel.from_params(truth))
+    model = RodModel.from_params(truth)
+    if precurvature_per_m is not None:
+        model = model.replace(precurvature_per_m=tuple(float(u) for u in precurvature_per_m))
+    predictor = Predictor(model)
+    registration = np.eye(3) if tracker_rotation_deg is None else \
+        Rotation.from_rotvec(np.radians(np.asarray(tracker_rotation_deg, dtype=float))).as_matrix()
     clamp = effects.clamp_rotation(truth, base_rotation)
     gain, offset = effects.loadcell_response(truth)
     count_m = truth.rig.tendon_m_per_count
@@ -85,11 +101,15 @@ def synthetic_validation_dataset(folder: str | Path, nominal: Params, truth: Par
             if not sol.converged:
                 predictor.reset()
                 continue
-            tip = effects.tracked_point_m(truth, sol.tip_position_m, sol.tip_rotation)
-            tip = tip + rng.normal(0.0, tracker_sigma, 3)
-            reported = gain * tensions + offset + rng.normal(0.0, loadcell_sigma, tensions.size)
+            tip = registration @ effects.tracked_point_m(truth, sol.tip_position_m, sol.tip_rotation)
+            seen = tip + rng.normal(0.0, tracker_sigma, (frames, 3))
+            tip = seen.mean(axis=0)
+            reported = gain * tensions + offset + rng.normal(0.0, loadcell_sigma, (frames, tensions.size)).mean(axis=0)
             row = {"config": repeat * stride + config, "repeat": repeat, "kappa_cmd_per_m": kappa,
                    "phi_cmd_deg": phi, "tip_mass_kg": mass, "tip_x_m": tip[0], "tip_y_m": tip[1], "tip_z_m": tip[2]}
+            if frames > 1:
+                sem = seen.std(axis=0, ddof=1) / np.sqrt(frames)
+                row.update({"tip_frames": frames, "tip_sem_x_m": sem[0], "tip_sem_y_m": sem[1], "tip_sem_z_m": sem[2]})
             for i in range(tensions.size):
                 row[f"tension_{i + 1}_n"] = reported[i]
                 row[f"length_{i + 1}_m"] = lengths[i]

@@ -580,7 +580,7 @@ def _stiffness(args, folder: Path, params) -> int:
     from twin.data.dataset import RUN_DATASET, read_dataset
     from twin.experiments.protocols import run_stiffness
     from twin.data.fitting import fit_determined
-    from twin.experiments.stiffness import MODULI, fit_stiffness, plot_error_surface
+    from twin.experiments.stiffness import MODULI, PIN_SHEAR, fit_stiffness, plot_error_surface
 
     device = _open(args, params)
     try:
@@ -591,14 +591,19 @@ def _stiffness(args, folder: Path, params) -> int:
     dataset = read_dataset(folder / RUN_DATASET)
     result = fit_stiffness(dataset, params)
     plot_error_surface(result, folder / "error_surface.png")
-    loose = set(result.fit.undetermined())
-    for i, row in enumerate(result.fit.table()):
-        note = "  UNDETERMINED by these data" if i in loose else ""
-        print(f"{row['parameter']:28s} {row['value']:.5g}  ± {row['std_error']:.2g}  "
-              f"(95%: {row['ci95_low']:.4g} … {row['ci95_high']:.4g}){note}")
+    # A modulus whose profile interval stays open is as undetermined as one the Jacobian gives up on.
+    loose = set(result.fit.undetermined()) | {i for i, p in enumerate(result.profile) if not p.identifiable}
+    for i, (row, interval) in enumerate(zip(result.fit.table(), result.profile)):
+        note = "  NOT IDENTIFIABLE from these data" if i in loose else ""
+        print(f"{row['parameter']:28s} {row['value']:.5g}  (95% profile: {interval.describe()}){note}")
     print(f"correlation E-G {result.fit.correlation[0, 1]:+.3f}; tip RMS {result.fit.rms_m * 1e3:.3f} mm")
+    if any(result.profile[i].parameter == "backbone.shear_modulus_pa" for i in loose):
+        print(f"twin stiffness: the sag under tip masses does not pin G; {PIN_SHEAR} would", file=sys.stderr)
     # What the data leave undetermined keeps its value in the parameter set, never a fitted one.
-    fit, dropped = fit_determined(dataset, params, MODULI) if loose else (result.fit, [])
+    fit, dropped = fit_determined(dataset, params, [p for i, p in enumerate(MODULI) if i not in loose]) \
+        if loose else (result.fit, [])
+    dropped += [(MODULI[i], float(result.fit.values[i]), float(result.fit.std_errors[i])) for i in sorted(loose)
+                if all(d[0] != MODULI[i] for d in dropped)]
     for p, value, std in dropped:
         print(f"twin stiffness: {p.label} is not determined by these data (fit {value:.4g} ± {std:.2g}); "
               f"the parameter file keeps {params.get(p.key)!r} ({params.source(p.key) or 'no source'})",

@@ -44,6 +44,8 @@ class Measurement:
         tip_quaternion: (4,) (w, x, y, z) of the mean tracker rotation.
         time_s: device time at the end of the window (s).
         frames: tracker frames averaged (rejected frames are left out).
+        tip_sem_m: (3,) standard error of ``tip_position_m`` per axis (m): the frames' scatter
+            over √frames (NaN from a single frame), the noise the row's tip carries.
     """
 
     tensions_n: np.ndarray
@@ -53,6 +55,7 @@ class Measurement:
     tip_quaternion: np.ndarray
     time_s: float
     frames: int
+    tip_sem_m: np.ndarray = dataclasses.field(default_factory=lambda: np.full(3, np.nan))
 
 
 def _check_state(telemetry) -> None:
@@ -88,6 +91,8 @@ def measure(device, *, duration_s: float = 0.25) -> Measurement:
         tip_quaternion=matrix_to_quat(rotation),
         time_s=samples[-1].time_s,
         frames=len(positions),
+        tip_sem_m=(np.std(positions, axis=0, ddof=1) / np.sqrt(len(positions)) if len(positions) > 1
+                   else np.full(3, np.nan)),
     )
 
 
@@ -386,7 +391,8 @@ def _row(config, kappa, phi, mass, m: Measurement, zero_lengths, repeat: int = 0
     row = {"config": config, "repeat": repeat, "kappa_cmd_per_m": kappa, "phi_cmd_deg": phi, "tip_mass_kg": mass,
            "tip_x_m": m.tip_position_m[0], "tip_y_m": m.tip_position_m[1], "tip_z_m": m.tip_position_m[2],
            "tip_qw": m.tip_quaternion[0], "tip_qx": m.tip_quaternion[1], "tip_qy": m.tip_quaternion[2],
-           "tip_qz": m.tip_quaternion[3], "time_s": m.time_s}
+           "tip_qz": m.tip_quaternion[3], "time_s": m.time_s, "tip_frames": m.frames,
+           "tip_sem_x_m": m.tip_sem_m[0], "tip_sem_y_m": m.tip_sem_m[1], "tip_sem_z_m": m.tip_sem_m[2]}
     for i in range(len(m.tensions_n)):
         row[f"tension_{i + 1}_n"] = m.tensions_n[i]
         row[f"length_{i + 1}_m"] = m.lengths_m[i] - zero_lengths[i]

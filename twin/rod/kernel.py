@@ -13,6 +13,9 @@ and the tendons enter only the constitutive law, in the body frame:
     Rᵀ n = K_se (v − v*) + Σ τ_i t_i          t_i = q_i / |q_i|,  q_i = u × r_i + r_i' + v
     Rᵀ m = K_bt (u − u*) + Σ τ_i r_i × t_i                            (R&W 2011, eqs. 9, 12)
 
+with v* = (0, 0, 1) and u* the rod's intrinsic (unloaded) curvature, constant along it (zero for
+a straight rod).
+
 which is solved for (v, u) by Newton at every stage (its Jacobian is R&W's
 [[K_se + A, G], [B, K_bt + H]] matrix). The free tip gives n(L) = F_e, m(L) = M_e because the
 tendon termination forces are internal too. Since f_e (weight) does not depend on the shape,
@@ -95,6 +98,7 @@ class RodInputs(NamedTuple):
         line_mass_kg_per_m: distributed mass of the rod.
         point_mass_s_m: arc lengths of the lumped masses (np,).
         point_mass_kg: the lumped masses (np,).
+        precurvature_per_m: the intrinsic curvature u* (body frame, 1/m) (3,).
     """
 
     base_position_m: np.ndarray
@@ -112,6 +116,7 @@ class RodInputs(NamedTuple):
     line_mass_kg_per_m: float
     point_mass_s_m: np.ndarray
     point_mass_kg: np.ndarray
+    precurvature_per_m: np.ndarray
 
 
 @njit(cache=True, inline="always")
@@ -278,7 +283,7 @@ def _internal_force(s, mid, length, tip_force, grav, line_mass, pm_s, pm_m, n):
 # The stage takes the fields it uses, not a RodInputs: it runs at every RK4 stage, and a
 # RodInputs argument would hand it all of its arrays each time.
 @njit(cache=True)
-def _stage(y, s, mid, converge, vu, kse, kbt, tendons, length, mu, tip_force, grav, line_mass, pm_s, pm_m,
+def _stage(y, s, mid, converge, vu, kse, kbt, ustar, tendons, length, mu, tip_force, grav, line_mass, pm_s, pm_m,
            trig, routes, taus, n, nb, mb, jac, rhs, w, dy):
     """dy/ds of the state at (y, s), with the strains vu (in: the warm start, out: the strains).
 
@@ -294,7 +299,8 @@ def _stage(y, s, mid, converge, vu, kse, kbt, tendons, length, mu, tip_force, gr
     # Body-frame n, m: Rᵀ n, Rᵀ m (R stored row-major at y[3:12]).
     for i in range(3):
         nb[i] = y[3 + i] * n[0] + y[6 + i] * n[1] + y[9 + i] * n[2]
-        mb[i] = y[3 + i] * y[12] + y[6 + i] * y[13] + y[9 + i] * y[14]
+        # K_bt u* moved to this side: the law then reads Rᵀ m + K_bt u* = K_bt u + ….
+        mb[i] = y[3 + i] * y[12] + y[6 + i] * y[13] + y[9 + i] * y[14] + kbt[i] * ustar[i]
     if routes[0, 5] != s or routes[0, 6] != mid:
         _routes(s, mid, tendons, length, trig, routes)
         routes[0, 5] = s
@@ -374,6 +380,7 @@ def integrate(m0, rod, states, strains):
     intervals = rod.intervals
     kse = rod.kse
     kbt = rod.kbt
+    ustar = rod.precurvature_per_m
     tendons = rod.tendons
     length = rod.length_m
     mu = rod.friction_coeff
@@ -421,13 +428,13 @@ def integrate(m0, rod, states, strains):
     states[0, :] = y
     nsteps = nodes.shape[0] - 1
     # The base: its strains are station 0's output and the first step's k1.
-    if not _stage(y, nodes[0], intervals[0], True, vu, kse, kbt, tendons, length, mu, tip_force, grav, line_mass,
+    if not _stage(y, nodes[0], intervals[0], True, vu, kse, kbt, ustar, tendons, length, mu, tip_force, grav, line_mass,
                   pm_s, pm_m, trig, routes, taus, vec[0], vec[1], vec[2], jac, rhs, w, k1):
         if not warm:
             return False, res
         vu[:] = 0.0
         vu[2] = 1.0
-        if not _stage(y, nodes[0], intervals[0], True, vu, kse, kbt, tendons, length, mu, tip_force, grav,
+        if not _stage(y, nodes[0], intervals[0], True, vu, kse, kbt, ustar, tendons, length, mu, tip_force, grav,
                       line_mass, pm_s, pm_m, trig, routes, taus, vec[0], vec[1], vec[2], jac, rhs, w, k1):
             return False, res
     strains[0, :] = vu
@@ -443,7 +450,7 @@ def integrate(m0, rod, states, strains):
         mid = intervals[k]
         if k > 0:
             fresh = mid != intervals[k - 1]
-            if not _stage(y, s, mid, fresh, vu, kse, kbt, tendons, length, mu, tip_force, grav, line_mass, pm_s,
+            if not _stage(y, s, mid, fresh, vu, kse, kbt, ustar, tendons, length, mu, tip_force, grav, line_mass, pm_s,
                           pm_m, trig, routes, taus, vec[0], vec[1], vec[2], jac, rhs, w, k1):
                 return False, res
             for i in range(6):
@@ -453,19 +460,19 @@ def integrate(m0, rod, states, strains):
             yt[i] = y[i] + 0.5 * h * k1[i]
         for i in range(6):
             vu[i] += 0.5 * h * slope[i]
-        if not _stage(yt, s + 0.5 * h, mid, False, vu, kse, kbt, tendons, length, mu, tip_force, grav, line_mass,
+        if not _stage(yt, s + 0.5 * h, mid, False, vu, kse, kbt, ustar, tendons, length, mu, tip_force, grav, line_mass,
                       pm_s, pm_m, trig, routes, taus, vec[0], vec[1], vec[2], jac, rhs, w, k2):
             return False, res
         for i in range(ny):
             yt[i] = y[i] + 0.5 * h * k2[i]
-        if not _stage(yt, s + 0.5 * h, mid, False, vu, kse, kbt, tendons, length, mu, tip_force, grav, line_mass,
+        if not _stage(yt, s + 0.5 * h, mid, False, vu, kse, kbt, ustar, tendons, length, mu, tip_force, grav, line_mass,
                       pm_s, pm_m, trig, routes, taus, vec[0], vec[1], vec[2], jac, rhs, w, k3):
             return False, res
         for i in range(ny):
             yt[i] = y[i] + h * k3[i]
         for i in range(6):
             vu[i] += 0.5 * h * slope[i]
-        if not _stage(yt, s + h, mid, False, vu, kse, kbt, tendons, length, mu, tip_force, grav, line_mass,
+        if not _stage(yt, s + h, mid, False, vu, kse, kbt, ustar, tendons, length, mu, tip_force, grav, line_mass,
                       pm_s, pm_m, trig, routes, taus, vec[0], vec[1], vec[2], jac, rhs, w, k4):
             return False, res
         finite = True

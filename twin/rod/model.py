@@ -53,6 +53,10 @@ class RodModel:
         tolerance: Newton stops when |m(L) − M_e| ≤ tolerance · EI / L (dimensionless).
         max_iterations: Newton iterations per continuation step.
         friction_coeff: capstan coefficient μ per radian of tendon wrap (0 = frictionless).
+        precurvature_per_m: intrinsic curvature u* of the unloaded rod, body frame (1/m; bending
+            about the body x and y axes, twist about z), constant along it; no parameter of the
+            parameter set carries it (a rod built straight), the discrepancy workflow's probes
+            and generators set it.
     """
 
     length_m: float
@@ -68,6 +72,7 @@ class RodModel:
     tolerance: float = 1e-9
     max_iterations: int = 30
     friction_coeff: float = 0.0
+    precurvature_per_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
 
     def __post_init__(self):
         for name in ("length_m", "shear_stiffness_n", "axial_stiffness_n", "bending_stiffness_nm2",
@@ -182,6 +187,7 @@ class RodModel:
             "pm_s": np.ascontiguousarray(pm[:, 0]),
             "pm_m": np.ascontiguousarray(pm[:, 1]),
             "grav": np.array([0.0, 0.0, -self.gravity_m_s2]),
+            "ustar": np.array(self.precurvature_per_m, dtype=float).reshape(3),
         }
 
     @property
