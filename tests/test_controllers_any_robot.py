@@ -62,8 +62,8 @@ def test_the_env_takes_its_ranges_from_the_robot():
     long = load_robot("long")  # 100 mm
     assert default_curvature_range_per_m(long) == pytest.approx((0.0, 12.0))
     assert default_curvature_range_per_m(load_robot("endoscope")) == pytest.approx((0.0, 20.0))
-    assert default_tension_range_n(long.replace({"rig.tension_limit_n": 30.0})) == pytest.approx((1.5, 25.0))
-    env = EndoscopeReachEnv(params=long.replace({"rig.tension_limit_n": 30.0}))
+    assert default_tension_range_n(long.replace({"rig.tension_limit_n": 30.0, "sensors.loadcell_capacity_n": 49.0})) == pytest.approx((1.5, 25.0))
+    env = EndoscopeReachEnv(params=long.replace({"rig.tension_limit_n": 30.0, "sensors.loadcell_capacity_n": 49.0}))
     assert env.tension_range_n == pytest.approx((1.5, 25.0))
     assert env.max_length_m == pytest.approx(default_max_length_m(long))
     with pytest.raises(ValueError, match="action_mode = 'pairs': the robot has 3 tendons"):

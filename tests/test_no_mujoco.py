@@ -33,6 +33,10 @@ HOST_WITHOUT_MUJOCO = textwrap.dedent("""
     from twin.device import codec as c, open_device
     from twin.tracking import CapCalibration, FusionSettings, ProbeFrame, ProbeReading, fuse_frame
 
+    from twin import load_params
+
+    # The board counts as the default robot's rig does (the host refuses one that counts otherwise).
+    M_PER_COUNT = load_params().rig.tendon_m_per_count
     master, slave = os.openpty()
     tty.setraw(slave)
 
@@ -45,7 +49,7 @@ HOST_WITHOUT_MUJOCO = textwrap.dedent("""
                 return
             for frame in decoder.feed(data):
                 if isinstance(frame.message, c.Hello):
-                    os.write(master, c.encode_frame(c.HelloReply(), seq=0))
+                    os.write(master, c.encode_frame(c.HelloReply(tendon_m_per_count=M_PER_COUNT), seq=0))
                 else:
                     # The host waits for a sample after the DISABLE it sends on connecting.
                     os.write(master, c.encode_frame(c.Ack(acked_seq=frame.seq, acked_type=frame.message.TYPE), seq=2)

@@ -40,7 +40,7 @@ TARGETS = {
     "force": ("twin.force.bench", "bench_force", {"estimate_s": ("<=", 5e-3), "worst_median_error_over_goal": ("<=", 1.0),
                                                   "coverage": (">=", 0.9), "converged_fraction": (">=", 1.0)}),
     # A friction twin's validation sweep at most twice the CPU time of a frictionless one.
-    "friction": ("twin.sim.bench", "bench_friction", {"cpu_ratio": ("<=", 2.0), "completed": ("==", True)}),
+    "friction": ("twin.experiments.bench", "bench_friction", {"cpu_ratio": ("<=", 2.0), "completed": ("==", True)}),
 }
 
 
