@@ -102,17 +102,16 @@ constexpr float kMaxLengthLeadM = 0.00025f;
 // on it), it must yield, and its 2.7 kg of reflected rotor lags a pull that rises at once: on the
 // twin, a tension step at 2 N with an 18 g tip load put 1.23× the limit on the held tendon.
 constexpr float kTensionRatePerS = 10.0f;
-// The tension loop's proportional term acts on the tension error through a first-order lag of
-// this time constant (s). The load a motor pulls against is soft while its tendon slides through
-// the disc holes (the rod: ~1 kN/m, behind 300 N·s/m of back-EMF, a tension pole near 3 rad/s)
-// and stiff while friction holds it (presliding: a few tens of kN/m against 2.7 kg of reflected
-// rotor, a resonance at 20-40 Hz, where the 80 Hz load cell and the 100 Hz loop lag by ~15 ms).
-// A proportional gain that tracks well on the soft load (the tuned 0.006 /N, ~0.9 of loop gain)
-// rings on the stiff one: on the twin at μ = 0.1-0.3 held tensions cycled at 10 Hz, 0.8-3.4 N peak to
-// peak, with the spool moving by the presliding ~30 µm. At 50 ms (20 rad/s) the lag leaves the
-// soft load's response as it was and takes the loop gain below 0.2 at the stiff one's resonance,
-// so that held tensions settle for μ up to 0.3 with the tuned gains.
-constexpr float kTensionProportionalLagS = 0.05f;
+// The tension loop's proportional term may act on the tension error through a first-order lag of
+// this time constant (s); 0 acts on the error itself. A held tendon that friction sticks is a
+// stiff load (presliding: tens of kN/m against 2.7 kg of reflected rotor, a 20-40 Hz resonance
+// behind the 80 Hz load cell), on which a gain tuned for the sliding, soft load can ring. Measured
+// on the twin (twin bench hold, μ = 0.3, tuned gains), with the twin's friction following the
+// spool travel through its lag: 0 holds the endoscope, the soft-G endoscope and the three-tendon
+// robot within 0.04 N peak to peak, while 50 ms let the endoscope ring at 0.13 N and moved a
+// noisy recording's tension steps 0.3 mm from their noiseless replay (a clean run then read as
+// an effect); the 100 mm robot rings at 0.6 N either way (0.06 N at 50 ms).
+constexpr float kTensionProportionalLagS = 0.0f;
 // Spool speeds are measured tick to tick (5 ms on the Teensy: 0.19 mm/s per encoder count), over
 // at least this (µs).
 constexpr uint32_t kSpeedWindowUs = 1000;

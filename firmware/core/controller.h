@@ -10,9 +10,9 @@
 // length_rate(), so a step is driven as a ramp, its speed fed forward: no spool is jerked, and
 // no tendon paid out so fast that it goes slack and snaps taut again when the rod moves. In
 // tension mode the references move at no more than tension_rate(): a motor's pull rises no
-// faster than the spool of the tendon it pulls against, held at its cap, can yield; and the
-// proportional term acts through a lag (kTensionProportionalLagS) that keeps a held tension from
-// ringing where friction in the disc holes stiffens the tendon's load.
+// faster than the spool of the tendon it pulls against, held at its cap, can yield; the
+// proportional term can act through a lag (kTensionProportionalLagS, off by default: config.h
+// says what it was measured to do).
 #pragma once
 
 #include <cstddef>

@@ -154,19 +154,12 @@ void tension_hold_settles_on_a_stiff_load() {
   const float ringing = stiff_load_ripple([&](float t) { return pid.step(tuned, -2.0f, -t, kControlPeriodS); },
                                           2.0f, &offset_n);
   CHECK(ringing > 0.5f);
-  // The controller's tension mode, entered from a stopped motor (duty 0, the tendon pulling the
-  // spool out at first), settles on its setpoint.
-  Controller c(1);
-  c.set_gains(Mode::kTension, tuned);
-  Measurements now{};
-  now.tensions_n[0] = 2.0f;
-  c.set_mode(Mode::kTension, now, 6.0f);
-  const float ripple = stiff_load_ripple([&](float t) {
-    now.tensions_n[0] = t;
-    float duty[1];
-    c.step(now, kControlPeriodS, duty);
-    return duty[0];
-  }, 2.0f, &offset_n);
+  // Its proportional term through a 50 ms lag settles on the setpoint.
+  Pid lagged;
+  lagged.reset(-2.0f);
+  const float ripple = stiff_load_ripple(
+      [&](float t) { return lagged.step(tuned, -2.0f, -t, kControlPeriodS, -tuned.output_limit, tuned.output_limit, 0.0f, 0.05f); }, 2.0f,
+      &offset_n);
   CHECK(ripple < 0.01f);
   CHECK_NEAR(offset_n, 0.0, 0.005);
 }
