@@ -112,6 +112,12 @@ class WrenchEstimate:
     estimate_time_s: float
     tip_position_m: np.ndarray
     tip_rotation: np.ndarray
+    # What the next estimate of a live stream starts from (``previous=``): the unknowns (force in N;
+    # moment over the rod's length, N), the predictor's solution and the linearisation at the estimate.
+    unknowns: np.ndarray | None = dataclasses.field(default=None, repr=False, compare=False)
+    solution: object = dataclasses.field(default=None, repr=False, compare=False)
+    jacobian: np.ndarray | None = dataclasses.field(default=None, repr=False, compare=False)
+    weight: np.ndarray | None = dataclasses.field(default=None, repr=False, compare=False)
 
     def to_dict(self) -> dict:
         """JSON-ready: NaN as null."""
@@ -174,7 +180,7 @@ def estimate_tip_wrench(params: Params, tensions_n, tip_position_m, tip_rotation
                         base_rotation=None, friction_direction=None, model: RodModel | None = None,
                         estimate_moment: bool = False, model_error_fraction: float = 0.02,
                         max_std_n: float = 0.01, max_std_nm: float = 0.0004, max_iterations: int = 40,
-                        tolerance_n: float = 1e-5) -> WrenchEstimate:
+                        tolerance_n: float = 1e-5, previous: WrenchEstimate | None = None) -> WrenchEstimate:
     """Estimate the tip wrench that makes the predictor meet the measured tip pose.
 
     Args:
@@ -194,6 +200,11 @@ def estimate_tip_wrench(params: Params, tensions_n, tip_position_m, tip_rotation
             not resolved to that) and 0.0004 N·m (that force at a 40 mm lever).
         max_iterations, tolerance_n: the iteration stops when a step is below ``tolerance_n`` (N;
             N·m for the moment, scaled by the rod's length).
+        previous: the last estimate of a live stream (same robot, options and measured rows): a warm
+            estimate starts from its load and shape and steps with its Jacobian (a chord
+            iteration: one predictor solve per step, none of the Jacobian's integrations), and
+            linearises afresh only once, at the new estimate, for the covariance and the next
+            estimate. Ignored when it does not fit (another option set, or it failed).
 
     Raises:
         ValueError: malformed input (names the argument and value).
@@ -224,6 +235,8 @@ def estimate_tip_wrench(params: Params, tensions_n, tip_position_m, tip_rotation
     # Moment columns are scaled by L so that all unknowns are in N (a moment M acts like a force M/L).
     length = model.length_m
     theta = np.zeros(nu)
+    warm = (previous is not None and previous.jacobian is not None and previous.solution is not None
+            and previous.jacobian.shape == (rows, nu) and previous.unknowns is not None)
     # Steps are held within a trust radius (0.2 N: the 0–0.3 N contact range in two steps; the
     # pose is far from linear in the force over it) and halved until the weighted residual falls.
     radius = 0.2
@@ -267,14 +280,29 @@ def estimate_tip_wrench(params: Params, tensions_n, tip_position_m, tip_rotation
     iterations = 0
     jac = weight = None
     chi2 = float("nan")
-    sol, residual = evaluate(theta, None)
+    if warm:
+        # Near the answer already: Gauss-Newton steps, damped only if one fails to decrease the cost.
+        damping = 1e-9
+        theta = previous.unknowns.copy()
+        sol, residual = evaluate(theta, previous.solution)
+        if sol is None:
+            warm, theta = False, np.zeros(nu)
+    if not warm:
+        sol, residual = evaluate(theta, None)
     solved = sol is not None
     for iterations in range(1, max_iterations + 1):
         if not solved:
             break
         # Nearby loads start from this shape and its shooting Jacobian (Broyden updates of it).
         guess = sol
-        jac, weight = linearise(sol)
+        if warm:
+            # The load moves little between two estimates at 40 Hz: the last Jacobian steps well
+            # enough. Its fixed point differs from the least-squares one by the Jacobian's change
+            # times the residual (second order in the motion); the fresh Jacobian below serves the
+            # covariance and the next estimate.
+            jac, weight = previous.jacobian, previous.weight
+        else:
+            jac, weight = linearise(sol)
         chi2 = float(residual @ weight @ residual)
         info = jac.T @ weight @ jac
         gradient = jac.T @ weight @ residual - prior * theta
@@ -282,6 +310,11 @@ def estimate_tip_wrench(params: Params, tensions_n, tip_position_m, tip_rotation
         # Levenberg-Marquardt, damped alike in every direction (scaled by the mean information):
         # that holds back the directions the pose barely sees until the seen ones have settled; the
         # weak prior keeps the unseen ones from wandering.
+        gauss_newton = np.linalg.solve(info + prior * np.eye(nu), gradient)
+        if np.max(np.abs(gauss_newton)) < tolerance_n:
+            # Already where the cost is least (to the tolerance): no solve to try the step.
+            converged = True
+            break
         for _ in range(10):
             step = np.linalg.solve(info + (prior + damping * np.trace(info) / nu) * np.eye(nu), gradient)
             size = float(np.linalg.norm(step))
@@ -345,4 +378,5 @@ def estimate_tip_wrench(params: Params, tensions_n, tip_position_m, tip_rotation
         unobservable_moment_directions=None if m_unobs is None else m_unobs.T, force_std_n=std,
         converged=converged, iterations=iterations, residual_chi2=chi2,
         consistent=bool(chi2 <= scipy.stats.chi2.ppf(0.999, rows - nu)) if rows > nu else None,
-        estimate_time_s=time.process_time() - start, tip_position_m=sol.tip_position_m, tip_rotation=sol.tip_rotation)
+        estimate_time_s=time.process_time() - start, tip_position_m=sol.tip_position_m, tip_rotation=sol.tip_rotation,
+        unknowns=theta.copy(), solution=sol, jacobian=jac, weight=weight)
