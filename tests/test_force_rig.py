@@ -18,6 +18,7 @@ def test_hidden_tip_loads_on_the_twin_are_estimated_from_the_devices_telemetry()
     (summary,) = rig_summary(rows)
     assert summary["median_error_over_goal"] <= 1.0
     assert summary["coverage"] >= 0.75  # 12 estimates: a looser bar than the 90 % goal over many
+    assert summary["converged"] == 1.0
     # The loads are seen: the error is far below the load itself.
     loaded = [r for r in rows if np.linalg.norm(r["true_force_n"]) > 0]
     assert max(r["error_n"] for r in loaded) < 0.02

@@ -199,7 +199,8 @@ def estimate_tip_wrench(params: Params, tensions_n, tip_position_m, tip_rotation
             defaults 0.01 N (a 1σ of 5 % of a mid-range 0.2 N contact force: a direction seen worse is
             not resolved to that) and 0.0004 N·m (that force at a 40 mm lever).
         max_iterations, tolerance_n: the iteration stops when a step is below ``tolerance_n`` (N;
-            N·m for the moment, scaled by the rod's length).
+            N·m for the moment, scaled by the rod's length) or below 0.01 of the estimate's
+            standard deviation along it.
         previous: the last estimate of a live stream (same robot, options and measured rows): a warm
             estimate starts from its load and shape and steps with its Jacobian (a chord
             iteration: one predictor solve per step, none of the Jacobian's integrations), and
@@ -276,6 +277,13 @@ def estimate_tip_wrench(params: Params, tensions_n, tip_position_m, tip_rotation
         cov_y = np.diag([sp**2] * 3 + [sr**2] * 3)[:rows, :rows] + st**2 * j_tau @ j_tau.T
         return jac, np.linalg.inv(cov_y)
 
+    def small(step, info):
+        # Below the tolerance, or below a hundredth of the estimate's own standard deviation along
+        # it: where a direction is seen only to several mN, the predictor's µm resolution moves
+        # its optimum by more than tolerance_n from one solve to the next, and steps there would
+        # never settle below it.
+        return bool(np.max(np.abs(step)) < tolerance_n or step @ (info + prior * np.eye(nu)) @ step < 1e-4)
+
     converged = False
     iterations = 0
     jac = weight = None
@@ -289,20 +297,22 @@ def estimate_tip_wrench(params: Params, tensions_n, tip_position_m, tip_rotation
             warm, theta = False, np.zeros(nu)
     if not warm:
         sol, residual = evaluate(theta, None)
+    linearised = None  # the solution ``jac`` and ``weight`` were computed at
     solved = sol is not None
     for iterations in range(1, max_iterations + 1):
         if not solved:
             break
         # Nearby loads start from this shape and its shooting Jacobian (Broyden updates of it).
         guess = sol
-        if warm:
-            # The load moves little between two estimates at 40 Hz: the last Jacobian steps well
-            # enough. Its fixed point differs from the least-squares one by the Jacobian's change
-            # times the residual (second order in the motion); the fresh Jacobian below serves the
-            # covariance and the next estimate.
+        if warm and iterations == 1:
+            # The load moves little between two estimates at 40 Hz: the last Jacobian takes the
+            # first step. Later steps linearise afresh: repeated steps with a stale Jacobian
+            # contract slowly where the pose is noisy (single tracker frames), and their fixed
+            # point is not the least-squares one.
             jac, weight = previous.jacobian, previous.weight
-        else:
+        elif linearised is not sol:
             jac, weight = linearise(sol)
+            linearised = sol
         chi2 = float(residual @ weight @ residual)
         info = jac.T @ weight @ jac
         gradient = jac.T @ weight @ residual - prior * theta
@@ -311,7 +321,7 @@ def estimate_tip_wrench(params: Params, tensions_n, tip_position_m, tip_rotation
         # that holds back the directions the pose barely sees until the seen ones have settled; the
         # weak prior keeps the unseen ones from wandering.
         gauss_newton = np.linalg.solve(info + prior * np.eye(nu), gradient)
-        if np.max(np.abs(gauss_newton)) < tolerance_n:
+        if small(gauss_newton, info):
             # Already where the cost is least (to the tolerance): no solve to try the step.
             converged = True
             break
@@ -330,15 +340,16 @@ def estimate_tip_wrench(params: Params, tensions_n, tip_position_m, tip_rotation
             damping *= 4.0
         else:
             # No decrease however short the step: the estimate is where the cost is least.
-            converged = bool(np.max(np.abs(step)) < tolerance_n * 10)
+            converged = bool(np.max(np.abs(step)) < tolerance_n * 10 or small(step / 10, info))
             break
         theta = theta + step
         sol, residual = trial_sol, trial_res
-        if np.max(np.abs(step)) < tolerance_n:
+        if small(step, info):
             converged = True
             break
     if solved:
-        jac, weight = linearise(sol)
+        if linearised is not sol:
+            jac, weight = linearise(sol)
         chi2 = float(residual @ weight @ residual)
     nan3 = np.full(3, np.nan)
     if not solved or jac is None:
