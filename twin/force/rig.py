@@ -11,7 +11,9 @@ from __future__ import annotations
 import numpy as np
 from scipy.stats import chi2
 
+from twin import effects
 from twin.control.pretension import pretension_straight
+from twin.effects.tendon_friction import SlidingState
 from twin.experiments.protocols import wait_for_rest
 from twin.force.estimator import estimate_tip_wrench
 from twin.pcc import tendon_length_changes_m
@@ -32,6 +34,8 @@ def rig_trials(device, params, forces_n, *, poses=RIG_POSES, frames: int = 8, mo
     ellipsoid covers the truth, converged, observable dimensions.
     """
     model = RodModel.from_params(params)
+    sliding = SlidingState(device.info.tendon_m_per_count)
+    sliding.follow(device.drain())
     rows = []
     for pose, kappa, phi in poses:
         phi = next(phi + 30.0 * k for k in range(12) if pcc_realisable(phi + 30.0 * k, params))
@@ -47,9 +51,14 @@ def rig_trials(device, params, forces_n, *, poses=RIG_POSES, frames: int = 8, mo
                 fused = device.tracker.read()
                 if not fused.ok:
                     continue
+                # With tendon friction the tension along a tendon depends on how it slides: the
+                # state its encoder's history gives (the dataset's record of it, the same way).
+                direction = effects.friction_direction(sample.tendon_lengths_m - zero,
+                                                       params.effects.tendon_friction_direction,
+                                                       sliding.follow(device.drain()))
                 est = estimate_tip_wrench(params, sample.tensions_n, fused.pose.position_m, fused.pose.rotation,
                                           base_rotation=device.base_rotation, model=model, previous=previous,
-                                          model_error_fraction=model_error_fraction)
+                                          model_error_fraction=model_error_fraction, friction_direction=direction)
                 previous = est if est.converged else None
                 unobs = est.unobservable_force_directions
                 seen = np.eye(3) - (unobs.T @ unobs if unobs.size else 0.0)
@@ -107,6 +116,8 @@ def contact_run(device, params, *, clean_s: float = 20.0, loads_n=(), load_hold_
     settle_s = device.fixture.settle_s
     device.fixture.settle_s = 0.0  # a load appears at once, as a contact does
     state = {"previous": None, "times": []}
+    sliding = SlidingState(device.info.tendon_m_per_count)
+    sliding.follow(device.drain())
     start = device.time_s
 
     def step():
@@ -117,8 +128,11 @@ def contact_run(device, params, *, clean_s: float = 20.0, loads_n=(), load_hold_
         fused = device.tracker.read()
         if not fused.ok:
             return None
+        direction = effects.friction_direction(sample.tendon_lengths_m - zero, params.effects.tendon_friction_direction,
+                                               sliding.follow(device.drain()))
         est = estimate_tip_wrench(params, sample.tensions_n, fused.pose.position_m, fused.pose.rotation,
-                                  base_rotation=device.base_rotation, model=model, previous=state["previous"])
+                                  base_rotation=device.base_rotation, model=model, previous=state["previous"],
+                                  friction_direction=direction)
         state["previous"] = est if est.converged else None
         state["times"].append(est.estimate_time_s)
         return detector.update(est)
