@@ -20,7 +20,7 @@ from twin.pcc import tendon_length_changes_m
 from twin.rod import RodModel
 from twin.rod.grid import pcc_realisable
 
-__all__ = ["RIG_POSES", "rig_trials", "rig_summary", "contact_run", "bench_contact"]
+__all__ = ["RIG_POSES", "rig_trials", "rig_summary", "bench_force_rig", "contact_run", "bench_contact"]
 
 # (name, curvature (1/m), bending plane (deg)): straight and bent (the thesis grid's middle curvature).
 RIG_POSES = (("straight", 0.0, 0.0), ("bent", 5.0, 0.0))
@@ -207,3 +207,32 @@ def bench_contact(params=None, *, clean_s: float = 600.0, loads: int = 20, min_l
             "latency_median_s": float(np.median(found)) if found.size else float("nan"),
             "smallest_load_n": float(np.linalg.norm(forces, axis=1).min()) if loads else float("nan"),
             "estimate_s": out["median_estimate_s"]}
+
+
+def bench_force_rig(params=None, *, loads: int = 8, frames: int = 5, max_load_n: float = 0.3, seed: int = 0) -> dict:
+    """The accuracy table on the rig-like path (:func:`rig_trials` on ``sim://``): no load and
+    ``loads`` random loads of up to ``max_load_n`` N, in the straight and bent poses, ``frames``
+    live estimates each.
+
+    Returns: the worst pose's median error over its goal (5 % + 2 mN), coverage over every
+    estimate, the converged fraction, the median CPU time of an estimate (s) and the per-pose table.
+    """
+    from tqdm import tqdm
+
+    from twin.device import open_device
+    from twin.params import load_params
+
+    params = params or load_params()
+    rng = np.random.default_rng(seed)
+    directions = rng.normal(size=(loads, 3))
+    forces = np.vstack([np.zeros(3), rng.uniform(0.0, max_load_n, (loads, 1)) * directions
+                        / np.linalg.norm(directions, axis=1, keepdims=True)])
+    with tqdm(total=len(forces) * len(RIG_POSES), desc="rig force trials", unit="load", leave=False) as bar, \
+            open_device(f"sim://?seed={seed}", params=params) as device:
+        rows = rig_trials(device, params, forces, frames=frames, progress=bar.update)
+    table = rig_summary(rows)
+    return {"worst_median_error_over_goal": max(r["median_error_over_goal"] for r in table),
+            "coverage": float(np.mean([r["covered"] for r in rows])),
+            "converged_fraction": float(np.mean([r["converged"] for r in rows])),
+            "estimate_s": float(np.median([r["estimate_time_s"] for r in rows])),
+            "table": [{k: (float(f"{v:.4g}") if isinstance(v, float) else v) for k, v in r.items()} for r in table]}
