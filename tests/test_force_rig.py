@@ -3,14 +3,16 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from twin.device import open_device
 from twin.force.rig import rig_summary, rig_trials
 from twin.params import load_params
 
 
-def test_hidden_tip_loads_on_the_twin_are_estimated_from_the_devices_telemetry():
-    params = load_params()
+@pytest.mark.parametrize("friction", [0.0, 0.3])
+def test_hidden_tip_loads_on_the_twin_are_estimated_from_the_devices_telemetry(friction):
+    params = load_params().replace({"effects.tendon_friction_coeff": friction}, source="test")
     forces = [[0.0, 0.0, 0.0], [0.0, 0.15, 0.0], [0.1, -0.05, -0.05]]
     with open_device("sim://?seed=1", params=params) as device:
         rows = rig_trials(device, params, forces, poses=(("bent", 5.0, 0.0),), frames=4)
