@@ -132,3 +132,22 @@ def test_position_alone_sees_the_sideways_force():
     seen = np.eye(3) - est.unobservable_force_directions.T @ est.unobservable_force_directions
     assert np.allclose(est.force_observable_n, seen @ force, atol=1e-3)
     assert np.linalg.norm(seen @ force) > 0.07
+
+
+def test_a_warm_estimate_follows_a_changing_load_as_the_cold_one_does():
+    params = load_robot("endoscope")
+    model = RodModel.from_params(params)
+    previous = None
+    for k, force in enumerate(([0.05, 0.1, 0.0], [0.06, 0.1, 0.01], [0.08, 0.09, 0.02])):
+        tensions = pose_tensions_n(params, 40.0 + 2.0 * k, 0.0)
+        sol = solve(model, tensions, tip_force_n=force, base_rotation=params.rig.base_rotation)
+        warm = estimate_tip_wrench(params, tensions, sol.tip_position_m, sol.tip_rotation, model=model,
+                                   previous=previous)
+        cold = estimate_tip_wrench(params, tensions, sol.tip_position_m, sol.tip_rotation, model=model)
+        assert warm.converged and cold.converged
+        assert np.allclose(warm.force_observable_n, cold.force_observable_n, atol=1e-4)
+        assert np.allclose(warm.force_observable_cov_n2, cold.force_observable_cov_n2, rtol=1e-2, atol=1e-9)
+        if previous is not None:
+            # Started at the last load with its Jacobian: fewer steps than from no load.
+            assert warm.iterations < cold.iterations
+        previous = warm

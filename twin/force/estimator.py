@@ -112,6 +112,12 @@ class WrenchEstimate:
     estimate_time_s: float
     tip_position_m: np.ndarray
     tip_rotation: np.ndarray
+    # What the next estimate of a live stream starts from (``previous=``): the unknowns (force in N;
+    # moment over the rod's length, N), the predictor's solution and the linearisation at the estimate.
+    unknowns: np.ndarray | None = dataclasses.field(default=None, repr=False, compare=False)
+    solution: object = dataclasses.field(default=None, repr=False, compare=False)
+    jacobian: np.ndarray | None = dataclasses.field(default=None, repr=False, compare=False)
+    weight: np.ndarray | None = dataclasses.field(default=None, repr=False, compare=False)
 
     def to_dict(self) -> dict:
         """JSON-ready: NaN as null."""
@@ -174,7 +180,7 @@ def estimate_tip_wrench(params: Params, tensions_n, tip_position_m, tip_rotation
                         base_rotation=None, friction_direction=None, model: RodModel | None = None,
                         estimate_moment: bool = False, model_error_fraction: float = 0.02,
                         max_std_n: float = 0.01, max_std_nm: float = 0.0004, max_iterations: int = 40,
-                        tolerance_n: float = 1e-5) -> WrenchEstimate:
+                        tolerance_n: float = 1e-5, previous: WrenchEstimate | None = None) -> WrenchEstimate:
     """Estimate the tip wrench that makes the predictor meet the measured tip pose.
 
     Args:
@@ -193,7 +199,13 @@ def estimate_tip_wrench(params: Params, tensions_n, tip_position_m, tip_rotation
             defaults 0.01 N (a 1σ of 5 % of a mid-range 0.2 N contact force: a direction seen worse is
             not resolved to that) and 0.0004 N·m (that force at a 40 mm lever).
         max_iterations, tolerance_n: the iteration stops when a step is below ``tolerance_n`` (N;
-            N·m for the moment, scaled by the rod's length).
+            N·m for the moment, scaled by the rod's length) or below 0.01 of the estimate's
+            standard deviation along it.
+        previous: the last estimate of a live stream (same robot, options and measured rows): a warm
+            estimate starts from its load and shape and steps with its Jacobian (a chord
+            iteration: one predictor solve per step, none of the Jacobian's integrations), and
+            linearises afresh only once, at the new estimate, for the covariance and the next
+            estimate. Ignored when it does not fit (another option set, or it failed).
 
     Raises:
         ValueError: malformed input (names the argument and value).
@@ -224,6 +236,8 @@ def estimate_tip_wrench(params: Params, tensions_n, tip_position_m, tip_rotation
     # Moment columns are scaled by L so that all unknowns are in N (a moment M acts like a force M/L).
     length = model.length_m
     theta = np.zeros(nu)
+    warm = (previous is not None and previous.jacobian is not None and previous.solution is not None
+            and previous.jacobian.shape == (rows, nu) and previous.unknowns is not None)
     # Steps are held within a trust radius (0.2 N: the 0–0.3 N contact range in two steps; the
     # pose is far from linear in the force over it) and halved until the weighted residual falls.
     radius = 0.2
@@ -263,18 +277,42 @@ def estimate_tip_wrench(params: Params, tensions_n, tip_position_m, tip_rotation
         cov_y = np.diag([sp**2] * 3 + [sr**2] * 3)[:rows, :rows] + st**2 * j_tau @ j_tau.T
         return jac, np.linalg.inv(cov_y)
 
+    def small(step, info):
+        # Below the tolerance, or below a hundredth of the estimate's own standard deviation along
+        # it: where a direction is seen only to several mN, the predictor's µm resolution moves
+        # its optimum by more than tolerance_n from one solve to the next, and steps there would
+        # never settle below it.
+        return bool(np.max(np.abs(step)) < tolerance_n or step @ (info + prior * np.eye(nu)) @ step < 1e-4)
+
     converged = False
     iterations = 0
     jac = weight = None
     chi2 = float("nan")
-    sol, residual = evaluate(theta, None)
+    if warm:
+        # Near the answer already: Gauss-Newton steps, damped only if one fails to decrease the cost.
+        damping = 1e-9
+        theta = previous.unknowns.copy()
+        sol, residual = evaluate(theta, previous.solution)
+        if sol is None:
+            warm, theta = False, np.zeros(nu)
+    if not warm:
+        sol, residual = evaluate(theta, None)
+    linearised = None  # the solution ``jac`` and ``weight`` were computed at
     solved = sol is not None
     for iterations in range(1, max_iterations + 1):
         if not solved:
             break
         # Nearby loads start from this shape and its shooting Jacobian (Broyden updates of it).
         guess = sol
-        jac, weight = linearise(sol)
+        if warm and iterations == 1:
+            # The load moves little between two estimates at 40 Hz: the last Jacobian takes the
+            # first step. Later steps linearise afresh: repeated steps with a stale Jacobian
+            # contract slowly where the pose is noisy (single tracker frames), and their fixed
+            # point is not the least-squares one.
+            jac, weight = previous.jacobian, previous.weight
+        elif linearised is not sol:
+            jac, weight = linearise(sol)
+            linearised = sol
         chi2 = float(residual @ weight @ residual)
         info = jac.T @ weight @ jac
         gradient = jac.T @ weight @ residual - prior * theta
@@ -282,6 +320,11 @@ def estimate_tip_wrench(params: Params, tensions_n, tip_position_m, tip_rotation
         # Levenberg-Marquardt, damped alike in every direction (scaled by the mean information):
         # that holds back the directions the pose barely sees until the seen ones have settled; the
         # weak prior keeps the unseen ones from wandering.
+        gauss_newton = np.linalg.solve(info + prior * np.eye(nu), gradient)
+        if small(gauss_newton, info):
+            # Already where the cost is least (to the tolerance): no solve to try the step.
+            converged = True
+            break
         for _ in range(10):
             step = np.linalg.solve(info + (prior + damping * np.trace(info) / nu) * np.eye(nu), gradient)
             size = float(np.linalg.norm(step))
@@ -297,15 +340,16 @@ def estimate_tip_wrench(params: Params, tensions_n, tip_position_m, tip_rotation
             damping *= 4.0
         else:
             # No decrease however short the step: the estimate is where the cost is least.
-            converged = bool(np.max(np.abs(step)) < tolerance_n * 10)
+            converged = bool(np.max(np.abs(step)) < tolerance_n * 10 or small(step / 10, info))
             break
         theta = theta + step
         sol, residual = trial_sol, trial_res
-        if np.max(np.abs(step)) < tolerance_n:
+        if small(step, info):
             converged = True
             break
     if solved:
-        jac, weight = linearise(sol)
+        if linearised is not sol:
+            jac, weight = linearise(sol)
         chi2 = float(residual @ weight @ residual)
     nan3 = np.full(3, np.nan)
     if not solved or jac is None:
@@ -345,4 +389,5 @@ def estimate_tip_wrench(params: Params, tensions_n, tip_position_m, tip_rotation
         unobservable_moment_directions=None if m_unobs is None else m_unobs.T, force_std_n=std,
         converged=converged, iterations=iterations, residual_chi2=chi2,
         consistent=bool(chi2 <= scipy.stats.chi2.ppf(0.999, rows - nu)) if rows > nu else None,
-        estimate_time_s=time.process_time() - start, tip_position_m=sol.tip_position_m, tip_rotation=sol.tip_rotation)
+        estimate_time_s=time.process_time() - start, tip_position_m=sol.tip_position_m, tip_rotation=sol.tip_rotation,
+        unknowns=theta.copy(), solution=sol, jacobian=jac, weight=weight)
