@@ -63,6 +63,27 @@ def test_a_correction_removes_a_load_error_the_feedforward_did_not_know():
     assert np.all(first.tensions_n >= 0.3) and np.all(first.tensions_n <= 5.0)
 
 
+def test_a_correction_in_the_measured_sliding_state_lands_where_the_friction_model_says():
+    # The "device" is a predictor with tendon friction whose loop left two tendons paid out (σ = −1)
+    # where the plan assumed every tendon pulled: told σ, the correction takes that for no model error.
+    model = RodModel.from_params(PARAMS.replace({"effects.tendon_friction_coeff": 0.3}))
+    bounds = dict(base_rotation=HORIZONTAL, floor_n=0.3, limit_n=5.0)
+    plan = hold_tensions(model, [2.0, 1.35, 1.0, 1.35], WEIGHT_10G, **bounds)
+    flipped = np.array([1.0, -1.0, -1.0, 1.0])
+
+    def miss(tensions):
+        return solve(model, tensions, tip_force_n=WEIGHT_10G, base_rotation=HORIZONTAL,
+                     friction_direction=flipped).tip_position_m - plan.target_m
+
+    told = correct_tensions(model, plan, plan.target_m, miss(plan.tensions_n), tip_force_n=WEIGHT_10G,
+                            friction_direction=flipped, **bounds)
+    blind = correct_tensions(model, plan, plan.target_m, miss(plan.tensions_n), tip_force_n=WEIGHT_10G, **bounds)
+    assert np.linalg.norm(miss(plan.tensions_n)) > 2e-3
+    # Told σ, the device misses by just what the predictor expects (its pull towards the applied tensions).
+    assert abs(np.linalg.norm(miss(told.tensions_n)) - told.residual_m) < 1e-6
+    assert np.linalg.norm(miss(told.tensions_n)) < 0.5 * np.linalg.norm(miss(blind.tensions_n))
+
+
 def test_a_miss_the_predictor_expected_is_not_corrected():
     # Out of reach within the bounds: the tracker seeing exactly the predicted miss is no model error.
     goal = solve(MODEL, [0.0, 0.0, 3.0, 0.0], base_rotation=HORIZONTAL).tip_position_m

@@ -43,6 +43,7 @@ from twin.control.compensation import correct_tensions, hold_tensions
 from twin.control.pretension import pretension_straight
 from twin.control.gains import tension_gains_for
 from twin.device import CommandRejected
+from twin.effects import SlidingState, friction_direction
 from twin.experiments.protocols import ProtocolError, measure, wait_for_rest
 from twin.experiments.report import markdown_table
 from twin.params import Params
@@ -372,6 +373,9 @@ def run_compensation_trial(device, params: Params, *, configs: Sequence[tuple[fl
                          f"e.g. κ {first['kappa_per_m']:g} 1/m φ {first['phi_deg']:g}° {first['reason']}")
     steps = max(1, round(ramp_s * params.rig.telemetry_rate_hz))
     rows = []
+    # Each tendon's friction sliding state, followed from the encoders over the whole trial: a
+    # model with friction predicts every static shape in the state it was reached in.
+    sliding = _Sliding(device, params)
     for kappa, phi in configs:
         fault = ""
         try:
@@ -382,6 +386,7 @@ def run_compensation_trial(device, params: Params, *, configs: Sequence[tuple[fl
             device.set_lengths(pcc_lengths)
             _wait_for_tip_rest(device, settle_timeout_s)
             unloaded = measure(device, duration_s=target_measure_s)
+            unloaded_sigma = sliding.direction()
         except (ProtocolError, CommandRejected) as exc:
             # The target itself could not be set: every mass of the configuration is a faulted row.
             fault = f"no target: {str(exc).split(';')[0]}"
@@ -389,7 +394,7 @@ def run_compensation_trial(device, params: Params, *, configs: Sequence[tuple[fl
         first_row = len(rows)
         for mass in masses_kg:
             load = GRAVITY_TIP_FORCE_N(mass, g)
-            plan = hold_tensions(model, unloaded.tensions_n, load, **bounds) if unloaded is not None else None
+            plan = sliding.plan(model, unloaded.tensions_n, unloaded_sigma, load, bounds) if unloaded is not None else None
             sag = _predicted_sag_m(model, unloaded.tensions_n, load, bounds["base_rotation"]) if plan else 0.0
             if plan is not None and plan.residual_m > _REACH_SHARE * sag:
                 # At best the row would end above half its uncompensated error: out of reach, not run.
@@ -408,7 +413,7 @@ def run_compensation_trial(device, params: Params, *, configs: Sequence[tuple[fl
             if fault:
                 continue
             try:
-                _run_mass(device, row, model, plan, unloaded.tip_position_m, mass, load, pcc_lengths, bounds,
+                _run_mass(device, row, model, plan, unloaded.tip_position_m, mass, load, pcc_lengths, bounds, sliding,
                           steps=steps, corrections=corrections, correction_tolerance_m=correction_tolerance_m,
                           rest_s=rest_s, correction_rest_s=correction_rest_s, measure_s=measure_s,
                           settle_timeout_s=settle_timeout_s)
@@ -440,7 +445,36 @@ def _predicted_sag_m(model: RodModel, tensions_n, load, base_rotation) -> float:
                                 - free))
 
 
-def _run_mass(device, row: dict, model: RodModel, plan, target, mass: float, load, pcc_lengths, bounds: dict, *,
+class _Sliding:
+    """The trial's record of each tendon's friction sliding state (:class:`twin.effects.SlidingState`),
+    and the plans made in it. Without friction in the model σ changes no prediction: nothing is followed."""
+
+    def __init__(self, device, params: Params):
+        self.device, self.sense = device, params.effects.tendon_friction_coeff and params.effects.tendon_friction_direction
+        self.state = SlidingState(device.info.tendon_m_per_count) if self.sense else None
+        self.direction()
+
+    def direction(self):
+        """σ per tendon as the encoders left it (times the model's sliding sense), or None without friction."""
+        if self.state is None:
+            return None
+        sigma = self.state.follow(self.device.drain())
+        return None if sigma is None else friction_direction(np.zeros_like(sigma), self.sense, sigma)
+
+    def plan(self, model: RodModel, unloaded_n, unloaded_sigma, load, bounds: dict):
+        """:func:`hold_tensions` of the unloaded tensions (measured in ``unloaded_sigma``) under
+        ``load``. With friction the plan is made again in the state the tension ramp will leave:
+        a tendon whose tension rises is pulled in (σ = +1), one whose tension falls paid out (−1)."""
+        plan = hold_tensions(model, unloaded_n, load, unloaded_friction_direction=unloaded_sigma, **bounds)
+        if self.state is None:
+            return plan
+        ramp_sigma = self.sense * np.where(plan.tensions_n >= np.maximum(unloaded_n, 0.0), 1.0, -1.0)
+        return hold_tensions(model, unloaded_n, load, unloaded_friction_direction=unloaded_sigma,
+                             friction_direction=ramp_sigma, **bounds)
+
+
+def _run_mass(device, row: dict, model: RodModel, plan, target, mass: float, load, pcc_lengths, bounds: dict,
+              sliding: _Sliding, *,
               steps: int, corrections: int, correction_tolerance_m: float, rest_s: float,
               correction_rest_s: float, measure_s: float, settle_timeout_s: float) -> None:
     """One tip mass of a configuration, from length mode at the PCC lengths back to it; fills ``row``."""
@@ -463,7 +497,8 @@ def _run_mass(device, row: dict, model: RodModel, plan, target, mass: float, loa
         # no model error: a correction would not change it, so it does not count.
         if np.linalg.norm(miss - (applied.predicted_tip_m - plan.target_m)) <= correction_tolerance_m:
             break
-        corrected = correct_tensions(model, applied, plan.target_m, miss, tip_force_n=load, **bounds)
+        corrected = correct_tensions(model, applied, plan.target_m, miss, tip_force_n=load,
+                                     friction_direction=sliding.direction(), **bounds)
         _ramp_tensions(device, applied.tensions_n, corrected.tensions_n, steps)
         applied = corrected
         miss = _rest_and_measure(device, target, correction_rest_s, measure_s, settle_timeout_s)
