@@ -47,7 +47,7 @@ from twin.effects import SlidingState, friction_direction
 from twin.experiments.protocols import ProtocolError, measure, wait_for_rest
 from twin.experiments.report import markdown_table
 from twin.params import Params
-from twin.pcc import GRID_KAPPA_PER_M, GRID_PHI_DEG, tendon_length_changes_m
+from twin.pcc import GRID_KAPPA_PER_M, GRID_PHI_DEG, tendon_length_changes_m, validation_grid
 from twin.rod import RodModel, solve
 from twin.rod.grid import GRAVITY_TIP_FORCE_N, pcc_realisable, pcc_tensions_n
 
@@ -261,14 +261,16 @@ def compensation_grid(params: Params, limit_n: float, masses_kg: Sequence[float]
                       quick: bool = False) -> list[tuple[float, float]]:
     """The (κ 1/m, φ deg) configurations of the trial for the robot of ``params``.
 
-    The thesis's grid without κ = 0 (60 bends; :data:`QUICK_CONFIGS` for ``quick``) when the
+    The validation grid without κ = 0 (:func:`twin.pcc.validation_grid`: the thesis's bend
+    angles at the robot's length; 60 bends, :data:`QUICK_CONFIGS` for ``quick``) when the
     ceiling can bend the robot over all of it: the PCC pulls (:func:`twin.rod.grid.pcc_tensions_n`)
     grow by EI/r per 1/m in the hardest plane, so the ceiling above the pretension bends it up
     to (ceiling − pretension) r / EI — 32 1/m for the thesis endoscope at 5.1 N (its hardest
     rows then use the ceiling under 10 g, partly out of reach). A robot it cannot bend that far
     gets the grid's curvatures scaled so that the top one leaves the heaviest mass's pull,
-    m g L / r, under the ceiling: a 150 mm, 1.2 mm nitinol rod (EI 5.9e-3 N·m², r 2.5 mm) at
-    25.6 N gets κ up to 6.5 1/m.
+    m g L / r, under the ceiling. A 150 mm, 1.2 mm nitinol rod (EI 5.9e-3 N·m², r 2.5 mm) at
+    25.6 N keeps its validation grid, κ up to 10.5 1/m (90° of bend); its heaviest rows are
+    checked mass by mass as the endoscope's are.
 
     Args:
         params: the robot's parameter set.
@@ -276,10 +278,14 @@ def compensation_grid(params: Params, limit_n: float, masses_kg: Sequence[float]
         masses_kg: the tip masses of the trial (kg).
         quick: the six configurations of :data:`QUICK_CONFIGS` instead of the 60.
     """
-    configs = list(QUICK_CONFIGS) if quick else [(k, p) for k in GRID_KAPPA_PER_M if k > 0 for p in GRID_PHI_DEG]
+    # The validation grid's curvatures for this robot's length (thesis bend angles κ·L), the
+    # quick configurations mapped onto them by their place in the thesis's grid.
+    kappas = dict(zip(GRID_KAPPA_PER_M, sorted({row[1] for row in validation_grid(params)})))
+    configs = ([(kappas[k], p) for k, p in QUICK_CONFIGS] if quick
+               else [(kappas[k], p) for k in GRID_KAPPA_PER_M if k > 0 for p in GRID_PHI_DEG])
     pulls = [np.max(pcc_tensions_n(1.0, phi, params, pretension_n=0.0))
              for phi in GRID_PHI_DEG if pcc_realisable(phi, params)]
-    top = max(GRID_KAPPA_PER_M)
+    top = max(kappas.values())
     if not pulls or (limit_n - params.tendons.pretension_n) / max(pulls) >= top:
         return configs
     load_n = max(masses_kg) * params.environment.gravity_m_s2 * params.backbone.length_m / params.tendons.radius_m
@@ -452,6 +458,8 @@ class _Sliding:
     def __init__(self, device, params: Params):
         self.device, self.sense = device, params.effects.tendon_friction_coeff and params.effects.tendon_friction_direction
         self.state = SlidingState(device.info.tendon_m_per_count) if self.sense else None
+        # The state the last plan was made in; corrections keep it (see :meth:`plan`).
+        self.planned = None
         self.direction()
 
     def direction(self):
@@ -464,13 +472,17 @@ class _Sliding:
     def plan(self, model: RodModel, unloaded_n, unloaded_sigma, load, bounds: dict):
         """:func:`hold_tensions` of the unloaded tensions (measured in ``unloaded_sigma``) under
         ``load``. With friction the plan is made again in the state the tension ramp will leave:
-        a tendon whose tension rises is pulled in (σ = +1), one whose tension falls paid out (−1)."""
+        a tendon whose tension rises is pulled in (σ = +1), one whose tension falls paid out (−1).
+        The corrections re-aim in that same state, not in the one measured at the miss: a
+        correction's move of a few tenths of a newton flips σ again over the presliding travel
+        (20 µm), so re-aiming in the measured state made the endoscope's corrected median at
+        μ = 0.3 worse (79.7 % against 87.8 % without; the plan's state alone: feed-forward 44 → 60 %)."""
         plan = hold_tensions(model, unloaded_n, load, unloaded_friction_direction=unloaded_sigma, **bounds)
         if self.state is None:
             return plan
-        ramp_sigma = self.sense * np.where(plan.tensions_n >= np.maximum(unloaded_n, 0.0), 1.0, -1.0)
+        self.planned = self.sense * np.where(plan.tensions_n >= np.maximum(unloaded_n, 0.0), 1.0, -1.0)
         return hold_tensions(model, unloaded_n, load, unloaded_friction_direction=unloaded_sigma,
-                             friction_direction=ramp_sigma, **bounds)
+                             friction_direction=self.planned, **bounds)
 
 
 def _run_mass(device, row: dict, model: RodModel, plan, target, mass: float, load, pcc_lengths, bounds: dict,
@@ -498,7 +510,7 @@ def _run_mass(device, row: dict, model: RodModel, plan, target, mass: float, loa
         if np.linalg.norm(miss - (applied.predicted_tip_m - plan.target_m)) <= correction_tolerance_m:
             break
         corrected = correct_tensions(model, applied, plan.target_m, miss, tip_force_n=load,
-                                     friction_direction=sliding.direction(), **bounds)
+                                     friction_direction=sliding.planned, **bounds)
         _ramp_tensions(device, applied.tensions_n, corrected.tensions_n, steps)
         applied = corrected
         miss = _rest_and_measure(device, target, correction_rest_s, measure_s, settle_timeout_s)
