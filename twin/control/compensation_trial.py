@@ -419,7 +419,7 @@ def run_compensation_trial(device, params: Params, *, configs: Sequence[tuple[fl
             if fault:
                 continue
             try:
-                _run_mass(device, row, model, plan, unloaded.tip_position_m, mass, load, pcc_lengths, bounds, sliding,
+                _run_mass(device, row, model, plan, unloaded.tip_position_m, mass, load, pcc_lengths, bounds,
                           steps=steps, corrections=corrections, correction_tolerance_m=correction_tolerance_m,
                           rest_s=rest_s, correction_rest_s=correction_rest_s, measure_s=measure_s,
                           settle_timeout_s=settle_timeout_s)
@@ -453,13 +453,11 @@ def _predicted_sag_m(model: RodModel, tensions_n, load, base_rotation) -> float:
 
 class _Sliding:
     """The trial's record of each tendon's friction sliding state (:class:`twin.effects.SlidingState`),
-    and the plans made in it. Without friction in the model σ changes no prediction: nothing is followed."""
+    followed from the encoders. Without friction in the model σ changes no prediction: nothing is followed."""
 
     def __init__(self, device, params: Params):
         self.device, self.sense = device, params.effects.tendon_friction_coeff and params.effects.tendon_friction_direction
         self.state = SlidingState(device.info.tendon_m_per_count) if self.sense else None
-        # The state the last plan was made in; corrections keep it (see :meth:`plan`).
-        self.planned = None
         self.direction()
 
     def direction(self):
@@ -470,23 +468,19 @@ class _Sliding:
         return None if sigma is None else friction_direction(np.zeros_like(sigma), self.sense, sigma)
 
     def plan(self, model: RodModel, unloaded_n, unloaded_sigma, load, bounds: dict):
-        """:func:`hold_tensions` of the unloaded tensions (measured in ``unloaded_sigma``) under
-        ``load``. With friction the plan is made again in the state the tension ramp will leave:
-        a tendon whose tension rises is pulled in (σ = +1), one whose tension falls paid out (−1).
-        The corrections re-aim in that same state, not in the one measured at the miss: a
-        correction's move of a few tenths of a newton flips σ again over the presliding travel
-        (20 µm), so re-aiming in the measured state made the endoscope's corrected median at
-        μ = 0.3 worse (79.7 % against 87.8 % without; the plan's state alone: feed-forward 44 → 60 %)."""
-        plan = hold_tensions(model, unloaded_n, load, unloaded_friction_direction=unloaded_sigma, **bounds)
-        if self.state is None:
-            return plan
-        self.planned = self.sense * np.where(plan.tensions_n >= np.maximum(unloaded_n, 0.0), 1.0, -1.0)
-        return hold_tensions(model, unloaded_n, load, unloaded_friction_direction=unloaded_sigma,
-                             friction_direction=self.planned, **bounds)
+        """:func:`hold_tensions` of the unloaded tensions, its target predicted in the state
+        they were measured in (``unloaded_sigma``). The loaded tensions are planned, and
+        corrected, with every tendon pulled (the predictor's default): planning them in the state
+        the tension ramp would leave (σ = +1 where a tension rises, −1 where it falls) took the
+        endoscope's feed-forward at μ = 0.3 from 44 % to 61 % median reduction but its corrected
+        median from 87.8 % to 77.9 % (the corrections' own moves flip σ again over the 20 µm of
+        presliding travel), and re-aiming each correction in the state measured at the miss
+        gave 79.7 %. With the target alone in the measured state: 92.8 % (one run each; the
+        runs scatter by several points)."""
+        return hold_tensions(model, unloaded_n, load, unloaded_friction_direction=unloaded_sigma, **bounds)
 
 
-def _run_mass(device, row: dict, model: RodModel, plan, target, mass: float, load, pcc_lengths, bounds: dict,
-              sliding: _Sliding, *,
+def _run_mass(device, row: dict, model: RodModel, plan, target, mass: float, load, pcc_lengths, bounds: dict, *,
               steps: int, corrections: int, correction_tolerance_m: float, rest_s: float,
               correction_rest_s: float, measure_s: float, settle_timeout_s: float) -> None:
     """One tip mass of a configuration, from length mode at the PCC lengths back to it; fills ``row``."""
@@ -509,8 +503,7 @@ def _run_mass(device, row: dict, model: RodModel, plan, target, mass: float, loa
         # no model error: a correction would not change it, so it does not count.
         if np.linalg.norm(miss - (applied.predicted_tip_m - plan.target_m)) <= correction_tolerance_m:
             break
-        corrected = correct_tensions(model, applied, plan.target_m, miss, tip_force_n=load,
-                                     friction_direction=sliding.planned, **bounds)
+        corrected = correct_tensions(model, applied, plan.target_m, miss, tip_force_n=load, **bounds)
         _ramp_tensions(device, applied.tensions_n, corrected.tensions_n, steps)
         applied = corrected
         miss = _rest_and_measure(device, target, correction_rest_s, measure_s, settle_timeout_s)
