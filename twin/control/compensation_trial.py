@@ -475,8 +475,8 @@ class _Sliding:
         endoscope's feed-forward at μ = 0.3 from 44 % to 61 % median reduction but its corrected
         median from 87.8 % to 77.9 % (the corrections' own moves flip σ again over the 20 µm of
         presliding travel), and re-aiming each correction in the state measured at the miss
-        gave 79.7 %. With the target alone in the measured state: 92.8 % (one run each; the
-        runs scatter by several points)."""
+        gave 79.7 %. With the target alone in the measured state: 92.8 % (one run each on
+        ``sim://?seed=0``, the quick grid)."""
         return hold_tensions(model, unloaded_n, load, unloaded_friction_direction=unloaded_sigma, **bounds)
 
 
