@@ -64,7 +64,8 @@ class Compensation:
 
 def compensate_tensions(model: RodModel, target_m, *, tip_force_n=None, tip_moment_nm=None, base_rotation=None,
                         reference_tensions_n=None, floor_n: float = 0.3, limit_n: float = 5.0,
-                        regularisation: float = 0.03, tolerance_m: float = 1e-4) -> Compensation:
+                        regularisation: float = 0.03, tolerance_m: float = 1e-4,
+                        friction_direction=None) -> Compensation:
     """Tendon tensions that put the predicted tip at ``target_m`` under the given tip load.
 
     Args:
@@ -78,6 +79,8 @@ def compensate_tensions(model: RodModel, target_m, *, tip_force_n=None, tip_mome
         limit_n: highest tension (N): keep it under the board's tension limit.
         regularisation: λ, weight of ‖τ − τ_ref‖ (per N) against the tip error (per mm).
         tolerance_m: residual up to which the target counts as reached (m).
+        friction_direction: (nt,) each tendon's friction sliding state σ (+1 pulled … −1 paid
+            out, :class:`twin.effects.SlidingState`) for a model with tendon friction; default +1.
 
     Returns:
         The :class:`Compensation`.
@@ -96,7 +99,8 @@ def compensate_tensions(model: RodModel, target_m, *, tip_force_n=None, tip_mome
         reference_tensions_n, dtype=float)
     if reference.shape != (nt,) or not np.all(np.isfinite(reference)):
         raise ValueError(f"reference_tensions_n = {reference_tensions_n!r}: expected {nt} finite numbers")
-    loads = dict(tip_force_n=tip_force_n, tip_moment_nm=tip_moment_nm, base_rotation=base_rotation)
+    loads = dict(tip_force_n=tip_force_n, tip_moment_nm=tip_moment_nm, base_rotation=base_rotation,
+                 friction_direction=friction_direction)
     guess = [None]  # the last converged base moment: every solve after the first starts warm
 
     def shape(tensions):
@@ -139,7 +143,8 @@ def compensate_tensions(model: RodModel, target_m, *, tip_force_n=None, tip_mome
 
 
 def hold_tensions(model: RodModel, unloaded_tensions_n, tip_force_n, *, tip_moment_nm=None, base_rotation=None,
-                  floor_n: float = 0.3, limit_n: float = 5.0, **options) -> Compensation:
+                  floor_n: float = 0.3, limit_n: float = 5.0, unloaded_friction_direction=None,
+                  **options) -> Compensation:
     """Tensions within the bounds that keep the tip where ``unloaded_tensions_n`` held it, under a tip load.
 
     The target is the predictor's own unloaded tip at ``unloaded_tensions_n``, so a model error
@@ -154,10 +159,14 @@ def hold_tensions(model: RodModel, unloaded_tensions_n, tip_force_n, *, tip_mome
             the tensions that hold the target within the bounds without a load.
         base_rotation: clamp orientation (3×3, body → world).
         floor_n, limit_n: tension bounds (N).
-        **options: passed to :func:`compensate_tensions` (``regularisation``, ``tolerance_m``).
+        unloaded_friction_direction: (nt,) the sliding state σ the unloaded tensions were
+            measured in (a friction model's static shape depends on how it was reached); default +1.
+        **options: passed to :func:`compensate_tensions` (``regularisation``, ``tolerance_m``,
+            ``friction_direction``: the state the tensions will be held in).
     """
     unloaded = np.asarray(unloaded_tensions_n, dtype=float)
-    target = solve(model, np.maximum(unloaded, 0.0), base_rotation=base_rotation).tip_position_m
+    target = solve(model, np.maximum(unloaded, 0.0), base_rotation=base_rotation,
+                   friction_direction=unloaded_friction_direction).tip_position_m
     return compensate_tensions(model, target, tip_force_n=tip_force_n, tip_moment_nm=tip_moment_nm,
                                base_rotation=base_rotation, reference_tensions_n=np.clip(unloaded, floor_n, limit_n),
                                floor_n=floor_n, limit_n=limit_n, **options)
@@ -165,7 +174,7 @@ def hold_tensions(model: RodModel, unloaded_tensions_n, tip_force_n, *, tip_mome
 
 def correct_tensions(model: RodModel, applied: Compensation, goal_m, measured_miss_m, *, tip_force_n=None,
                      tip_moment_nm=None, base_rotation=None, floor_n: float = 0.3, limit_n: float = 5.0,
-                     regularisation: float = 1.0, **options) -> Compensation:
+                     regularisation: float = 1.0, friction_direction=None, **options) -> Compensation:
     """One closed-loop correction: re-aim the predictor by the model error the tracker reveals.
 
     With ``applied.tensions_n`` on the device and the load hung, the tracker puts the tip at
@@ -195,6 +204,10 @@ def correct_tensions(model: RodModel, applied: Compensation, goal_m, measured_mi
             compression); 1 mm/N passes the first two whole and holds the third, so the noise of
             a measured miss (~0.02 mm) cannot command newtons of co-contraction. The feed-forward's
             0.03 lets the predictor use that direction, which it knows.
+        friction_direction: (nt,) the sliding state σ measured with the miss
+            (:class:`twin.effects.SlidingState`). A model with friction then re-predicts its tip at
+            the applied tensions in that state, so a tendon the loop flipped is no model error,
+            and re-aims in it. Default: the applied plan's prediction as it stands.
         **options: passed to :func:`compensate_tensions` (``tolerance_m``).
 
     Returns:
@@ -205,7 +218,11 @@ def correct_tensions(model: RodModel, applied: Compensation, goal_m, measured_mi
     miss = np.asarray(measured_miss_m, dtype=float)
     if goal.shape != (3,) or miss.shape != (3,) or not np.all(np.isfinite(np.concatenate([goal, miss]))):
         raise ValueError(f"goal_m = {goal_m!r}, measured_miss_m = {measured_miss_m!r}: expected 3 finite numbers each")
-    model_error = (goal + miss) - applied.predicted_tip_m
+    predicted = applied.predicted_tip_m if friction_direction is None else solve(
+        model, applied.tensions_n, tip_force_n=tip_force_n, tip_moment_nm=tip_moment_nm, base_rotation=base_rotation,
+        friction_direction=friction_direction).tip_position_m
+    model_error = (goal + miss) - predicted
     return compensate_tensions(model, goal - model_error, tip_force_n=tip_force_n, tip_moment_nm=tip_moment_nm,
                                base_rotation=base_rotation, reference_tensions_n=applied.tensions_n,
-                               floor_n=floor_n, limit_n=limit_n, regularisation=regularisation, **options)
+                               floor_n=floor_n, limit_n=limit_n, regularisation=regularisation,
+                               friction_direction=friction_direction, **options)
