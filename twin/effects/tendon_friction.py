@@ -54,9 +54,10 @@ FRICTION_TENSION_LAG_S = 2e-3
 # default seed), 20 ms let the firmware's length loop and the friction hunt at ~20 Hz at μ = 0.6
 # (the endoscope's row 17 never came to rest; three-tendon diverged) and 50 ms diverged at row
 # 20; at 100 ms the endoscope and three-tendon complete at μ = 0.1, 0.3 and 0.6, helical,
-# endoscope-soft-g and stiff-long at 0.1. Still diverging in the sweep: helical, long and
-# endoscope-soft-g at 0.3 and 0.6, stiff-long at 0.6; long at 0.1 and stiff-long at 0.3 measure
-# every row but diverge in the twin's own cross-check that follows.
+# endoscope-soft-g and stiff-long at 0.1. Still failing in the sweep: helical and
+# endoscope-soft-g at 0.3 and 0.6, long and stiff-long at 0.6 (stiff-long: a row never comes to
+# rest); long at 0.1 and 0.3 and stiff-long at 0.3 measure every row but diverge in the twin's
+# own cross-check that follows.
 FRICTION_TRAVEL_LAG_S = 100e-3
 # Starting value of μ for a fit when it is off (0) in the parameter set: log(0) cannot start one.
 _FIT_START = 0.02
