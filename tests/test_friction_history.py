@@ -32,11 +32,11 @@ def test_the_sliding_state_moves_over_the_presliding_travel_and_holds_when_the_t
     state = SlidingState(tendon_m_per_count=PRESLIDING_M / 10)
     assert state.follow([_Sample([0, 0])]).tolist() == [0.0, 0.0]
     # Tendon 1 paid out 5 counts (half the presliding travel), tendon 2 pulled in 30: in one tick
-    # σ moves by the share of the travel the friction's lag lets through (a fifth, 5 ms of 25).
+    # σ moves by the share of the travel the friction's lag lets through (5 ms of the lag plus 5 ms).
     blend = 5e-3 / (FRICTION_TRAVEL_LAG_S + 5e-3)
     assert state.follow([_Sample([5, -30])]).tolist() == pytest.approx([-0.5 * blend, 3 * blend])
     # Then, the spools standing, all of it: σ ends half way and at +1, and holds there.
-    assert state.follow([_Sample([5, -30])] * 80).tolist() == pytest.approx([-0.5, 1.0], abs=1e-6)
+    assert state.follow([_Sample([5, -30])] * 800).tolist() == pytest.approx([-0.5, 1.0], abs=1e-6)
     assert state.follow([_Sample([5, -30])] * 3).tolist() == pytest.approx([-0.5, 1.0], abs=1e-6)
     assert slide([1.0, -1.0], [-PRESLIDING_M, 3 * PRESLIDING_M]).tolist() == pytest.approx([0.0, 1.0])
 
@@ -44,13 +44,15 @@ def test_the_sliding_state_moves_over_the_presliding_travel_and_holds_when_the_t
 def test_the_sliding_state_follows_every_tick_a_sample_carries():
     # Between two samples tendon 1 is pulled in 40 counts (four presliding travels) for four ticks,
     # then let back: the samples alone show no motion (σ = 0). Its ticks show the pull: through
-    # the lag the travel reaches 40 (1 − 0.8⁴) = 23.6 counts (σ = +1), and the last tick turns a
-    # fifth of that back.
-    assert FRICTION_TRAVEL_LAG_S == 20e-3
+    # the lag (a share b of the travel each tick) the filtered travel reaches 40 (1 − (1 − b)⁴)
+    # counts, σ that over the presliding travel of 10 counts (at most +1), and the last tick
+    # turns a share b of that travel back.
+    b = 5e-3 / (FRICTION_TRAVEL_LAG_S + 5e-3)
+    travel = 40 * (1 - (1 - b) ** 4)
     ticks = [[-40, 0], [-40, 0], [-40, 0], [-40, 0], [0, 0]]
     state = SlidingState(tendon_m_per_count=PRESLIDING_M / 10)
-    back = 0.2 * 40 * (1 - 0.8 ** 4) / 10
-    assert state.follow([_TickSample([[0, 0]] * 5), _TickSample(ticks)]).tolist() == pytest.approx([1 - back, 0.0])
+    expected = min(1.0, travel / 10) - b * travel / 10
+    assert state.follow([_TickSample([[0, 0]] * 5), _TickSample(ticks)]).tolist() == pytest.approx([expected, 0.0])
     coarse = SlidingState(tendon_m_per_count=PRESLIDING_M / 10)
     assert coarse.follow([_Sample([0, 0]), _Sample(ticks[-1])]).tolist() == pytest.approx([0.0, 0.0])
 

@@ -243,3 +243,21 @@ def test_a_tip_load_adds_to_the_friction_forces_and_sim_applies_it(capsys):
     assert json.loads(capsys.readouterr().out)["tip_position_m"][1] > 3e-3
     with pytest.raises(ValueError, match="expected 3 finite numbers"):
         plant.set_tip_load((0.0, float("nan"), 0.0))
+
+
+def test_the_holder_closes_on_a_helical_robot_without_untwisting_it():
+    """The pretension alone twists a helically routed rod (17° at the tip); the holder's channel
+    straightens it but keeps that twist, rather than snapping it out against the tendons."""
+    from twin.robots import load_robot
+    plant = Plant(load_robot("helical"))
+    plant.set_tensions([1.35] * 4)
+    plant.step(0.5)
+    before = plant.tip_pose()[1].copy()
+    plant.engage_holder()
+    plant.step(0.5)
+    plant.raise_warnings()
+    after = plant.tip_pose()[1]
+    # The tip's twist about its own axis is what it was; the tensions stayed at the pretension.
+    twist = lambda rot: np.arctan2(rot[1, 0], rot[0, 0])
+    assert abs(np.degrees(twist(before.T @ after))) < 1.0
+    assert np.allclose(plant.true_tensions_n(), 1.35, atol=0.01)

@@ -114,6 +114,7 @@ class Plant:
         self._tip_site = m.site("tip").id
         self._tip_load = m.body("tip_load").id
         self._holder = np.array([m.equality(f"holder{j}").id for j in range(1, p.discs.count + 1)])
+        self._holder_straight = m.eq_data[self._holder, :10].copy()
         self._path_sites = np.array([[m.site(f"hole{i}").id] + [m.site(f"t{i}_s{j + 1}").id for j in range(
             self.layout.site_s_m.size)] for i in range(n)])
         taut_length_m = m.tendon_lengthspring[:, 1].copy()
@@ -286,7 +287,28 @@ class Plant:
 
     def engage_holder(self) -> None:
         """Clamp the reference holder around the discs: they are pulled back to and held in the
-        straight pose (weld constraints), as while pretensioning."""
+        straight pose (weld constraints), as while pretensioning.
+
+        The holder's channel closes around round discs: it straightens the rod but leaves each
+        disc turned about the backbone as it is when it closes (the weld's reference takes the
+        disc's twist relative to the clamp). Pulling the twist out too would snap a helically
+        routed robot, whose pretension alone twists the tip by 17°, against its tendons within
+        a step (MuJoCo diverged six steps after the holder closed)."""
+        m, d = self.model, self.data
+        mujoco.mj_kinematics(m, d)
+        relative, conjugate, anchor = np.empty(4), np.empty(4), np.empty(3)
+        for eq, straight in zip(self._holder, self._holder_straight):
+            disc, clamp = m.eq_obj1id[eq], m.eq_obj2id[eq]
+            # The clamp's orientation in the disc's frame; its twist part about the backbone (z).
+            mujoco.mju_negQuat(conjugate, d.xquat[disc])
+            mujoco.mju_mulQuat(relative, conjugate, d.xquat[clamp])
+            twist = np.array([relative[0], 0.0, 0.0, relative[3]])
+            twist /= max(np.linalg.norm(twist), 1e-12)
+            # The weld's anchor (eq_data[0:3], disc frame) lies at eq_data[3:6] in the clamp's
+            # frame: at the straight disc's position, turned by the disc's twist.
+            mujoco.mju_rotVecQuat(anchor, straight[0:3], twist)
+            m.eq_data[eq, 3:6] = straight[3:6] - straight[0:3] + anchor
+            m.eq_data[eq, 6:10] = twist
         self.data.eq_active[self._holder] = True
         self.loop.state.jump = 1
 
