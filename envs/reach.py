@@ -12,7 +12,7 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
-from envs.randomization import Randomization, TipLoads
+from twin.envs.randomization import Randomization, TipLoads
 from twin.control.pretension import pretension_straight
 from twin.device import CommandRejected, open_device
 from twin.device.codec import Fault

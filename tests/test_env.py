@@ -5,8 +5,8 @@ import numpy as np
 import pytest
 from gymnasium.utils.env_checker import check_env
 
-import envs
-from envs import EndoscopeReachEnv, Randomization, TipLoads
+import twin.envs
+from twin.envs import EndoscopeReachEnv, Randomization, TipLoads
 from twin import load_params
 
 
@@ -174,10 +174,10 @@ def test_human_rendering_without_a_display_is_a_gymnasium_error_not_a_dead_proce
     # Without a display the env does not offer "human" (so check_env, which renders every mode
     # offered, passes); asked for it directly it refuses; through gym.make, Gymnasium's own
     # HumanRendering wrapper takes over and raises its own error, the process lives on.
-    script = ("import gymnasium as gym, envs\n"
-              "assert 'human' not in envs.reach.EndoscopeReachEnv.metadata['render_modes']\n"
+    script = ("import gymnasium as gym, twin.envs\n"
+              "assert 'human' not in twin.envs.reach.EndoscopeReachEnv.metadata['render_modes']\n"
               "try:\n"
-              "    envs.reach.EndoscopeReachEnv(render_mode='human')\n"
+              "    twin.envs.reach.EndoscopeReachEnv(render_mode='human')\n"
               "except gym.error.DependencyNotInstalled as exc:\n"
               "    print('refused:', exc)\n"
               "env = gym.make('twin/EndoscopeReach-v0', render_mode='human')\n"
