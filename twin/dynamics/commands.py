@@ -112,6 +112,12 @@ def run_record(args: argparse.Namespace) -> int:
             calibration_file = load_calibration(args.calibration)
         except (OSError, CalibrationFileError) as exc:
             raise UsageError(f"--calibration {args.calibration}: {exc}") from None
+        from twin.experiments.commands import RunRefused, _check_channels
+
+        try:
+            _check_channels(args, calibration_file, params)
+        except RunRefused as exc:  # before a run folder exists: a refused run leaves none
+            raise UsageError(str(exc)) from None
     invocation = {"command": "dynamics record", "device": args.device, "seed": args.seed, "quick": args.quick,
                   "params": args.params, "robot": args.robot, "set": list(args.overrides),
                   "calibration": args.calibration}
@@ -163,6 +169,10 @@ def run_record(args: argparse.Namespace) -> int:
                   f"in {folder / DYNAMICS_FOLDER}; continue with: twin dynamics record --resume {folder} "
                   "and the same options", file=sys.stderr)
         return EXIT_STOPPED
+    except BaseException:
+        if not recorded and not args.resume:
+            shutil.rmtree(folder, ignore_errors=True)
+        raise
     finally:
         device.close()
     print(f"dynamic dataset: {folder / DYNAMICS_FOLDER}")
