@@ -150,6 +150,25 @@ def test_the_env_renders_the_twin_and_passes_gymnasiums_checker_with_rendering_o
         EndoscopeReachEnv(render_mode="movie")
 
 
+def test_a_frame_shows_the_target_a_floor_grid_and_its_scale_bars():
+    env = _rendering_env()
+    try:
+        # A target 2 cm above the straight robot's middle: in view, clear of the robot.
+        env.reset(seed=0, options={"target_m": np.array([0.03, 0.0, 0.02])})
+        framed = env.render().astype(int)
+        bare = env.unwrapped._view.render().astype(int)  # the same twin without the decorations
+    finally:
+        env.close()
+    r, g, b = (framed[..., i] for i in range(3))
+    added = np.abs(framed - bare).sum(axis=2) > 60
+    # The target: green pixels that the bare frame lacks; the x bar: red ones; the grid: many grey lines.
+    assert np.sum(added & (g > 60) & (g > 2 * r) & (g > 2 * b)) > 100
+    assert np.sum(added & (r > 80) & (r > 2 * g) & (r > 2 * b)) > 10
+    assert np.sum(added & (np.abs(r - g) < 20) & (np.abs(g - b) < 20) & (r > 60)) > 500
+    rows, cols = np.nonzero(added & (np.abs(r - g) < 20) & (r > 60))
+    assert np.ptp(rows) > 40 and np.ptp(cols) > 200  # a floor, not a dot
+
+
 def test_an_episode_is_saved_as_a_video(tmp_path):
     pytest.importorskip("moviepy", reason="gymnasium's RecordVideo writes with moviepy")
     from gymnasium.wrappers import RecordVideo
