@@ -5,11 +5,15 @@ emulated board is built from on first use), which live beside the ``twin`` packa
 checkout. ``build_py`` copies them into the built package as ``twin/_shipped/models`` and
 ``twin/_shipped/firmware``, where :func:`twin.resources.resource_path` finds them. An editable
 install needs no copy: there ``resource_path`` finds the checkout's own folders.
+
+``envs/`` (the Gymnasium envs) sits at the top of the checkout but installs as ``twin.envs``
+(``package_dir``), so nothing named ``envs``, an unrelated PyPI package, lands in site-packages;
+an editable install maps ``twin.envs`` to the checkout's ``envs/`` the same way.
 """
 
 from pathlib import Path
 
-from setuptools import setup
+from setuptools import find_namespace_packages, setup
 from setuptools.command.build_py import build_py
 
 HERE = Path(__file__).resolve().parent
@@ -40,4 +44,8 @@ class BuildPyWithResources(build_py):
                 self.copy_file(str(HERE / name / relative), str(target))
 
 
-setup(cmdclass={"build_py": BuildPyWithResources})
+setup(
+    packages=find_namespace_packages(include=["twin", "twin.*"]) + ["twin.envs"],
+    package_dir={"twin.envs": "envs"},
+    cmdclass={"build_py": BuildPyWithResources},
+)

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from envs.reach import EndoscopeReachEnv
+from twin.envs.reach import EndoscopeReachEnv
 from twin.control.cocontraction import antagonistic_pair
 from twin.params import Params, load_params
 from twin.stopwatch import Stopwatch

@@ -80,7 +80,7 @@ class Randomization:
             "sensors.tracker_noise_rad": s.tracker_noise_rad * noise,
         }
         values = {k: v.tolist() if isinstance(v, np.ndarray) else float(v) for k, v in values.items()}
-        return params.replace(values, source="randomised (envs.randomization)"), latency
+        return params.replace(values, source="randomised (twin.envs.randomization)"), latency
 
 
 @dataclasses.dataclass(frozen=True)

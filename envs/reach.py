@@ -12,7 +12,7 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
-from envs.randomization import Randomization, TipLoads
+from twin.envs.randomization import Randomization, TipLoads
 from twin.control.pretension import pretension_straight
 from twin.device import CommandRejected, open_device
 from twin.device.codec import Fault
@@ -274,8 +274,9 @@ class EndoscopeReachEnv(gym.Env):
         return self._observation(sample), reward, fault, False, self._info(sample, error)
 
     def render(self):
-        """The twin as it is now: an (H, W, 3) uint8 image (``render_mode="rgb_array"``), or a
-        frame of MuJoCo's viewer (``"human"``, needs a display). Needs a ``sim://`` device."""
+        """The twin as it is now: an (H, W, 3) uint8 image (``render_mode="rgb_array"``) with the
+        target (green sphere), a floor grid of 1 cm squares and 1 cm bars along world x (red) and
+        y (blue); or a frame of MuJoCo's viewer (``"human"``, needs a display). Needs a ``sim://`` device."""
         if self.render_mode is None:
             return None
         if self.device is None:
@@ -286,7 +287,8 @@ class EndoscopeReachEnv(gym.Env):
         if self._view is None:
             self._view = self.device.twin.camera() if self.render_mode == "rgb_array" else self.device.twin.viewer()
         if self.render_mode == "rgb_array":
-            return self._view.render()
+            # The target and a 1 cm floor grid: a recorded episode shows whether the tip reaches it, and how far.
+            return self._view.render(target_m=self.target_m, floor_grid=True)
         self._view.sync()
         return None
 

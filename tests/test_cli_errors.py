@@ -37,6 +37,9 @@ MISTAKES = [
     (["compensate", "--quick", "--device", "serial:///dev/null", "--twin-set", "effects.tendon_friction_coeff=0.1"],
      2, ["--twin-set", "sim://"]),
     (["compensate", "--quick", "--twin-set", "effects.no_such=1"], 2, ["--twin-set", "effects.no_such"]),
+    (["validate", "--quick", "--twin-set", "effects.loadcell_lag_s=-1"], 2, ["--twin-set", "loadcell_lag_s", "-1"]),
+    (["stiffness", "--twin-set", "effects.no_such=1"], 2, ["--twin-set", "effects.no_such"]),
+    (["dynamics", "record", "--quick", "--twin-set", "effects.loadcell_lag_s=-1"], 2, ["--twin-set", "loadcell_lag_s"]),
     (["compensate", "--quick", "--ceiling", "28"], 2, ["--ceiling 28", "5.38 N"]),
     (["compensate", "--quick", "--robot", "stiff-long", "--ceiling", "5"], 2,
      ["within reach", "above the 5.00 N ceiling"]),
@@ -103,3 +106,21 @@ def test_without_a_compiler_validate_says_so_in_one_line_and_leaves_no_folder(tm
     assert done.returncode == 1, done.stderr
     assert "Traceback" not in done.stderr and "no-such-compiler-g++" in done.stderr
     assert not any((tmp_path / "runs").iterdir())
+
+
+@pytest.fixture(scope="module")
+def four_channel_calibration(tmp_path_factory):
+    path = tmp_path_factory.mktemp("cal") / "four.json"
+    assert main(["calibrate", "--file", str(path)]) == 0
+    return path
+
+
+@pytest.mark.parametrize("command", [["validate", "--quick"], ["stiffness"], ["dynamics", "record", "--quick"]])
+def test_a_calibration_of_another_channel_count_is_refused_before_a_run_folder(tmp_path, monkeypatch, capsys,
+                                                                               four_channel_calibration, command):
+    monkeypatch.chdir(tmp_path)
+    result = _run([*command, "--robot", "three-tendon", "--calibration", str(four_channel_calibration)])
+    err = capsys.readouterr().err
+    assert result == 2, err
+    assert [line for line in err.splitlines() if "4 channels" in line and "3 tendons" in line], err
+    assert "Traceback" not in err and not (tmp_path / "runs").exists()

@@ -4,8 +4,8 @@ count, any antagonistic pair, multi-segment robots."""
 import numpy as np
 import pytest
 
-from envs import EndoscopeReachEnv, TipLoads
-from envs.reach import default_curvature_range_per_m, default_max_length_m, default_tension_range_n
+from twin.envs import EndoscopeReachEnv, TipLoads
+from twin.envs.reach import default_curvature_range_per_m, default_max_length_m, default_tension_range_n
 from twin.cli import main
 from twin.control.cocontraction import antagonistic_pair, run_cocontraction_study
 from twin.device import open_device
@@ -91,7 +91,7 @@ def test_the_env_and_the_tracker_run_on_other_tendon_counts(robot):
 
 
 def test_twin_tune_and_bench_env_run_on_a_three_tendon_robot(capsys):
-    from envs.bench import bench_env
+    from twin.envs.bench import bench_env
     from twin.tuning import tension_cost
     from twin.control.gains import TUNED_TENSION_GAINS
 

@@ -358,3 +358,38 @@ def test_the_dynamic_experiments_bend_a_longer_robot_by_the_same_angles():
         steps = experiment_set(params, quick=True)[0]
         expected = tendon_length_changes_m(kappa, params.tendons.angles_deg[0], params)
         np.testing.assert_allclose(steps.commands[0].values, expected, rtol=1e-9, err_msg=name)
+
+
+def test_record_resume_records_only_the_missing_experiments(tmp_path, clean_run, capsys):
+    import shutil
+
+    shutil.copytree(clean_run, tmp_path / "run")
+    dataset = tmp_path / "run" / DYNAMICS_FOLDER
+    metadata = json.loads((dataset / "metadata.json").read_text())
+    names = [e["name"] for e in metadata["experiments"]]
+    assert len(names) >= 2
+    # A run stopped after its first experiment (the later ones' files may linger: they are rewritten).
+    metadata["experiments"] = metadata["experiments"][:1]
+    (dataset / "metadata.json").write_text(json.dumps(metadata))
+    first = (dataset / f"{names[0]}.telemetry.csv").read_bytes()
+    common = ["dynamics", "record", "--quick", "--seed", "4"]
+    # Other conditions than the run's are refused in one line naming them, the run untouched.
+    code, out, err = run(capsys, *common[:-1], "5", "--resume", tmp_path / "run")
+    assert code == 2 and "seed" in err and err.strip().count("\n") == 0
+    code, out, err = run(capsys, *common, "--twin-set", "effects.damping_scale=2", "--resume", tmp_path / "run")
+    assert code == 2 and "--twin-set" in err
+    assert json.loads((dataset / "metadata.json").read_text())["experiments"] == metadata["experiments"]
+
+    code, out, err = run(capsys, *common, "--resume", tmp_path / "run")
+    assert code == 0, err
+    assert f"{len(names) - 1} experiments" in err and f"recorded before: {names[0]}" in err
+    resumed = read_run(tmp_path / "run")
+    assert [s.experiment.name for s in resumed.series] == names
+    assert (dataset / f"{names[0]}.telemetry.csv").read_bytes() == first
+    original = read_run(clean_run)
+    assert [s.time_s.size for s in resumed.series] == pytest.approx([s.time_s.size for s in original.series], rel=0.05)
+    # Everything recorded: nothing to do, nothing rewritten.
+    code, out, err = run(capsys, *common, "--resume", tmp_path / "run")
+    assert code == 0 and "nothing to do" in err
+    code, out, err = run(capsys, *common, "--resume", tmp_path / "nowhere")
+    assert code == 2 and "--resume" in err and err.strip().count("\n") == 0

@@ -5,8 +5,8 @@ import numpy as np
 import pytest
 from gymnasium.utils.env_checker import check_env
 
-import envs
-from envs import EndoscopeReachEnv, Randomization, TipLoads
+import twin.envs
+from twin.envs import EndoscopeReachEnv, Randomization, TipLoads
 from twin import load_params
 
 
@@ -150,6 +150,25 @@ def test_the_env_renders_the_twin_and_passes_gymnasiums_checker_with_rendering_o
         EndoscopeReachEnv(render_mode="movie")
 
 
+def test_a_frame_shows_the_target_a_floor_grid_and_its_scale_bars():
+    env = _rendering_env()
+    try:
+        # A target 2 cm above the straight robot's middle: in view, clear of the robot.
+        env.reset(seed=0, options={"target_m": np.array([0.03, 0.0, 0.02])})
+        framed = env.render().astype(int)
+        bare = env.unwrapped._view.render().astype(int)  # the same twin without the decorations
+    finally:
+        env.close()
+    r, g, b = (framed[..., i] for i in range(3))
+    added = np.abs(framed - bare).sum(axis=2) > 60
+    # The target: green pixels that the bare frame lacks; the x bar: red ones; the grid: many grey lines.
+    assert np.sum(added & (g > 60) & (g > 2 * r) & (g > 2 * b)) > 100
+    assert np.sum(added & (r > 80) & (r > 2 * g) & (r > 2 * b)) > 10
+    assert np.sum(added & (np.abs(r - g) < 20) & (np.abs(g - b) < 20) & (r > 60)) > 500
+    rows, cols = np.nonzero(added & (np.abs(r - g) < 20) & (r > 60))
+    assert np.ptp(rows) > 40 and np.ptp(cols) > 200  # a floor, not a dot
+
+
 def test_an_episode_is_saved_as_a_video(tmp_path):
     pytest.importorskip("moviepy", reason="gymnasium's RecordVideo writes with moviepy")
     from gymnasium.wrappers import RecordVideo
@@ -174,10 +193,10 @@ def test_human_rendering_without_a_display_is_a_gymnasium_error_not_a_dead_proce
     # Without a display the env does not offer "human" (so check_env, which renders every mode
     # offered, passes); asked for it directly it refuses; through gym.make, Gymnasium's own
     # HumanRendering wrapper takes over and raises its own error, the process lives on.
-    script = ("import gymnasium as gym, envs\n"
-              "assert 'human' not in envs.reach.EndoscopeReachEnv.metadata['render_modes']\n"
+    script = ("import gymnasium as gym, twin.envs\n"
+              "assert 'human' not in twin.envs.reach.EndoscopeReachEnv.metadata['render_modes']\n"
               "try:\n"
-              "    envs.reach.EndoscopeReachEnv(render_mode='human')\n"
+              "    twin.envs.reach.EndoscopeReachEnv(render_mode='human')\n"
               "except gym.error.DependencyNotInstalled as exc:\n"
               "    print('refused:', exc)\n"
               "env = gym.make('twin/EndoscopeReach-v0', render_mode='human')\n"

@@ -103,6 +103,11 @@ def test_validation_figures_are_readable_and_the_front_view_has_its_scale(make_d
     assert {p for _, p in saved} == set(paths.values())
     for fig, path in saved:
         check_readable(fig, path)
+    # Every signed error states its sign on its axis: predicted minus measured (e = p̂ − p*).
+    for axis in "xyz":
+        (fig,) = [fig for fig, path in saved if path == paths[f"error_{axis}"]]
+        assert f"e_{axis} = {axis}̂ − {axis}*" in fig.axes[0].get_ylabel()
+        assert "predicted − measured" in fig.axes[0].get_ylabel()
     front = next(fig for fig, path in saved if path == paths["front_view"])
     # The error circles: a reference circle of a stated error in every panel, and the magnification said.
     texts = [t.get_text() for ax in front.axes for t in ax.texts]
@@ -220,3 +225,19 @@ def test_the_crosscheck_report_opens_with_its_figure(tmp_path, saved):
     check_readable(fig, path)
     lines = [line for line in report.read_text().splitlines() if line.strip()]
     assert lines[2].startswith("**Goal met") and lines[3] == f"![twin vs predictor tip difference per configuration]({path.name})"
+
+
+def test_the_crosscheck_figure_of_one_configuration_has_readable_axes_and_an_unsigned_label(tmp_path, saved):
+    from twin.sim.crosscheck import CrosscheckResult, plot_crosscheck
+
+    result = CrosscheckResult(rows=[(0, 10.0, 90.0, 0.0)], twin_tip_m=np.array([[0.001, 0.0, 0.1]]),
+                              rod_tip_m=np.array([[0.0, 0.0, 0.1]]), settled=np.array([True]),
+                              rod_converged=np.array([True]), length_m=0.1, elements=20, wall_s=1.0)
+    plot_crosscheck(result, tmp_path / "crosscheck.png")
+    ((fig, path),) = saved
+    check_readable(fig, path)
+    (ax,) = fig.axes
+    low, high = ax.get_xlim()
+    assert low <= 80.0 and high >= 100.0  # not matplotlib's ±0.05° around one point
+    assert ax.get_ylim()[0] == 0.0 and ax.get_ylim()[1] >= 1.0  # the 1 % distance is on the plot, from zero
+    assert "distance" in ax.get_ylabel() and "twin − predictor tip" not in ax.get_ylabel()

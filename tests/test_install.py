@@ -265,7 +265,16 @@ def _smoke(bin_dir: Path, work: Path) -> None:
     from mcap.reader import make_reader
     with open(work / "sweep.mcap", "rb") as stream:
         counts = make_reader(stream).get_summary().statistics.channel_message_counts
-    assert sorted(counts.values()) == [24, 24]
+    # /tf_static once; tendons, measured tip, predicted tip and backbone per row (every prediction converged).
+    assert sorted(counts.values()) == [1, 24, 24, 24, 24]
+
+    # The Gymnasium envs come as twin.envs, registered on import; no top-level `envs` exists.
+    gym_check = subprocess.run([str(bin_dir / "python"), "-c", "import importlib.util, gymnasium as gym, twin.envs; "
+                                "assert importlib.util.find_spec('envs') is None; "
+                                "print(gym.make('twin/EndoscopeReach-v0').unwrapped.__module__)"],
+                               cwd=work, env=env, capture_output=True, text=True)
+    assert gym_check.returncode == 0, gym_check.stderr[-4000:]
+    assert gym_check.stdout.split() == ["twin.envs.reach"]
 
     # Another robot of the zoo ships too.
     result = _run(bin_dir, ["predict", "--robot", "three-tendon", "--tensions", "2,1,1", "--json"], work, env)
@@ -288,6 +297,15 @@ def _smoke(bin_dir: Path, work: Path) -> None:
     result = _run(bin_dir, ["sim", "--tensions", TENSIONS], work, env_no_cxx)
     assert result.returncode == 1
     assert result.stderr.strip().count("\n") == 0 and "needs a C++ compiler" in result.stderr, result.stderr
+
+
+@pytest.mark.slow
+def test_the_wheel_puts_envs_under_twin_and_nothing_at_the_top(wheel):
+    import zipfile
+    names = zipfile.ZipFile(wheel).namelist()
+    top = {name.split("/")[0] for name in names if not name.split("/")[0].endswith(".dist-info")}
+    assert top == {"twin"}, top
+    assert {"twin/envs/__init__.py", "twin/envs/reach.py", "twin/envs/randomization.py"} <= set(names)
 
 
 @pytest.mark.slow

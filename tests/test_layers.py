@@ -3,7 +3,7 @@
 Every import under ``twin/`` and ``envs/`` counts, including relative imports and imports inside
 functions (a lazy import is still a dependency). Each subpackage of ``twin`` is one node
 (``twin.device``, ``twin.data``, ...), each top-level module of ``twin`` is its own node
-(``twin.params``, ``twin.tuning``, ...), and ``envs`` is one node.
+(``twin.params``, ``twin.tuning``, ...), and ``envs/``, installed as ``twin.envs``, is one node.
 """
 
 from __future__ import annotations
@@ -14,14 +14,15 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
-PACKAGES = ("twin", "envs")
+# Folder of the checkout → the package it installs as (setup.py's package_dir).
+PACKAGES = {"twin": "twin", "envs": "twin.envs"}
 
 
 def _module_name(path: Path) -> str:
-    parts = list(path.relative_to(ROOT).with_suffix("").parts)
-    if parts[-1] == "__init__":
+    folder, *parts = path.relative_to(ROOT).with_suffix("").parts
+    if parts and parts[-1] == "__init__":
         parts.pop()
-    return ".".join(parts)
+    return ".".join([PACKAGES[folder], *parts])
 
 
 def _modules() -> dict[str, Path]:
@@ -31,8 +32,6 @@ def _modules() -> dict[str, Path]:
 def _node(module: str) -> str | None:
     """The layer ``module`` belongs to, or None outside the project."""
     parts = module.split(".")
-    if parts[0] == "envs":
-        return "envs"
     if parts[0] != "twin":
         return None
     if len(parts) == 1:
@@ -111,12 +110,12 @@ def test_no_import_cycle_between_packages():
 
 # Layers that must not import each other in this direction (lower → higher).
 _MUST_NOT_IMPORT = {
-    "twin.data": ("twin.experiments", "twin.discrepancy", "twin.control", "twin.tuning", "envs"),
-    "twin.experiments": ("twin.discrepancy", "twin.control", "twin.tuning", "envs"),
-    "twin.discrepancy": ("twin.control", "twin.tuning", "envs"),
-    "twin.control": ("twin.tuning", "envs"),
-    "envs": ("twin.tuning",),
-    "twin.device": ("twin.data", "twin.experiments", "twin.discrepancy", "twin.control", "twin.tuning", "envs"),
+    "twin.data": ("twin.experiments", "twin.discrepancy", "twin.control", "twin.tuning", "twin.envs"),
+    "twin.experiments": ("twin.discrepancy", "twin.control", "twin.tuning", "twin.envs"),
+    "twin.discrepancy": ("twin.control", "twin.tuning", "twin.envs"),
+    "twin.control": ("twin.tuning", "twin.envs"),
+    "twin.envs": ("twin.tuning",),
+    "twin.device": ("twin.data", "twin.experiments", "twin.discrepancy", "twin.control", "twin.tuning", "twin.envs"),
 }
 
 
@@ -174,3 +173,16 @@ def test_nothing_above_the_device_reaches_through_its_seam():
     found = [v for p in above for v in _seam_violations(p, check_imports=True)]
     found += [v for p in sorted((ROOT / "tests").rglob("*.py")) for v in _seam_violations(p, check_imports=False)]
     assert not found, "reaches through the device seam:\n  " + "\n  ".join(found)
+
+
+def test_nothing_imports_a_top_level_envs():
+    """``envs/`` installs as ``twin.envs``: a top-level ``import envs`` works in the checkout only, and
+    in an installed twin would find the unrelated PyPI package of that name (or nothing)."""
+    modules = _modules()
+    assert "twin.envs.reach" in modules
+    found = sorted(f"{name} imports {imported}" for name, path in modules.items()
+                   for imported in _imported_modules(name, path, modules) if imported.split(".")[0] == "envs")
+    found += sorted(f"{path.relative_to(ROOT)} imports {imported}" for path in sorted((ROOT / "tests").rglob("*.py"))
+                    for imported in _imported_modules("tests." + path.stem, path, modules)
+                    if imported.split(".")[0] == "envs")
+    assert not found, "\n  ".join(["top-level envs imported:", *found])

@@ -174,7 +174,7 @@ def test_the_page_shows_the_bent_backbone_in_headless_chromium(bent_plant, tmp_p
 
 
 def test_the_env_with_live_port_shows_its_episode_without_changing_it():
-    from envs.reach import EndoscopeReachEnv
+    from twin.envs.reach import EndoscopeReachEnv
 
     target = np.array([0.05, 0.0, -0.02])
     runs = []

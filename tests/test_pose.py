@@ -82,7 +82,7 @@ def test_a_device_url_pose_is_checked():
 
 
 def test_the_env_aims_at_targets_in_the_devices_pose():
-    from envs.reach import EndoscopeReachEnv
+    from twin.envs.reach import EndoscopeReachEnv
 
     for url, rotation in (("sim://?pose=up", UP), ("sim://", HORIZONTAL)):
         env = EndoscopeReachEnv(device_url=url)

@@ -10,7 +10,8 @@ from mcap_ros2.decoder import DecoderFactory
 
 from twin.cli import main
 from twin.data.dataset import DatasetError, DatasetWriter, read_dataset
-from twin.data.rosbag import JOINT_STATE, POSE_STAMPED, TENDONS_TOPIC, TIP_TOPIC, export_bag
+from twin.data.rosbag import (BACKBONE_TOPIC, JOINT_STATE, PATH, POSE_STAMPED, PREDICTED_TIP_TOPIC, TENDONS_TOPIC,
+                              TF_MESSAGE, TF_STATIC_TOPIC, TIP_TOPIC, export_bag)
 from twin.params import load_params
 from twin.pose import HORIZONTAL
 
@@ -60,7 +61,7 @@ def test_bag_holds_every_row_with_its_values_and_stamps(dataset, tmp_path):
     summary = export_bag(dataset.path, out)
     assert summary.rows == len(dataset) == 3
     messages = _messages(out)
-    assert set(messages) == {TENDONS_TOPIC, TIP_TOPIC}
+    assert set(messages) == {TENDONS_TOPIC, TIP_TOPIC, PREDICTED_TIP_TOPIC, BACKBONE_TOPIC, TF_STATIC_TOPIC}
     created = datetime.datetime.fromisoformat(dataset.metadata["created"])
     origin_ns = calendar.timegm(created.utctimetuple()) * 10**9 + created.microsecond * 1000
     # The row without a time follows the last stamped one by 1 s.
@@ -81,7 +82,7 @@ def test_bag_holds_every_row_with_its_values_and_stamps(dataset, tmp_path):
     assert [m.log_time for m, _ in poses] == expected_ns
     for row, (_, msg) in enumerate(poses):
         pose = msg.pose
-        assert msg.header.frame_id == "base"
+        assert msg.header.frame_id == "world"  # REP 105's fixed frame
         np.testing.assert_array_equal([pose.position.x, pose.position.y, pose.position.z], dataset.tip_positions_m[row])
         q = [pose.orientation.w, pose.orientation.x, pose.orientation.y, pose.orientation.z]
         measured = dataset.tip_quaternions[row]
@@ -101,9 +102,11 @@ def test_bag_is_a_ros2_profile_file_with_its_metadata(dataset, tmp_path):
         metadata = {m.name: m.metadata for m in reader.iter_metadata()}
     assert header.profile == "ros2"
     assert {c.message_encoding for c in summary.channels.values()} == {"cdr"}
-    assert {summary.schemas[c.schema_id].name for c in summary.channels.values()} == {JOINT_STATE, POSE_STAMPED}
+    assert {summary.schemas[c.schema_id].name for c in summary.channels.values()} == {JOINT_STATE, POSE_STAMPED, PATH,
+                                                                                     TF_MESSAGE}
     assert {summary.schemas[c.schema_id].encoding for c in summary.channels.values()} == {"ros2msg"}
-    assert summary.statistics.message_count == 6
+    # 3 rows × (tendons, measured tip, predicted tip, backbone) + one /tf_static.
+    assert summary.statistics.message_count == 13
     assert metadata["twin_dataset"]["rows"] == "3"
     assert metadata["twin_dataset"]["orientation_unmeasured_rows"] == "1"
     assert metadata["twin_dataset"]["experiment"] == "validation"
@@ -113,7 +116,7 @@ def test_cli_exports_and_refuses_what_is_not_a_dataset(dataset, tmp_path, capsys
     out = tmp_path / "cli.mcap"
     assert main(["export-bag", str(dataset.path), str(out)]) == 0
     assert "3 rows" in capsys.readouterr().out
-    assert len(_decoded(out)) == 6
+    assert len(_decoded(out)) == 13
     (tmp_path / "empty").mkdir()
     assert main(["export-bag", str(tmp_path / "empty"), str(tmp_path / "no.mcap")]) == 2
     assert "dataset error" in capsys.readouterr().err
@@ -134,3 +137,33 @@ def test_a_failed_write_leaves_no_file(dataset, tmp_path, monkeypatch):
         export_bag(dataset.path, out)
     assert not out.exists()
     assert [p.name for p in tmp_path.iterdir() if "torn" in p.name] == []
+
+
+def test_bag_carries_tf_static_the_predicted_tip_and_the_backbone_in_rep_105_frames(dataset, tmp_path):
+    from twin.data.prediction import predict_dataset
+    from twin.pose import matrix_to_quat
+
+    out = tmp_path / "out.mcap"
+    export_bag(dataset.path, out)
+    messages = _messages(out)
+    ((_, tf),) = messages[TF_STATIC_TOPIC]
+    (transform,) = tf.transforms
+    assert (transform.header.frame_id, transform.child_frame_id) == ("world", "base_link")
+    r = transform.transform.rotation
+    np.testing.assert_allclose([r.w, r.x, r.y, r.z], matrix_to_quat(dataset.base_rotation), atol=1e-12)
+    predicted = predict_dataset(dataset)
+    assert predicted.converged.all()
+    tips = messages[PREDICTED_TIP_TOPIC]
+    paths = messages[BACKBONE_TOPIC]
+    assert len(tips) == len(paths) == len(dataset)
+    for row, ((_, tip), (_, path)) in enumerate(zip(tips, paths)):
+        assert tip.header.frame_id == path.header.frame_id == "world"
+        p = tip.pose.position
+        np.testing.assert_allclose([p.x, p.y, p.z], predicted.tip_m[row], atol=1e-12)
+        points = np.array([[q.pose.position.x, q.pose.position.y, q.pose.position.z] for q in path.poses])
+        assert len(points) > 5
+        np.testing.assert_allclose(points[0], 0.0, atol=1e-9)  # the backbone starts at the base, world's origin
+        # Its arc length is the backbone's, and its end is near the predicted (tracked) tip.
+        assert np.sum(np.linalg.norm(np.diff(points, axis=0), axis=1)) == pytest.approx(
+            dataset.params.backbone.length_m, rel=0.02)
+        assert np.linalg.norm(points[-1] - predicted.tip_m[row]) < 0.02

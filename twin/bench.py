@@ -32,7 +32,7 @@ TARGETS = {
     # chain imposes (twin/sim/bench.py says why a real-time ratio cannot be the goal).
     "sim": ("twin.sim.bench", "bench_sim", {"realtime_factor": (">=", 100.0), "settle_s": ("<=", 0.1),
                                             "scaling_over_chain": ("<=", 1.0)}),
-    "env": ("envs.bench", "bench_env", {"steps_per_s": (">=", 1000.0)}),
+    "env": ("twin.envs.bench", "bench_env", {"steps_per_s": (">=", 1000.0)}),
     # Not a speed: whether the board's loops settle (friction on with --set effects.tendon_friction_coeff=...).
     "hold": ("twin.control.settling", "hold_figures",
              {"tension_ptp_n": ("<=", 0.05), "tension_offset_n": ("<=", 0.02), "length_error_counts": ("<=", 1.0)}),

@@ -34,8 +34,8 @@ from typing import Sequence
 import numpy as np
 from scipy.optimize import minimize
 
-from envs.reach import EndoscopeReachEnv, default_tension_range_n
-from envs.randomization import Randomization, TipLoads
+from twin.envs.reach import EndoscopeReachEnv, default_tension_range_n
+from twin.envs.randomization import Randomization, TipLoads
 from twin.cliargs import add_param_args, params_from_args
 from twin.control.compensation import compensate_tensions
 from twin.control.gains import DEFAULT_TENSION_GAINS, TUNED_TENSION_GAINS
@@ -154,7 +154,7 @@ class TipTrackingController:
         damping: Tikhonov damping of the pseudo-inverse (m/N).
         floor_n, limit_n: tension bounds (N); default the robot's: the lower end of the env's
             tension range raised to 1 N where it allows (taut tendons), and its upper end
-            (:func:`envs.reach.default_tension_range_n`: 1 N and 5 N on the thesis endoscope).
+            (:func:`twin.envs.reach.default_tension_range_n`: 1 N and 5 N on the thesis endoscope).
         base_rotation: the clamp orientation (3×3) of the robot it controls; default the
             parameter set's ``rig.base_quat`` (give the device's :attr:`~twin.device.Device.base_rotation`).
     """

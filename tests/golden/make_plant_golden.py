@@ -80,7 +80,7 @@ def sweep(params, grid, url: str) -> np.ndarray:
 
 
 def env_episodes() -> np.ndarray:
-    from envs.reach import EndoscopeReachEnv
+    from twin.envs.reach import EndoscopeReachEnv
 
     env = EndoscopeReachEnv(device_url="sim://", action_mode="lengths")
     rng = np.random.default_rng(5)

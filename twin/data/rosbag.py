@@ -7,9 +7,20 @@ static measurement each, at its ``time_s``). Each row becomes one message on eac
     ``name`` ``tendon_1`` … ``tendon_N`` (the dataset's N tendons); ``position`` the relative
     tendon lengths (m, + = paid out), ``effort`` the calibrated tensions (N), ``velocity`` empty.
 ``/twin/tip_pose`` (``geometry_msgs/msg/PoseStamped``)
-    the measured tip in frame ``base`` (origin at the base centre, world axes), position in m;
-    orientation the measured quaternion, the identity where the row has none (the MCAP
-    metadata record ``twin_dataset`` counts those rows).
+    the measured tip in frame ``world`` (REP 105's fixed frame; here its origin is the robot's
+    base centre, its axes the twin's world axes, z up), position in m; orientation the measured
+    quaternion, the identity where the row has none (the MCAP metadata record ``twin_dataset``
+    counts those rows).
+``/twin/predicted_tip_pose`` (``geometry_msgs/msg/PoseStamped``)
+    beside it, the Cosserat prediction of the same tracked point from the row's measured tensions
+    and known tip mass (the dataset's own parameter set), frame ``world``; rows whose prediction
+    failed have none.
+``/twin/backbone`` (``nav_msgs/msg/Path``)
+    the predicted backbone, base to tip, as poses in frame ``world`` (rviz's Path display).
+``/tf_static`` (``tf2_msgs/msg/TFMessage``)
+    once, at the first stamp: ``world`` → ``base_link`` (REP 105's frame rigidly attached to the
+    robot's base; its axes the robot's body axes, z along the unbent backbone), rotated by the base
+    clamp's rotation (body → world).
 
 Stamps are the dataset's ``created`` time plus the row's ``time_s`` (rows without one follow
 the last stamped row at 1 s intervals). The file is written by ``mcap-ros2-support`` with the
@@ -19,7 +30,7 @@ releases may need ``-s mcap``).
 
 Example:
     >>> export_bag("runs/validate-20261201-120000", "sweep.mcap")
-    ExportSummary(path=PosixPath('sweep.mcap'), rows=24, topics=('/twin/tendons', '/twin/tip_pose'))
+    ExportSummary(path=PosixPath('sweep.mcap'), rows=24, topics=('/twin/tendons', '/twin/tip_pose', ...))
 """
 
 from __future__ import annotations
@@ -34,13 +45,21 @@ import numpy as np
 
 from twin.data.dataset import read_dataset
 
-__all__ = ["JOINT_STATE", "POSE_STAMPED", "TENDONS_TOPIC", "TIP_TOPIC", "ExportSummary", "export_bag", "register"]
+__all__ = ["BACKBONE_TOPIC", "JOINT_STATE", "PATH", "POSE_STAMPED", "PREDICTED_TIP_TOPIC", "TENDONS_TOPIC",
+           "TF_MESSAGE", "TF_STATIC_TOPIC", "TIP_TOPIC", "ExportSummary", "export_bag", "register"]
 
 TENDONS_TOPIC = "/twin/tendons"
 TIP_TOPIC = "/twin/tip_pose"
-TIP_FRAME = "base"
+PREDICTED_TIP_TOPIC = "/twin/predicted_tip_pose"
+BACKBONE_TOPIC = "/twin/backbone"
+TF_STATIC_TOPIC = "/tf_static"
+# REP 105 frame names: the fixed frame, and the robot's body frame at its base.
+WORLD_FRAME = "world"
+BASE_FRAME = "base_link"
 JOINT_STATE = "sensor_msgs/msg/JointState"
 POSE_STAMPED = "geometry_msgs/msg/PoseStamped"
+PATH = "nav_msgs/msg/Path"
+TF_MESSAGE = "tf2_msgs/msg/TFMessage"
 
 # Message definitions as rosbag2 stores them: the type's own fields, then each type it uses.
 _SEPARATOR = "=" * 80 + "\n"
@@ -53,6 +72,18 @@ _POSE_STAMPED_DEF = ("std_msgs/Header header\ngeometry_msgs/Pose pose\n" + _SEPA
                      + _SEPARATOR + "MSG: geometry_msgs/Point\nfloat64 x\nfloat64 y\nfloat64 z\n"
                      + _SEPARATOR + "MSG: geometry_msgs/Quaternion\nfloat64 x 0\nfloat64 y 0\nfloat64 z 0\n"
                      "float64 w 1\n")
+_POSE = ("MSG: geometry_msgs/Pose\nPoint position\nQuaternion orientation\n"
+         + _SEPARATOR + "MSG: geometry_msgs/Point\nfloat64 x\nfloat64 y\nfloat64 z\n"
+         + _SEPARATOR + "MSG: geometry_msgs/Quaternion\nfloat64 x 0\nfloat64 y 0\nfloat64 z 0\nfloat64 w 1\n")
+_PATH_DEF = ("std_msgs/Header header\ngeometry_msgs/PoseStamped[] poses\n" + _SEPARATOR + _HEADER + _SEPARATOR
+             + _TIME + _SEPARATOR + "MSG: geometry_msgs/PoseStamped\nstd_msgs/Header header\nPose pose\n"
+             + _SEPARATOR + _POSE)
+_TF_MESSAGE_DEF = ("geometry_msgs/TransformStamped[] transforms\n" + _SEPARATOR
+                   + "MSG: geometry_msgs/TransformStamped\nstd_msgs/Header header\nstring child_frame_id\n"
+                   "Transform transform\n" + _SEPARATOR + _HEADER + _SEPARATOR + _TIME + _SEPARATOR
+                   + "MSG: geometry_msgs/Transform\nVector3 translation\nQuaternion rotation\n" + _SEPARATOR
+                   + "MSG: geometry_msgs/Vector3\nfloat64 x\nfloat64 y\nfloat64 z\n" + _SEPARATOR
+                   + "MSG: geometry_msgs/Quaternion\nfloat64 x 0\nfloat64 y 0\nfloat64 z 0\nfloat64 w 1\n")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -99,6 +130,14 @@ def _header(stamp_ns: int, frame_id: str) -> dict:
     return {"stamp": {"sec": stamp_ns // 1_000_000_000, "nanosec": stamp_ns % 1_000_000_000}, "frame_id": frame_id}
 
 
+def _pose(position, rotation) -> dict:
+    from twin.pose import matrix_to_quat
+
+    w, x, y, z = matrix_to_quat(rotation).tolist()
+    px, py, pz = np.asarray(position, dtype=float).tolist()
+    return {"position": {"x": px, "y": py, "z": pz}, "orientation": {"x": x, "y": y, "z": z, "w": w}}
+
+
 def export_bag(source: str | Path, out: str | Path) -> ExportSummary:
     """Write the dataset at ``source`` (a dataset folder, its ``measurements.csv`` or a
     ``twin validate`` run folder) to the rosbag2 MCAP file ``out``.
@@ -120,12 +159,26 @@ def export_bag(source: str | Path, out: str | Path) -> ExportSummary:
     tips, quats = dataset.tip_positions_m, dataset.tip_quaternions
     names = [f"tendon_{i}" for i in range(1, dataset.tendons + 1)]
     unmeasured = 0
+    # The prediction of each row, kept with its backbone (the solutions land in ``solutions``).
+    from twin.data.prediction import predict_dataset
+
+    solutions: list = [None] * len(dataset)
+    predicted = predict_dataset(dataset, guesses=solutions)
     tmp = out.with_name(f".{out.name}.tmp")
     try:
         with open(tmp, "wb") as stream:
             writer = Writer(stream)
             joint_schema = writer.register_msgdef(JOINT_STATE, _JOINT_STATE_DEF)
             pose_schema = writer.register_msgdef(POSE_STAMPED, _POSE_STAMPED_DEF)
+            path_schema = writer.register_msgdef(PATH, _PATH_DEF)
+            tf_schema = writer.register_msgdef(TF_MESSAGE, _TF_MESSAGE_DEF)
+            first = stamps[0] if stamps else 0
+            writer.write_message(TF_STATIC_TOPIC, tf_schema, {"transforms": [{
+                "header": _header(first, WORLD_FRAME), "child_frame_id": BASE_FRAME,
+                "transform": {"translation": {"x": 0.0, "y": 0.0, "z": 0.0},
+                              "rotation": _pose([0, 0, 0], dataset.base_rotation)["orientation"]}}]},
+                log_time=first, publish_time=first, sequence=0)
+            predicted_rows = 0
             for row, stamp in enumerate(stamps):
                 writer.write_message(TENDONS_TOPIC, joint_schema, {
                     "header": _header(stamp, ""), "name": names, "position": lengths[row].tolist(),
@@ -137,23 +190,37 @@ def export_bag(source: str | Path, out: str | Path) -> ExportSummary:
                     unmeasured += 1
                 px, py, pz = tips[row].tolist()
                 writer.write_message(TIP_TOPIC, pose_schema, {
-                    "header": _header(stamp, TIP_FRAME),
+                    "header": _header(stamp, WORLD_FRAME),
                     "pose": {"position": {"x": px, "y": py, "z": pz},
                              "orientation": {"x": x, "y": y, "z": z, "w": w}},
                 }, log_time=stamp, publish_time=stamp, sequence=row)
+                solution = solutions[row]
+                if not predicted.converged[row] or solution is None:
+                    continue
+                writer.write_message(PREDICTED_TIP_TOPIC, pose_schema, {
+                    "header": _header(stamp, WORLD_FRAME), "pose": _pose(predicted.tip_m[row], solution.rotations[-1]),
+                }, log_time=stamp, publish_time=stamp, sequence=row)
+                writer.write_message(BACKBONE_TOPIC, path_schema, {
+                    "header": _header(stamp, WORLD_FRAME),
+                    "poses": [{"header": _header(stamp, WORLD_FRAME), "pose": _pose(p, r)}
+                              for p, r in zip(solution.positions_m, solution.rotations)],
+                }, log_time=stamp, publish_time=stamp, sequence=row)
+                predicted_rows += 1
             meta = dataset.metadata
             writer.add_metadata("twin_dataset", {
                 "source": str(dataset.path or source), "experiment": str(meta.get("experiment", "")),
                 "device": str(meta.get("device", "")), "created": str(meta.get("created", "")),
                 "robot": str(dataset.robot or ""), "tendons": str(dataset.tendons),
                 "rows": str(len(dataset)), "orientation_unmeasured_rows": str(unmeasured),
-                "tip_frame": f"{TIP_FRAME}: origin at the base centre, world axes",
+                "tip_frame": f"{WORLD_FRAME}: origin at the base centre, the twin's world axes (z up)",
+                "predicted_rows": str(predicted_rows),
             })
             writer.finish()
         tmp.replace(out)
     finally:
         tmp.unlink(missing_ok=True)
-    return ExportSummary(out, len(dataset), (TENDONS_TOPIC, TIP_TOPIC))
+    return ExportSummary(out, len(dataset), (TENDONS_TOPIC, TIP_TOPIC, PREDICTED_TIP_TOPIC, BACKBONE_TOPIC,
+                                             TF_STATIC_TOPIC))
 
 
 def register(subparsers) -> None:

@@ -43,6 +43,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="the first tendon's steps, one pull-release cycle and a 2 s chirp (about 11 s of device time)")
     r.add_argument("--seed", type=count, default=None, help="sim:// noise seed (default 0)")
     r.add_argument("--calibration", metavar="FILE", help="load-cell calibration file (default: the parameter set's)")
+    r.add_argument("--resume", metavar="RUN_DIR",
+                   help="continue a stopped run in this folder: the experiments it holds are kept, the rest recorded")
     r.add_argument("--twin-set", dest="twin_overrides", action="append", default=[], metavar="KEY=VALUE",
                    help="sim:// only: change the simulated rig but not the model (a hidden effect), repeatable")
     add_pose_args(r)
@@ -110,16 +112,33 @@ def run_record(args: argparse.Namespace) -> int:
             calibration_file = load_calibration(args.calibration)
         except (OSError, CalibrationFileError) as exc:
             raise UsageError(f"--calibration {args.calibration}: {exc}") from None
+        from twin.experiments.commands import RunRefused, _check_channels
+
+        try:
+            _check_channels(args, calibration_file, params)
+        except RunRefused as exc:  # before a run folder exists: a refused run leaves none
+            raise UsageError(str(exc)) from None
+    invocation = {"command": "dynamics record", "device": args.device, "seed": args.seed, "quick": args.quick,
+                  "params": args.params, "robot": args.robot, "set": list(args.overrides),
+                  "calibration": args.calibration}
+    done: list[str] = []
+    if args.resume:
+        folder, done = _check_resume(args, invocation, params, [e.name for e in experiments])
+        if len(done) == len(experiments):
+            print(f"twin dynamics record: --resume {folder}: all {len(done)} experiments are recorded already; "
+                  "nothing to do", file=sys.stderr)
+            print(f"dynamic dataset: {folder / DYNAMICS_FOLDER}")
+            return 0
     device = open_device_arg(args.device, params=twin_params, seed=args.seed, robot=robot_name(args))
-    folder = new_run_folder(args.out, "dynamics")
-    write_atomic(folder / RUN_RECORD, json.dumps({"command": "dynamics record", "device": args.device,
-                                                  "seed": args.seed, "quick": args.quick, "params": args.params,
-                                                  "robot": args.robot, "set": list(args.overrides),
-                                                  "calibration": args.calibration}, indent=1))
-    if args.twin_overrides:
-        # The hidden truth stays out of the dataset folder, so a calibration sees only what a lab would.
-        write_atomic(folder / TWIN_TRUTH, json.dumps({"twin_set": args.twin_overrides}, indent=1))
-    print(f"twin dynamics record: {len(experiments)} experiments on {args.device}, run folder {folder}",
+    if not args.resume:
+        folder = new_run_folder(args.out, "dynamics")
+        write_atomic(folder / RUN_RECORD, json.dumps(invocation, indent=1))
+        if args.twin_overrides:
+            # The hidden truth stays out of the dataset folder, so a calibration sees only what a lab would.
+            write_atomic(folder / TWIN_TRUTH, json.dumps({"twin_set": args.twin_overrides}, indent=1))
+    todo = [e for e in experiments if e.name not in done]
+    print(f"twin dynamics record: {len(todo)} experiments on {args.device}"
+          + (f" ({len(done)} recorded before: {', '.join(done)})" if done else "") + f", run folder {folder}",
           file=sys.stderr)
     recorded = 0
     try:
@@ -130,26 +149,76 @@ def run_record(args: argparse.Namespace) -> int:
         else:
             calibration = nominal_calibration(params)
             apply_calibration(device, calibration)
-        writer = SeriesWriter(folder / DYNAMICS_FOLDER, params=params, device=args.device,
-                              base_rotation=device.base_rotation, calibration=calibration,
-                              seed=(args.seed or 0) if sim else None, robot=args.robot,
-                              planned=[e.name for e in experiments], quick=args.quick)
-        for experiment in tqdm(experiments, desc="dynamic experiments", unit="experiment"):
+        if done:
+            writer = SeriesWriter.resume(folder / DYNAMICS_FOLDER)
+        else:
+            writer = SeriesWriter(folder / DYNAMICS_FOLDER, params=params, device=args.device,
+                                  base_rotation=device.base_rotation, calibration=calibration,
+                                  seed=(args.seed or 0) if sim else None, robot=args.robot,
+                                  planned=[e.name for e in experiments], quick=args.quick)
+        for experiment in tqdm(todo, desc="dynamic experiments", unit="experiment"):
             writer.write(run_experiment(device, experiment, params))
             recorded += 1
     except (ProtocolError, DeviceError, SimulationError) as exc:
-        if not recorded:
+        if not recorded and not args.resume:
             # Nothing measured: no run folder that looks like a run.
             shutil.rmtree(folder, ignore_errors=True)
             print(f"twin dynamics record: stopped: {type(exc).__name__}: {exc}; nothing was recorded", file=sys.stderr)
         else:
             print(f"twin dynamics record: stopped: {type(exc).__name__}: {exc}; the experiments completed so far are "
-                  f"in {folder / DYNAMICS_FOLDER}", file=sys.stderr)
+                  f"in {folder / DYNAMICS_FOLDER}; continue with: twin dynamics record --resume {folder} "
+                  "and the same options", file=sys.stderr)
         return EXIT_STOPPED
+    except BaseException:
+        if not recorded and not args.resume:
+            shutil.rmtree(folder, ignore_errors=True)
+        raise
     finally:
         device.close()
     print(f"dynamic dataset: {folder / DYNAMICS_FOLDER}")
     return 0
+
+
+def _check_resume(args, invocation: dict, params, planned: list[str]) -> tuple[Path, list[str]]:
+    """The run folder of ``--resume`` and the experiments it holds, once it is known to be a
+    ``twin dynamics record`` run taken with these options, parameters and ``--twin-set``.
+
+    Raises:
+        UsageError: not such a run, or a setting that differs (each named).
+    """
+    from twin.dynamics.series import DYNAMICS_FOLDER, METADATA
+    from twin.experiments.commands import RUN_RECORD, TWIN_TRUTH
+
+    folder = Path(args.resume)
+    where = f"--resume {folder}"
+    try:
+        record = json.loads((folder / RUN_RECORD).read_text())
+        truth = json.loads((folder / TWIN_TRUTH).read_text())["twin_set"] if (folder / TWIN_TRUTH).exists() else []
+        metadata_path = folder / DYNAMICS_FOLDER / METADATA
+        metadata = json.loads(metadata_path.read_text()) if metadata_path.exists() else None
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        raise UsageError(f"{where}: not a readable run folder of twin dynamics record ({exc})") from None
+    if not isinstance(record, dict) or record.get("command") != "dynamics record":
+        raise UsageError(f"{where}: not a run folder of twin dynamics record")
+    differences = [f"{key} {invocation[key]!r} here, {record.get(key)!r} in the run" for key in invocation
+                   if key != "command" and invocation[key] != record.get(key)]
+    if sorted(args.twin_overrides) != sorted(truth):
+        differences.append(f"--twin-set {args.twin_overrides} here, {truth} in the run")
+    done: list[str] = []
+    if metadata is not None:
+        ours = {(s, k): e["value"] for s, entries in params.to_dict().items() for k, e in entries.items()}
+        theirs = {(s, k): e.get("value") for s, entries in metadata.get("params", {}).items()
+                  for k, e in entries.items()}
+        changed = sorted(f"{s}.{k}" for s, k in ours.keys() | theirs.keys() if ours.get((s, k)) != theirs.get((s, k)))
+        if changed:
+            differences.append(f"parameters {', '.join(changed[:6])}{' ...' if len(changed) > 6 else ''} differ")
+        if metadata.get("planned") != planned:
+            differences.append(f"experiments {planned} planned here, {metadata.get('planned')} in the run")
+        done = [e["name"] for e in metadata.get("experiments", [])]
+    if differences:
+        raise UsageError(f"{where}: " + "; ".join(differences) + "; resume with the run's settings, or start a "
+                         "new run: series taken under other conditions would be mixed in")
+    return folder, done
 
 
 # ----------------------------------------------------------------------------------------- replay

@@ -86,6 +86,24 @@ class SeriesWriter:
         }
         self._write_metadata()
 
+    @classmethod
+    def resume(cls, folder: str | Path) -> "SeriesWriter":
+        """A writer that goes on appending to the dynamic dataset in ``folder``: the experiments its
+        metadata lists stay; files of one written but not yet listed are overwritten.
+
+        Raises:
+            DatasetError: no readable dataset metadata in ``folder``.
+        """
+        self = cls.__new__(cls)
+        self.folder = Path(folder)
+        try:
+            self.metadata = json.loads((self.folder / METADATA).read_text())
+            self._n = int(self.metadata["tendons"])
+            self.metadata["experiments"] = list(self.metadata["experiments"])
+        except (OSError, ValueError, KeyError, TypeError) as exc:
+            raise DatasetError(f"{self.folder / METADATA}: cannot be resumed ({exc})") from None
+        return self
+
     def _write_metadata(self) -> None:
         write_atomic(self.folder / METADATA, json.dumps(self.metadata, indent=1))
 

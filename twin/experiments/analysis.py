@@ -104,9 +104,10 @@ def plot_validation(result: ValidationResult, folder: str | Path) -> dict[str, P
     masses = np.unique(d["tip_mass_kg"])
     kappas = np.unique(d["kappa_cmd_per_m"])
     err = p.errors_m * 1e3
-    quantities = {"error_magnitude": (result.error_mm, "prediction error |e_p| (mm)"),
-                  "error_x": (err[:, 0], "error along x, e_x (mm)"), "error_y": (err[:, 1], "error along y, e_y (mm)"),
-                  "error_z": (err[:, 2], "error along z, e_z (mm)")}
+    # The sign convention is on every axis: e = p̂ − p*, predicted minus measured, in the base frame.
+    quantities = {"error_magnitude": (result.error_mm, "prediction error |e_p| = |p̂ − p*| (mm)")}
+    quantities.update({f"error_{axis}": (err[:, i], f"e_{axis} = {axis}̂ − {axis}* (mm)\n(predicted − measured)")
+                       for i, axis in enumerate("xyz")})
     paths: dict[str, Path] = {}
     for name, (values, label) in quantities.items():
         fig, axes = plt.subplots(1, len(masses), figsize=(min(4.2 * len(masses), _MAX_WIDTH_IN), 3.6), sharey=True,

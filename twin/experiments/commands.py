@@ -411,6 +411,14 @@ def _run_folder(args, command: str, experiment: str, params) -> Path:
     """The run folder: ``--resume``'s once checked, else a new one."""
     if args.twin_overrides and not args.device.startswith("sim://"):
         raise RunRefused("--twin-set applies to sim:// only")
+    if args.twin_overrides:
+        # Checked before a run folder exists: a bad hidden setting should not leave one behind.
+        from twin.params import ParameterError
+
+        try:
+            _twin_params(args, params)
+        except ParameterError as exc:
+            raise RunRefused(f"--twin-set: {exc}") from None
     if args.calibration:
         # Checked before a run folder exists: a typo should not cost a folder or a pretension.
         from twin.calibration import CalibrationFileError, load_calibration
@@ -468,6 +476,10 @@ def _run(args, command: str, experiment: str, body) -> int:
         except KeyboardInterrupt as exc:
             _stopped(command, folder, args, exc)
             return 130
+        except BaseException:
+            # Anything else (bad input found late, a bug): a new run that measured nothing leaves no folder.
+            _discard_if_empty(args, folder)
+            raise
     except RunRefused as exc:
         print(f"twin {command}: {exc}", file=sys.stderr)
         return 2

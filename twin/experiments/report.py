@@ -63,8 +63,9 @@ def write_validation_report(result: ValidationResult, folder: str | Path, *, tit
         lines += [f"![the endoscope]({Path(picture).relative_to(folder)})", ""]
     lines += ["## Summary", "", markdown_table([{k: v for k, v in summary.items()}]), ""]
     lines += ["Errors are |p̂ − p*| between the Cosserat prediction (from the measured tensions and the "
-              "known loads) and the measured tip, base frame. Failed predictions are counted, never "
-              "plotted as answers.", ""]
+              "known loads) and the measured tip, base frame. The signed errors e_x, e_y, e_z are predicted "
+              "minus measured (e = p̂ − p*): a positive e_z means the prediction lies above the measured tip. "
+              "Failed predictions are counted, never plotted as answers.", ""]
     lines += ["## By tip mass", "", markdown_table(result.by_group("tip_mass_kg")), ""]
     lines += ["## By curvature", "", markdown_table(result.by_group("kappa_cmd_per_m")), ""]
     lines += ["## By bending plane", "", markdown_table(result.by_group("phi_cmd_deg")), ""]

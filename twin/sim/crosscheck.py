@@ -322,9 +322,15 @@ def plot_crosscheck(result: CrosscheckResult, path: str | Path) -> Path:
         ax.axhline(GOAL_MEDIAN_PCT, color="k", ls="--", lw=0.8, label=f"goal: median ≤ {GOAL_MEDIAN_PCT:g}%")
         ax.set(title=f"tip mass {mass * 1e3:g} g", xlabel="bending plane φ (deg)")
         ax.grid(alpha=0.3)
+    # A single bending plane (or a narrow set) would autoscale to ±0.05°: pad to a readable span.
+    phi_low, phi_high = np.min(rows[:, 1]), np.max(rows[:, 1])
+    pad = max(10.0, 0.05 * (phi_high - phi_low))
+    for ax in axes[0]:
+        ax.set_xlim(phi_low - pad, phi_high + pad)
     top = np.nanmax(pct) if np.isfinite(pct).any() else GOAL_MEDIAN_PCT
     axes[0][0].set_ylim(0.0, 1.1 * max(top, GOAL_MEDIAN_PCT))
-    axes[0][0].set_ylabel("twin − predictor tip (% of L)")
+    # A distance, never signed: |tip_twin − tip_predictor|.
+    axes[0][0].set_ylabel("twin-to-predictor tip distance\n|p_twin − p_pred| (% of L)")
     axes[0][-1].legend(fontsize=7, title=f"curvature (1/m); worst-case goal {GOAL_WORST_PCT:g}%", title_fontsize=7)
     fig.tight_layout()
     path = Path(path)

@@ -62,14 +62,70 @@ class TwinCamera:
         right /= np.linalg.norm(right)
         return right, np.cross(right, forward)
 
-    def render(self) -> np.ndarray:
-        """(height, width, 3) uint8 RGB of the twin now, the camera on the backbone's middle."""
-        self._camera.lookat[:] = self._plant.backbone_positions_m().mean(axis=0)
+    def render(self, *, target_m=None, floor_grid: bool = False) -> np.ndarray:
+        """(height, width, 3) uint8 RGB of the twin now, the camera on the backbone's middle.
+
+        Args:
+            target_m: a target tip position (3,), world frame (m), drawn as a green sphere of
+                :data:`TARGET_RADIUS_M`; None draws none.
+            floor_grid: draw a horizontal grid of :data:`GRID_SPACING_M` squares under the robot
+                (the picture's scale: each square is 1 cm) with a red 1 cm bar along world x and a
+                blue one along world y at its corner, so a frame shows lengths and directions.
+        """
+        backbone = self._plant.backbone_positions_m()
+        self._camera.lookat[:] = backbone.mean(axis=0)
         self._renderer.update_scene(self._plant.data, self._camera)
+        scene = self._renderer.scene
+        if floor_grid:
+            _add_floor_grid(scene, backbone, target_m)
+        if target_m is not None:
+            _add_geom(scene, mujoco.mjtGeom.mjGEOM_SPHERE, [TARGET_RADIUS_M, 0, 0], np.asarray(target_m, float),
+                      (0.1, 0.8, 0.2, 0.8))
         return np.ascontiguousarray(self._renderer.render())
 
     def close(self) -> None:
         self._renderer.close()
+
+
+# The target sphere's radius (m): a few millimetres, visible at the default 16 cm camera distance.
+TARGET_RADIUS_M = 0.003
+# Floor-grid square (m): 1 cm, the scale a reader counts the tip's travel in.
+GRID_SPACING_M = 0.01
+
+
+def _add_geom(scene, kind, size, pos, rgba, *, ends=None, width: float = 0.0) -> bool:
+    """Append one decoration geom to ``scene`` (a connector from ``ends[0]`` to ``ends[1]`` when
+    given); False when the scene is full."""
+    if scene.ngeom >= scene.maxgeom:
+        return False
+    geom = scene.geoms[scene.ngeom]
+    mujoco.mjv_initGeom(geom, kind, np.asarray(size, float), np.asarray(pos, float), np.eye(3).ravel(),
+                        np.asarray(rgba, np.float32))
+    if ends is not None:
+        mujoco.mjv_connector(geom, kind, width, np.asarray(ends[0], float), np.asarray(ends[1], float))
+    scene.ngeom += 1
+    return True
+
+
+def _add_floor_grid(scene, backbone_m: np.ndarray, target_m=None) -> None:
+    """A grid of 1 cm squares 1 cm below the lowest of the backbone and the target, covering
+    both with a margin, and 1 cm bars along world x (red) and y (blue) at its corner."""
+    points = backbone_m if target_m is None else np.vstack([backbone_m, np.asarray(target_m, float)[None]])
+    step = GRID_SPACING_M
+    low = np.floor(points.min(axis=0) / step) * step - 2 * step
+    high = np.ceil(points.max(axis=0) / step) * step + 2 * step
+    z = low[2] + step
+    grey = (0.55, 0.55, 0.55, 1.0)
+    for x in np.arange(low[0], high[0] + step / 2, step):
+        _add_geom(scene, mujoco.mjtGeom.mjGEOM_LINE, [0, 0, 0], [0, 0, 0], grey, ends=([x, low[1], z], [x, high[1], z]),
+                  width=1.0)
+    for y in np.arange(low[1], high[1] + step / 2, step):
+        _add_geom(scene, mujoco.mjtGeom.mjGEOM_LINE, [0, 0, 0], [0, 0, 0], grey, ends=([low[0], y, z], [high[0], y, z]),
+                  width=1.0)
+    corner = np.array([low[0], low[1], z])
+    for axis, rgba in ((0, (0.9, 0.1, 0.1, 1.0)), (1, (0.1, 0.2, 0.9, 1.0))):
+        _add_geom(scene, mujoco.mjtGeom.mjGEOM_CAPSULE, [0, 0, 0], [0, 0, 0], rgba,
+                  ends=(corner, corner + step * np.eye(3)[axis]), width=0.0008)
 
 
 def render_png(plant, path: str | Path, *, labelled: bool = False, title: str = "", **camera) -> Path:
