@@ -323,3 +323,22 @@ def test_the_lower_bounds_of_the_dependencies_are_real(wheel, tmp_path):
         capture_output=True, text=True, check=True).stdout)
     assert {n: Version(v) for n, v in versions.items()} == {n: Version(v) for n, v in _lower_bounds().items()}
     _smoke(bin_dir, tmp_path / "work")
+
+
+def test_the_first_kernel_compile_is_announced_only_while_the_cache_holds_none(tmp_path, monkeypatch):
+    from twin import resources
+    from twin.rod import kernel
+
+    said = []
+    monkeypatch.setattr(resources, "_say", said.append)
+    monkeypatch.setenv("NUMBA_CACHE_DIR", str(tmp_path))
+    resources.announce_kernel_compile(kernel.__file__, "the predictor's kernels")
+    assert len(said) == 1 and "compiling the predictor's kernels" in said[0] and str(tmp_path) in said[0]
+    # Numba's own cache files for the module, where Numba writes them, silence it.
+    import numba.core.caching as caching
+
+    folder = tmp_path / caching._CacheLocator.get_suitable_cache_subpath(kernel.__file__)
+    folder.mkdir()
+    (folder / "kernel.integrate-1.py311.nbi").write_bytes(b"")
+    resources.announce_kernel_compile(kernel.__file__, "the predictor's kernels")
+    assert len(said) == 1

@@ -28,6 +28,7 @@ from pathlib import Path
 from typing import Callable, Iterable
 
 __all__ = [
+    "announce_kernel_compile",
     "NativeBuildError",
     "build_cached",
     "cache_dir",
@@ -174,6 +175,21 @@ def build_cached(name: str, sources: Iterable[Path], key: Iterable[str], build: 
             raise
         raise error(str(exc)) from None
     return library
+
+
+def announce_kernel_compile(source: str, what: str) -> None:
+    """Say at the terminal that ``what``'s Numba kernels, defined in the module file ``source``,
+    compile on their first use in this process, when the on-disk cache holds none of them yet (a
+    fresh install, or a cache cleared): that first use then takes tens of seconds of CPU with no
+    other sign of life. The cache is where Numba keeps a module's kernels: its folder's name and
+    a hash of its full path, below ``NUMBA_CACHE_DIR``."""
+    cache = os.environ.get("NUMBA_CACHE_DIR")
+    if not cache:
+        return
+    path = Path(source).resolve()
+    folder = Path(cache, f"{path.parent.name}_{hashlib.sha1(str(path.parent).encode()).hexdigest()}")
+    if not any(folder.glob(f"{path.stem}.*.nbi")):
+        _say(f"compiling {what} (Numba, first use after install: 20-60 s of CPU, once; cached in {cache})")
 
 
 def _say(line: str) -> None:

@@ -28,6 +28,9 @@ import numpy as np
 
 from twin.params import Params
 from twin.pose import matrix_to_quat
+from twin.resources import announce_kernel_compile
+
+announce_kernel_compile(__file__, "the tracker fusion's kernels")
 
 __all__ = [
     "CapCalibration",

@@ -40,6 +40,10 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
+from twin.resources import announce_kernel_compile
+
+announce_kernel_compile(__file__, "the predictor's kernels")
+
 # Tendon table columns: base radius (m), tip radius (m), base angle (rad), helix rate (rad/m),
 # termination s (m), tension at the base (N), friction direction σ (−1, 0, +1).
 T_R0, T_R1, T_ALPHA, T_OMEGA, T_END, T_TAU, T_SIGMA = range(7)
