@@ -291,6 +291,9 @@ def test_another_labs_load_cells_and_limit_work_end_to_end_and_a_blinding_calibr
             true.append(device.twin.true_tensions_n()[0])
         assert device.latest().fault_flags == 0
         assert np.mean(true[-5:]) == pytest.approx(12.0, abs=2.0)
-        np.testing.assert_allclose(read, true, atol=0.15)
+        # A reading is a sample a load-cell period old of a tension the loop still moves at 12 N
+        # (±0.3 N on these cells' gains, which are the endoscope's): read and true agree on average.
+        np.testing.assert_allclose(np.mean(read[-5:]), np.mean(true[-5:]), atol=0.1)
+        np.testing.assert_allclose(read, true, atol=0.5)
         with pytest.raises(ValueError, match=r"tensions_n\[0\] = 31.0: outside 0..30 N"):
             device.set_tensions([31.0, 1.0, 1.0, 1.0])
