@@ -14,8 +14,8 @@ from gymnasium import spaces
 
 from twin.envs.randomization import Randomization, TipLoads
 from twin.control.pretension import pretension_straight
-from twin.device import CommandRejected, open_device
-from twin.device.codec import Fault
+from twin.driver import CommandRejected, open_device
+from twin.driver.codec import Fault
 from twin.params import Params, load_params
 from twin.pcc import arc_tip_position_m
 
@@ -71,7 +71,7 @@ class EndoscopeReachEnv(gym.Env):
     """Bring the endoscope tip to a target and hold it there while masses hang at the tip.
 
     The endoscope is clamped horizontally (thesis §8.3: base +90° about world y, gravity along
-    world −z) and driven through :class:`twin.device.Device` on ``device_url``: ``sim://``, the
+    world −z) and driven through :class:`twin.driver.Device` on ``device_url``: ``sim://``, the
     twin in simulated time (default), or ``serial://…?igtl=host:port``, the rig in real time.
     One step is one 40 Hz control period: the action goes to the board, then the env waits for
     the next telemetry sample (25 ms of device time) and reads the tracker.

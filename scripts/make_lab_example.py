@@ -17,7 +17,7 @@ import csv
 
 import numpy as np
 
-from twin.device import open_device
+from twin.driver import open_device
 from twin.experiments.protocols import apply_calibration, measure, nominal_calibration, pretension, wait_for_rest
 from twin.robots import load_robot
 

@@ -16,10 +16,10 @@ import struct
 import numpy as np
 import pytest
 
-from twin.device import codec as c
+from twin.driver import codec as c
 from twin.device.board import TICK_S
 from twin.device.firmware_lib import FIRMWARE_DIR, FirmwareFrameDecoder
-from twin.device.telemetry import Telemetry
+from twin.driver.telemetry import Telemetry
 
 VECTORS_PATH = FIRMWARE_DIR / "golden" / "vectors.json"
 VECTORS = json.loads(VECTORS_PATH.read_text())

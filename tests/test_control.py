@@ -13,7 +13,7 @@ from twin.control.compensation_trial import (GOAL_REDUCTION_PCT, CompensationTri
                                              run_compensation_trial, tension_ceiling_n, within_reach)
 from twin.control.gains import DEFAULT_TENSION_GAINS, TUNED_TENSION_GAINS, tension_gains_for
 from twin.tuning import tension_cost
-from twin.device import open_device
+from twin.driver import open_device
 from twin.pose import HORIZONTAL
 from twin.rod import RodModel, solve
 from twin.pcc import validation_grid

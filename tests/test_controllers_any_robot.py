@@ -8,7 +8,7 @@ from twin.envs import EndoscopeReachEnv, TipLoads
 from twin.envs.reach import default_curvature_range_per_m, default_max_length_m, default_tension_range_n
 from twin.cli import main
 from twin.control.cocontraction import antagonistic_pair, run_cocontraction_study
-from twin.device import open_device
+from twin.driver import open_device
 from twin.robots import load_robot
 from twin.tuning import TipTrackingController, tension_steps_n
 

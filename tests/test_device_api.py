@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 
 from twin.calibration import run_calibration
-from twin.device import CommandRejected, DeviceError, OperatorFixture, open_device
-from twin.device.codec import PROTOCOL_VERSION, Drive, Mode, NackError, State
+from twin.driver import CommandRejected, DeviceError, OperatorFixture, open_device
+from twin.driver.codec import PROTOCOL_VERSION, Drive, Mode, NackError, State
 from twin.params import load_params
 
 

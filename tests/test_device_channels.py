@@ -11,8 +11,8 @@ import time
 import numpy as np
 import pytest
 
-from twin.device import ChannelCountError, CommandRejected, open_device
-from twin.device import codec as c
+from twin.driver import ChannelCountError, CommandRejected, open_device
+from twin.driver import codec as c
 from twin.device.firmware_lib import FirmwareLib
 from twin.device.pty_board import PtyBoard
 from twin.params import load_params

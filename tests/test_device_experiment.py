@@ -9,8 +9,9 @@ import os
 import numpy as np
 import pytest
 
-from twin.device import Device, SimTwin, open_device
-from twin.device.codec import Drive, State
+from twin.driver import Device, open_device
+from twin.device import SimTwin
+from twin.driver.codec import Drive, State
 from twin.device.pty_board import PtyBoard
 
 # Tendon 1 in, tendon 3 out by as much: the tip bends towards tendon 1 (body +x, world −z in

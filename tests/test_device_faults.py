@@ -13,10 +13,11 @@ import tty
 import numpy as np
 import pytest
 
-from twin.device import DeviceDisconnected, DeviceError, DeviceTimeout, ProtocolVersionError, SimTwin, open_device
-from twin.device import codec as c
-from twin.device.codec import Drive, Fault, State
-from twin.device.inbox import Inbox
+from twin.driver import DeviceDisconnected, DeviceError, DeviceTimeout, ProtocolVersionError, open_device
+from twin.device import SimTwin
+from twin.driver import codec as c
+from twin.driver.codec import Drive, Fault, State
+from twin.driver.inbox import Inbox
 from twin.device.pty_board import PtyBoard
 from twin.params import load_params
 
@@ -188,7 +189,7 @@ def test_garbage_on_the_line_is_skipped_and_a_silent_board_times_out():
 
 HOST_SCRIPT = textwrap.dedent("""
     import sys, time
-    from twin.device import open_device
+    from twin.driver import open_device
     device = open_device(sys.argv[1])
     device.connect()
     device.tare()

@@ -9,7 +9,7 @@ import numpy as np
 from twin import effects
 from twin.cli import main
 from twin.data.dataset import read_dataset
-from twin.device import open_device
+from twin.driver import open_device
 from twin.discrepancy.decide import DESIGNS, designs_for
 from twin.experiments.protocols import nominal_calibration, run_validation
 from twin.params import load_params
@@ -109,7 +109,7 @@ def test_a_device_in_another_pose_than_the_dataset_is_refused_before_any_work(tm
 
 
 def test_a_deciding_experiment_the_twin_diverges_in_leaves_the_dataset_as_it_was(tmp_path, capsys, monkeypatch):
-    from twin.device.fixture import SimFixture
+    from twin.driver.fixture import SimFixture
 
     data = tmp_path / "data"
     _older_friction_dataset(data)

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from twin import load_params
-from twin.device import open_device
+from twin.driver import open_device
 from twin.discrepancy import find_discrepancy, run_discrepancy
 from twin.data.dataset import read_dataset
 from twin.experiments.protocols import nominal_calibration, run_validation

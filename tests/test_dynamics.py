@@ -277,7 +277,7 @@ def test_friction_and_damping_are_the_joints_own_and_off_leaves_them():
 
 
 def test_the_motors_act_the_latency_late():
-    from twin.device import open_device
+    from twin.driver import open_device
     from twin.experiments.protocols import nominal_calibration, pretension
 
     def first_motion_s(latency_s):

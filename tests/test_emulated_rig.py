@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 
 from twin.cli import main
-from twin.device import open_device
+from twin.driver import open_device
 from twin.device.emulated_rig import EmulatedRig
-from twin.device.fixture import FixtureUnavailable, OperatorFixture, RemoteFixture
+from twin.driver.fixture import FixtureUnavailable, OperatorFixture, RemoteFixture
 
 
 def _ended_stdin(*_):

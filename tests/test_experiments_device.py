@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from twin import load_params
-from twin.device import open_device
+from twin.driver import open_device
 from twin.experiments.protocols import calibrate_device
 
 

@@ -29,10 +29,11 @@ from typing import Callable
 import numpy as np
 import pytest
 
-from twin.device import DeviceDisconnected, DeviceTimeout, SimTwin, open_device
-from twin.device import codec as c
-from twin.device.codec import Fault, State
-from twin.device.inbox import Inbox
+from twin.driver import DeviceDisconnected, DeviceTimeout, open_device
+from twin.device import SimTwin
+from twin.driver import codec as c
+from twin.driver.codec import Fault, State
+from twin.driver.inbox import Inbox
 from twin.device.pty_board import PtyBoard
 
 # The board's default watchdog timeout and telemetry period (s).
@@ -352,7 +353,7 @@ def test_bit_flips_both_ways_are_dropped_and_no_corrupted_command_is_acted_on():
 # ----------------------------------------------------------------------------- a host that stops
 KILLED_HOST = textwrap.dedent("""
     import sys
-    from twin.device import open_device
+    from twin.driver import open_device
     device = open_device(sys.argv[1])
     device.connect()
     device.set_limits(watchdog_timeout_s=float(sys.argv[2]))

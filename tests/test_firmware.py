@@ -11,7 +11,7 @@ import subprocess
 import numpy as np
 import pytest
 
-from twin.device import codec as c
+from twin.driver import codec as c
 from twin.device.firmware_lib import FIRMWARE_DIR, FirmwareLib
 from twin.params import load_params
 

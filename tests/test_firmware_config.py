@@ -60,7 +60,7 @@ def test_the_parser_reads_what_it_claims():
 
 
 def test_the_driver_refuses_what_the_firmware_refuses():
-    from twin.device import device
+    from twin.driver import device
 
     assert device.GAIN_TOLERANCE == constant("kGainTolerance")
     low, high = device.RATED_GAIN_COUNTS_PER_N

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from twin.device import open_device
+from twin.driver import open_device
 from twin.force.rig import rig_summary, rig_trials
 from twin.params import load_params
 

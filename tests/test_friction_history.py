@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from twin.data.dataset import read_dataset
-from twin.device import open_device
+from twin.driver import open_device
 from twin.effects import SlidingState
 from twin.effects.tendon_friction import FRICTION_TRAVEL_LAG_S, PRESLIDING_M, slide
 from twin.experiments import protocols

@@ -55,7 +55,7 @@ def test_a_friction_twin_runs_the_quick_sweep_at_its_full_step_without_diverging
     import numpy as np
 
     from twin.data.dataset import read_dataset
-    from twin.device import open_device
+    from twin.driver import open_device
     from twin.experiments.protocols import run_validation, validation_grid
     from twin.params import load_params
 
@@ -79,7 +79,7 @@ def test_the_default_robot_runs_the_quick_sweep_at_a_friction_coefficient_of_0_6
     # the most bent pull with 10 g, which the capstan friction takes over the 6 N tension limit
     # (rig.tension_limit_n), and which the sweep then leaves out and says why.
     from twin.data.dataset import read_dataset
-    from twin.device import open_device
+    from twin.driver import open_device
     from twin.experiments.protocols import run_validation
     from twin.params import load_params
     from twin.pcc import quick_grid, validation_grid

@@ -1,6 +1,6 @@
 """OpenIGTLink both ways, checked against pyigtl (an independent implementation) on loopback.
 
-pyigtl's server feeds our tracker client (:class:`twin.device.igtl_source.OpenIGTLinkSource`) as
+pyigtl's server feeds our tracker client (:class:`twin.driver.igtl_source.OpenIGTLinkSource`) as
 PLUS would; pyigtl's client reads our server (:class:`twin.device.igtl_server.OpenIGTLinkServer`).
 Ports are ephemeral, so the suite's parallel workers never collide.
 """
@@ -16,10 +16,10 @@ import time
 import numpy as np
 import pytest
 
-from twin.device import igtl
+from twin.driver import igtl
 from twin.device.igtl_server import OpenIGTLinkServer, probe_rotation, twin_messages
-from twin.device.igtl_source import IgtlSettings, OpenIGTLinkSource, settings_from_options
-from twin.device.url import open_device
+from twin.driver.igtl_source import IgtlSettings, OpenIGTLinkSource, settings_from_options
+from twin.driver.url import open_device
 from twin.pose import matrix_to_quat, quat_to_matrix, rot_x, rot_z
 from twin.tracking import CapCalibration, FrameStatus, FusionSettings, ProbeReading, fuse_frame
 

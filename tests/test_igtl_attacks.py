@@ -15,7 +15,7 @@ import time
 import numpy as np
 import pytest
 
-from twin.device import igtl
+from twin.driver import igtl
 from twin.device.igtl_server import OpenIGTLinkServer
 
 FRAME_BYTES = 64 * 1024  # a frame as large as a long backbone's: fills a stalled client's buffers fast
@@ -110,7 +110,7 @@ def test_out_of_file_descriptors_the_server_says_so_and_keeps_serving():
     # Before: EMFILE killed the accept thread for good while the process went on "serving".
     script = textwrap.dedent("""
         import resource, sys, time
-        from twin.device import igtl
+        from twin.driver import igtl
         from twin.device.igtl_server import OpenIGTLinkServer
         server = OpenIGTLinkServer("127.0.0.1", 0, max_clients=1000)
         import os
@@ -195,7 +195,7 @@ def test_igtl_serve_says_serving_only_with_frames_to_send_and_sends_no_burst():
 
 # --------------------------------------------------------------------------- the client attacked
 
-from twin.device.igtl_source import MAX_POSE_BODY_BYTES, OpenIGTLinkSource  # noqa: E402
+from twin.driver.igtl_source import MAX_POSE_BODY_BYTES, OpenIGTLinkSource  # noqa: E402
 
 NAMES = ("ProbeAToTracker", "ProbeBToTracker")
 

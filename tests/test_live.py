@@ -55,7 +55,7 @@ def test_states_shown_faster_than_the_rate_are_skipped_not_queued():
 
 
 def test_a_watched_device_shows_what_its_user_reads_and_the_twin():
-    from twin.device import open_device
+    from twin.driver import open_device
 
     with open_device("sim://", params=PARAMS, seed=1) as device, LiveView(PARAMS, predict=False) as view:
         device.connect()

@@ -28,9 +28,9 @@ HOST_WITHOUT_MUJOCO = textwrap.dedent("""
 
     sys.meta_path.insert(0, NoMujoco())
 
-    import twin.device
-    import twin.device.serial_transport
-    from twin.device import codec as c, open_device
+    import twin.driver
+    import twin.driver.serial_transport
+    from twin.driver import codec as c, open_device
     from twin.tracking import CapCalibration, FusionSettings, ProbeFrame, ProbeReading, fuse_frame
 
     from twin import load_params

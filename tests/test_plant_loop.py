@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from twin import load_params
-from twin.device import open_device
+from twin.driver import open_device
 from twin.sim import native_loop
 from twin.effects.tendon_friction import FRICTION_MAX_STEP_S
 from twin.sim.plant import Plant

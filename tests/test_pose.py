@@ -10,7 +10,7 @@ import pytest
 
 from twin import load_params
 from twin.data.dataset import read_dataset
-from twin.device import open_device
+from twin.driver import open_device
 from twin.experiments.analysis import analyse_validation
 from twin.experiments.protocols import nominal_calibration, run_validation
 from twin.params import ParameterError

@@ -43,7 +43,7 @@ def test_stiffness_run_on_the_twin_recovers_its_youngs_modulus(tmp_path):
     than the model the fit starts from: the fit finds the twin's E. With the isotropic G the
     shear is 0.5% of the sag, so G is left nearly undetermined and only its interval is checked
     to be wide rather than its value."""
-    from twin.device import open_device
+    from twin.driver import open_device
     from twin.data.dataset import read_dataset
     from twin.experiments.protocols import nominal_calibration, run_stiffness
 

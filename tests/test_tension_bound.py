@@ -39,9 +39,9 @@ import sys
 import numpy as np
 import pytest
 
-from twin.device import CommandRejected, Device, open_device
-from twin.device import codec as c
-from twin.device.device import GAIN_TOLERANCE
+from twin.driver import CommandRejected, Device, open_device
+from twin.driver import codec as c
+from twin.driver.device import GAIN_TOLERANCE
 from twin.params import load_params
 
 PARAMS = load_params()

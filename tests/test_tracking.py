@@ -20,7 +20,7 @@ from twin.tracking import (
     fuse_frame,
 )
 from twin.tracking import _wahba
-from twin.device.igtl_source import OpenIGTLinkSource
+from twin.driver.igtl_source import OpenIGTLinkSource
 
 CAL = CapCalibration()
 

@@ -269,7 +269,7 @@ def show_twin(view: LiveView, twin, *, target_m=None, label: str = "") -> None:
 
 
 class LiveDevice:
-    """A :class:`twin.device.Device` that also shows what its user reads: pass it where the
+    """A :class:`twin.driver.Device` that also shows what its user reads: pass it where the
     device goes (a protocol, a controller) and the view follows the run.
 
     Only values the user asks for anyway are shown (telemetry from :meth:`latest` and

@@ -12,7 +12,7 @@ distorts the field), so :func:`fuse` never raises for them: it returns a
 ``None`` then. Malformed arguments (wrong shapes) raise ``ValueError``.
 
 Sources hand out :class:`ProbeFrame` objects: :class:`CallableSource` adapts the simulated twin;
-the rig's OpenIGTLink (PLUS) client is :class:`twin.device.igtl_source.OpenIGTLinkSource`.
+the rig's OpenIGTLink (PLUS) client is :class:`twin.driver.igtl_source.OpenIGTLinkSource`.
 """
 
 from __future__ import annotations

@@ -1,7 +1,7 @@
 """Controller tuning against the env, worked as an example: the board's tension PID, then a
 model-based tip-tracking controller on top of it.
 
-1. **Tension PID** (the firmware's tension mode; gains per :meth:`twin.device.Device.set_gains`).
+1. **Tension PID** (the firmware's tension mode; gains per :meth:`twin.driver.Device.set_gains`).
    A rollout asks for a fixed sequence of tension steps on an antagonistic pair and hangs a tip
    mass half-way; the cost is the RMS tension tracking error (N), plus a penalty if the board
    faults. Nelder–Mead on (log kp, log ki, log duty clamp) from the firmware's defaults.
@@ -156,7 +156,7 @@ class TipTrackingController:
             tension range raised to 1 N where it allows (taut tendons), and its upper end
             (:func:`twin.envs.reach.default_tension_range_n`: 1 N and 5 N on the thesis endoscope).
         base_rotation: the clamp orientation (3×3) of the robot it controls; default the
-            parameter set's ``rig.base_quat`` (give the device's :attr:`~twin.device.Device.base_rotation`).
+            parameter set's ``rig.base_quat`` (give the device's :attr:`~twin.driver.Device.base_rotation`).
     """
 
     def __init__(self, params: Params, *, gain: float = 0.05, velocity_gain_s: float = 0.0,

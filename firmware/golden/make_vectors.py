@@ -13,7 +13,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from twin.device import codec as c
+from twin.driver import codec as c
 
 OUT = Path(__file__).resolve().parent / "vectors.json"
 

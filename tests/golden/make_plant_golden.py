@@ -65,7 +65,7 @@ def plant_script(plant, pretension_n: float) -> np.ndarray:
 
 def sweep(params, grid, url: str) -> np.ndarray:
     """A validation sweep on ``url``: the dataset's numeric columns, in file order."""
-    from twin.device import open_device
+    from twin.driver import open_device
     from twin.experiments.protocols import nominal_calibration, run_validation
 
     with tempfile.TemporaryDirectory() as folder, open_device(url, params=params) as device:

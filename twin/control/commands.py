@@ -54,7 +54,7 @@ def run_compensate(args: argparse.Namespace) -> int:
     the compensation's reach; 4 when the device failed half-way (the rows so far are reported)."""
     from twin.control.compensation_trial import compensation_grid, run_compensation_trial, tension_ceiling_n
     from twin.control.gains import tension_gains_for
-    from twin.device.errors import DeviceError
+    from twin.driver.errors import DeviceError
     from twin.sim.plant import SimulationError
 
     params = params_from_args(args)

@@ -42,7 +42,7 @@ import numpy as np
 from twin.control.compensation import correct_tensions, hold_tensions
 from twin.control.pretension import pretension_straight
 from twin.control.gains import tension_gains_for
-from twin.device import CommandRejected
+from twin.driver import CommandRejected
 from twin.effects import SlidingState, friction_direction
 from twin.experiments.protocols import ProtocolError, measure, wait_for_rest
 from twin.experiments.report import markdown_table
@@ -332,7 +332,7 @@ def run_compensation_trial(device, params: Params, *, configs: Sequence[tuple[fl
     board faults, is recorded as faulted rows, and the trial goes on with the next.
 
     Args:
-        device: the :class:`twin.device.Device`.
+        device: the :class:`twin.driver.Device`.
         params: parameter set of the predictor and of the PCC setpoints.
         configs: (κ 1/m, φ deg) pairs; default :func:`compensation_grid` (the thesis grid
             without κ = 0, 60 bends, scaled to what the robot's ceiling can bend).

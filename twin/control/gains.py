@@ -1,4 +1,4 @@
-"""Gains of the board's tension PID (firmware tension mode, :meth:`twin.device.Device.set_gains`):
+"""Gains of the board's tension PID (firmware tension mode, :meth:`twin.driver.Device.set_gains`):
 the firmware's defaults and the tuned set the controllers run on (found by :mod:`twin.tuning`)."""
 
 from twin.params import Params

@@ -26,7 +26,7 @@ def pretension_straight(device, params: Params, *, mode: str, tension_n: float |
     """Pretension the straight endoscope and leave the board enabled in ``mode``, holder released.
 
     Args:
-        device: a connected :class:`twin.device.Device` with a fixture.
+        device: a connected :class:`twin.driver.Device` with a fixture.
         params: the parameter set (pretension, gravity and the nominal calibration).
         mode: ``"lengths"``, ``"pairs"`` or ``"tensions"``: the mode the board is enabled in.
         tension_n: pretension per tendon (N); default ``tendons.pretension_n``.

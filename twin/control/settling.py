@@ -53,7 +53,7 @@ def hold_figures(params: Params | None = None, *, kappa_per_m: float = HOLD_KAPP
         ``tension_ptp_n`` (largest of ``tension_ptps_n``) and ``tension_offset_n`` (largest
         absolute of ``tension_offsets_n``, signed per channel).
     """
-    from twin.device import open_device
+    from twin.driver import open_device
 
     params = params if params is not None else load_params()
     with open_device("sim://", params=params, seed=seed) as device:

@@ -1,36 +1,10 @@
-"""Devices behind one interface: the rig over serial, its emulation, and the protocol between them.
-
-Open a device by URL — ``sim://`` (the MuJoCo twin behind the real firmware, in simulated
-time) or ``serial:///dev/ttyACM0`` (the rig, wall-clock time) — and use the same
-:class:`Device` calls on either; :attr:`Device.clock` says how time advances. On ``sim://``
-:attr:`Device.twin` (:class:`SimTwin`) gives the twin's ground truth and a fast reset.
+"""The emulated rig, above the twin: the real firmware built for the host driving the MuJoCo plant
+(:class:`twin.device.board.EmulatedBoard`), served as ``sim://`` in simulated time, on a
+pseudo-terminal (:class:`twin.device.pty_board.PtyBoard`, ``twin emulate``), and the twin's
+OpenIGTLink server. The rig driver that talks to any of them, or to the rig, is :mod:`twin.driver`.
 """
 
-from twin.device.device import MODE_NAMES, Device
-from twin.device.errors import (ChannelCountError, CommandRejected, DeviceDisconnected, DeviceError, DeviceTimeout,
-                                ProtocolVersionError)
-from twin.device.fixture import Fixture, OperatorFixture, SimFixture
 from twin.device.sim_twin import SimTwin
-from twin.device.telemetry import DeviceInfo, Telemetry
-from twin.device.tracker import TipTracker
-from twin.device.url import SCHEMES, open_device
+from twin.driver.fixture import SimFixture
 
-__all__ = [
-    "MODE_NAMES",
-    "SCHEMES",
-    "CommandRejected",
-    "Device",
-    "DeviceDisconnected",
-    "DeviceError",
-    "DeviceInfo",
-    "DeviceTimeout",
-    "Fixture",
-    "OperatorFixture",
-    "ProtocolVersionError",
-    "ChannelCountError",
-    "SimFixture",
-    "SimTwin",
-    "Telemetry",
-    "TipTracker",
-    "open_device",
-]
+__all__ = ["SimFixture", "SimTwin"]

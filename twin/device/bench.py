@@ -9,9 +9,9 @@ import time
 
 import numpy as np
 
-from twin.device.device import Device
+from twin.driver.device import Device
 from twin.device.pty_board import PtyBoard
-from twin.device.url import open_device
+from twin.driver.url import open_device
 from twin.params import Params, load_params
 
 __all__ = ["bench_device"]

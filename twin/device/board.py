@@ -16,7 +16,7 @@ import math
 
 import numpy as np
 
-from twin.device import codec
+from twin.driver import codec
 from twin.device.firmware_lib import FirmwareLib, tick_entry_points
 from twin.params import Params
 from twin.sim.native_loop import Reason
@@ -37,7 +37,7 @@ class EmulatedBoard:
         base_rotation: clamp orientation, 3×3 (default the parameter set's ``rig.base_quat``).
 
     The firmware drives as many motors as the plant has tendons (``tendons.count``, up to
-    :data:`twin.device.codec.MAX_CHANNELS`), and says so in its HELLO_REPLY.
+    :data:`twin.driver.codec.MAX_CHANNELS`), and says so in its HELLO_REPLY.
 
     Raises:
         ValueError: the robot has more tendons than the firmware drives.

@@ -16,9 +16,9 @@ __all__ = ["open_device_arg", "register"]
 
 
 def open_device_arg(url: str, **kwargs):
-    """:func:`twin.device.open_device` for a ``--device`` argument; a bad URL is a
+    """:func:`twin.driver.open_device` for a ``--device`` argument; a bad URL is a
     :class:`twin.cliargs.UsageError` naming it."""
-    from twin.device import open_device
+    from twin.driver import open_device
 
     try:
         return open_device(url, **kwargs)

@@ -9,8 +9,8 @@
   frame at the tracker's 40 Hz of board time, stamped with the wall clock as PLUS stamps with its
   own), served by :class:`twin.device.igtl_server.OpenIGTLinkServer`;
 * **the fixture**: :class:`FixtureServer`, which hangs the tip and calibration masses and clamps
-  the reference holder on the twin as :class:`twin.device.fixture.SimFixture` does on
-  ``sim://``, asked over TCP by :class:`twin.device.fixture.RemoteFixture`.
+  the reference holder on the twin as :class:`twin.driver.fixture.SimFixture` does on
+  ``sim://``, asked over TCP by :class:`twin.driver.fixture.RemoteFixture`.
 
 :attr:`EmulatedRig.url` is the device URL that uses all three, e.g.
 ``serial:///dev/pts/5?igtl=127.0.0.1:18944&igtl_probes=Probe1ToTracker,Probe2ToTracker&fixture=127.0.0.1:18945``:
@@ -28,7 +28,7 @@ import time
 
 import numpy as np
 
-from twin.device.fixture import ACTIONS, SimFixture
+from twin.driver.fixture import ACTIONS, SimFixture
 from twin.device.pty_board import PtyBoard
 from twin.params import Params
 
@@ -102,7 +102,7 @@ class _TCPServer(socketserver.ThreadingTCPServer):
 
 class FixtureServer:
     """An automatic fixture for the emulated board, over TCP (lines of JSON, see
-    :mod:`twin.device.fixture`): each action is done on the twin in the board's thread, between
+    :mod:`twin.driver.fixture`): each action is done on the twin in the board's thread, between
     two ticks, then the server waits the request's ``settle_s`` of board time and answers.
 
     Args:

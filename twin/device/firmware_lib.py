@@ -25,7 +25,7 @@ from typing import Sequence
 
 import numpy as np
 
-from twin.device import codec
+from twin.driver import codec
 from twin.resources import NativeBuildError, build_cached, resource_path
 
 __all__ = [
@@ -117,11 +117,11 @@ def load_library() -> ctypes.CDLL:
     protocol = lib.twinfw_protocol_version()
     if protocol != codec.PROTOCOL_VERSION:
         raise FirmwareBuildError(
-            f"{path} speaks protocol version {protocol}, twin.device.codec speaks {codec.PROTOCOL_VERSION}"
+            f"{path} speaks protocol version {protocol}, twin.driver.codec speaks {codec.PROTOCOL_VERSION}"
         )
     most = lib.twinfw_max_channels()
     if most != codec.MAX_CHANNELS:
-        raise FirmwareBuildError(f"{path} drives up to {most} channels, twin.device.codec {codec.MAX_CHANNELS}")
+        raise FirmwareBuildError(f"{path} drives up to {most} channels, twin.driver.codec {codec.MAX_CHANNELS}")
     return lib
 
 

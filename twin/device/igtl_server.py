@@ -24,7 +24,7 @@ from typing import Callable
 
 import numpy as np
 
-from twin.device import igtl
+from twin.driver import igtl
 
 __all__ = ["OpenIGTLinkServer", "probe_rotation", "register", "twin_messages"]
 
@@ -104,7 +104,7 @@ class OpenIGTLinkServer:
             return len(self._clients)
 
     def send(self, messages: list[bytes]) -> int:
-        """Queue packed messages (:func:`twin.device.igtl.pack`), as one frame, to every client.
+        """Queue packed messages (:func:`twin.driver.igtl.pack`), as one frame, to every client.
 
         Never blocks: each client's socket takes what it can now and the rest is written as it
         drains; a client whose queue is full skips its oldest waiting frame.
@@ -373,7 +373,7 @@ def run_serve(args: argparse.Namespace) -> int:
     from twin.rod.solver import ConvergenceError, Predictor
     from twin.sim.plant import Plant
 
-    from twin.device.igtl_source import settings_from_options
+    from twin.driver.igtl_source import settings_from_options
 
     try:  # the names the tracker client would accept, checked the same way
         probes = settings_from_options({"igtl_probes": args.probes})

@@ -16,8 +16,8 @@ import math
 from typing import Callable, ContextManager
 
 from twin.device.board import EmulatedBoard, Reason
-from twin.device.inbox import Inbox
-from twin.device.transport import Transport
+from twin.driver.inbox import Inbox
+from twin.driver.transport import Transport
 
 __all__ = ["SimTransport"]
 

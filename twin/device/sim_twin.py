@@ -3,7 +3,7 @@
 Code above the device layer (the env, experiments, tests) reads the twin's true state and resets
 it through :class:`SimTwin` (``device.twin``) and never through the transport, the emulated
 board or the plant, which belong to the device layer. On a rig there is no such thing:
-``device.twin`` raises there (:attr:`twin.device.Device.twin`).
+``device.twin`` raises there (:attr:`twin.driver.Device.twin`).
 """
 
 from __future__ import annotations
@@ -14,7 +14,7 @@ import numpy as np
 
 if TYPE_CHECKING:
     from twin.device.board import EmulatedBoard
-    from twin.device.fixture import SimFixture
+    from twin.driver.fixture import SimFixture
 
 __all__ = ["SimTwin"]
 
@@ -29,7 +29,7 @@ class SimTwin:
             host's fixture is elsewhere (a pseudo-terminal board's host asks an operator).
 
     Attributes:
-        fixture: the :class:`twin.device.fixture.SimFixture`, or None.
+        fixture: the :class:`twin.driver.fixture.SimFixture`, or None.
     """
 
     def __init__(self, board: EmulatedBoard, fixture: SimFixture | None = None):
@@ -40,7 +40,7 @@ class SimTwin:
         """Back to the twin's start (straight, at rest, no tip mass, holder released; sensor
         noise reseeded with ``seed``, or the last seed if None) and power-cycle the board on it:
         the firmware starts afresh (disabled, no handshake), so the host must
-        :meth:`twin.device.Device.reconnect` before it commands again. Much faster than opening
+        :meth:`twin.driver.Device.reconnect` before it commands again. Much faster than opening
         a new ``sim://`` device, which rebuilds the MuJoCo model."""
         self._board.plant.reset(seed)
         self._board.power_cycle()

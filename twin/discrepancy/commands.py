@@ -96,7 +96,7 @@ def run_discrepancy_command(args: argparse.Namespace) -> int:
     from twin.discrepancy.report import write_report
     from twin.discrepancy.workflow import run_discrepancy
     from twin.data.dataset import DatasetError, read_dataset
-    from twin.device.errors import DeviceError
+    from twin.driver.errors import DeviceError
     from twin.experiments.protocols import ProtocolError
     from twin.sim.plant import SimulationError
 

@@ -230,7 +230,7 @@ def decide(result, device, dataset_folder: str | Path, params: Params, *, progre
 
     Args:
         result: the workflow's result on the dataset as it was.
-        device: a connected :class:`twin.device.Device` with fixture and tracker (the rig the
+        device: a connected :class:`twin.driver.Device` with fixture and tracker (the rig the
             dataset was taken on, or the twin built as that rig).
         dataset_folder: the dataset's folder; rows are appended to it.
         params: the model the workflow tests (its pretension and geometry set the setpoints).
@@ -241,7 +241,7 @@ def decide(result, device, dataset_folder: str | Path, params: Params, *, progre
         the decision, or None when nothing needs deciding or no design applies.
 
     Raises:
-        whatever stops an experiment (:class:`twin.device.errors.DeviceError`,
+        whatever stops an experiment (:class:`twin.driver.errors.DeviceError`,
         :class:`twin.experiments.protocols.ProtocolError`, :class:`twin.sim.plant.SimulationError`,
         ``KeyboardInterrupt``): the dataset then holds the experiments completed before it.
     """

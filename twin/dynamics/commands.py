@@ -84,7 +84,7 @@ def _model_args(p: argparse.ArgumentParser) -> None:
 def run_record(args: argparse.Namespace) -> int:
     from twin.data.dataset import write_atomic
     from twin.device.commands import open_device_arg
-    from twin.device.errors import DeviceError
+    from twin.driver.errors import DeviceError
     from twin.dynamics.protocols import experiment_set, run_experiment
     from twin.dynamics.series import DYNAMICS_FOLDER, SeriesWriter
     from twin.experiments.commands import RUN_RECORD, TWIN_TRUTH

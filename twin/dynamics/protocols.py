@@ -32,7 +32,7 @@ import math
 
 import numpy as np
 
-from twin.device.errors import CommandRejected
+from twin.driver.errors import CommandRejected
 from twin.experiments.protocols import ProtocolError, pretension
 from twin.params import Params
 from twin.pcc import THESIS_LENGTH_M, tendon_length_changes_m

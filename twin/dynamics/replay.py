@@ -55,7 +55,7 @@ def replay(measured: list[Series], params: Params, base_rotation, *, noise_seed:
         noise_seed: None for noiseless sensors (the model's expectation); a seed for the
             parameter set's sensor noise (what a measurement without a missing effect looks like).
     """
-    from twin.device import open_device
+    from twin.driver import open_device
     from twin.experiments.protocols import apply_calibration, nominal_calibration
 
     twin_params = replay_params(params, base_rotation, noiseless=noise_seed is None)

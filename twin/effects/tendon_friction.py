@@ -100,7 +100,7 @@ class SlidingState:
     def __init__(self, tendon_m_per_count: float, tick_s: float = 5e-3):
         """Args:
             tendon_m_per_count: tendon length per encoder count (m; positive = paid out), the
-                handshake's :attr:`twin.device.DeviceInfo.tendon_m_per_count`.
+                handshake's :attr:`twin.driver.DeviceInfo.tendon_m_per_count`.
             tick_s: the board's tick (s), the period of the counts a sample carries (the
                 firmware's 5 ms IntervalTimer).
         """

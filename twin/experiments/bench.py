@@ -8,8 +8,8 @@ import tempfile
 import time
 
 from twin.data.dataset import DatasetError, read_dataset
-from twin.device import open_device
-from twin.device.errors import DeviceError
+from twin.driver import open_device
+from twin.driver.errors import DeviceError
 from twin.experiments.protocols import ProtocolError, run_validation
 from twin.params import Params, load_params
 from twin.sim.plant import SimulationError

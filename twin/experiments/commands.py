@@ -455,7 +455,7 @@ def _run(args, command: str, experiment: str, body) -> int:
     full disk) ends with 4, and Ctrl-C with 130, each after one line saying why and the command
     line that continues the run."""
     from twin.data.dataset import DatasetError
-    from twin.device.errors import DeviceError
+    from twin.driver.errors import DeviceError
     from twin.experiments.protocols import ProtocolError
     from twin.resources import NativeBuildError
     from twin.sim.plant import SimulationError

@@ -1,6 +1,6 @@
 """The thesis's experimental procedures, run on any device (the twin by default, the rig by URL).
 
-Each protocol only talks to :class:`twin.device.Device` (commands, telemetry, ``device.fixture``
+Each protocol only talks to :class:`twin.driver.Device` (commands, telemetry, ``device.fixture``
 for the hands-on steps, ``device.tracker`` for the tip) and writes a dataset row by row, so an
 interrupted run keeps what it measured and resumes where it stopped.
 """
@@ -170,7 +170,7 @@ def pretension(device, params: Params, *, mode: str = "lengths", tension_n: floa
     the holder engaged.
 
     Args:
-        device: a connected :class:`twin.device.Device` with a fixture.
+        device: a connected :class:`twin.driver.Device` with a fixture.
         params: the parameter set (gravity; the default pretension ``tendons.pretension_n``).
         mode: the mode the board is enabled in.
         tension_n: pretension per tendon (N).
@@ -254,7 +254,7 @@ def tripped_before(folder: str | Path) -> list[dict]:
 
 def _tension_trip(device) -> int:
     """The board's fault flags if the tension limit tripped (0 otherwise, or when it is gone)."""
-    from twin.device import codec
+    from twin.driver import codec
 
     try:
         flags = int(device.latest().fault_flags)
@@ -285,7 +285,7 @@ def run_validation(device, folder: str | Path, params: Params, *, grid: Sequence
     tracked tip after the tip settles. Configurations already in ``folder`` are skipped (resume).
 
     Args:
-        device: a connected :class:`twin.device.Device` with a fixture and a tracker.
+        device: a connected :class:`twin.driver.Device` with a fixture and a tracker.
         folder: the dataset folder.
         params: the model's parameter set (recorded in the metadata; its PCC geometry sets the lengths).
         grid: (config, κ 1/m, φ deg, tip mass kg) rows (default the 216 of thesis §8.3, its
@@ -310,7 +310,7 @@ def run_validation(device, folder: str | Path, params: Params, *, grid: Sequence
     over its anchored length s (:func:`twin.pcc.tendon_length_changes_m`). The configurations
     the layout cannot realise (:func:`unrealisable`) are not run: the metadata's ``left_out``
     lists them with the reason. The dataset records the device's pose
-    (:attr:`twin.device.Device.base_rotation`), the one the twin runs in or the rig is mounted in.
+    (:attr:`twin.driver.Device.base_rotation`), the one the twin runs in or the rig is mounted in.
     """
     rows = list(grid or validation_grid(params))
     left_out = unrealisable(rows, params, device.base_rotation)
@@ -404,7 +404,7 @@ def _row(config, kappa, phi, mass, m: Measurement, zero_lengths, repeat: int = 0
 def run_stiffness(device, folder: str | Path, params: Params, *, masses_kg=(0.0, 0.005, 0.010), repeats: int = 2,
                   progress: bool = True, robot: str | None = None) -> Path:
     """Stiffness characterisation (thesis §8.2): tendons uncoupled (slack), tip masses each ``repeats``
-    times; the dataset records the device's pose (:attr:`twin.device.Device.base_rotation`) and
+    times; the dataset records the device's pose (:attr:`twin.driver.Device.base_rotation`) and
     ``robot``, the robot's name."""
     with DatasetWriter(folder, experiment="stiffness", device=device.url, params=params,
                        base_rotation=device.base_rotation, robot=robot) as writer:

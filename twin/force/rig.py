@@ -187,7 +187,7 @@ def bench_contact(params=None, *, clean_s: float = 600.0, loads: int = 20, min_l
     """
     from tqdm import tqdm
 
-    from twin.device import open_device
+    from twin.driver import open_device
     from twin.params import load_params
 
     params = params or load_params()
@@ -219,7 +219,7 @@ def bench_force_rig(params=None, *, loads: int = 8, frames: int = 5, max_load_n:
     """
     from tqdm import tqdm
 
-    from twin.device import open_device
+    from twin.driver import open_device
     from twin.params import load_params
 
     params = params or load_params()

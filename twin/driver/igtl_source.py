@@ -29,7 +29,7 @@ from typing import Callable
 
 import numpy as np
 
-from twin.device import igtl
+from twin.driver import igtl
 from twin.tracking import ProbeFrame, ProbeReading
 
 __all__ = ["IgtlSettings", "OpenIGTLinkSource", "settings_from_options", "URL_KEYS"]

@@ -18,9 +18,9 @@ import dataclasses
 import threading
 from typing import Callable
 
-from twin.device import codec
-from twin.device.errors import DeviceDisconnected
-from twin.device.telemetry import Telemetry
+from twin.driver import codec
+from twin.driver.errors import DeviceDisconnected
+from twin.driver.telemetry import Telemetry
 
 __all__ = ["Inbox", "LinkStats"]
 

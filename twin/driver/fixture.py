@@ -31,8 +31,8 @@ from typing import TYPE_CHECKING, Callable, ContextManager, Iterable
 
 import numpy as np
 
-from twin.device.codec import DEFAULT_CHANNELS
-from twin.device.errors import DeviceError
+from twin.driver.codec import DEFAULT_CHANNELS
+from twin.driver.errors import DeviceError
 
 if TYPE_CHECKING:
     from twin.device.board import EmulatedBoard
@@ -216,7 +216,7 @@ class RemoteFixture(Fixture):
 
     Args:
         host, port: the fixture server.
-        attended: a context in which the host waits on purpose (:meth:`twin.device.Device.attended`:
+        attended: a context in which the host waits on purpose (:meth:`twin.driver.Device.attended`:
             the board's watchdog is fed meanwhile); none by default.
         timeout_s: longest wait for one answer (wall s).
         settle_s: board time each action is given to come to rest (s).

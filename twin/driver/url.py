@@ -6,13 +6,13 @@ on a pseudo-terminal).
 ``serial://<path>[?igtl=host:port[&igtl_…][&cap_…]][&fixture=host:port][&pose=… | &base_quat=…]``
     A board on a serial port: ``serial:///dev/ttyACM0``, or the pseudo-terminal printed by
     ``twin emulate`` (which prints the whole URL, its tracker and fixture included). ``fixture``
-    names an automatic fixture (:class:`twin.device.fixture.RemoteFixture`; ``twin emulate``
+    names an automatic fixture (:class:`twin.driver.fixture.RemoteFixture`; ``twin emulate``
     serves one) that hangs the masses and clamps the holder; without it the operator is asked
     on the console. ``igtl`` names the OpenIGTLink server of the EM tracker (PLUS); without
     it ``device.tracker`` is None. With it: ``igtl_probes=Probe1ToTracker,Probe2ToTracker``
     (device names of probes A and B), ``igtl_axis=z`` (tool axis along the probe, e.g. ``-z``),
     ``igtl_scale=mm`` (length unit), ``igtl_clock=auto`` (or the server clock minus ours, s),
-    ``igtl_timeout_s=5`` (see :func:`twin.device.igtl_source.settings_from_options`), and the cap
+    ``igtl_timeout_s=5`` (see :func:`twin.driver.igtl_source.settings_from_options`), and the cap
     calibration (:class:`twin.tracking.CapCalibration`): ``cap_a_mm=x,y,z`` and
     ``cap_a_axis=x,y,z`` for probe A in the tip frame, ``cap_b_mm``, ``cap_b_axis`` for B.
 
@@ -27,13 +27,12 @@ import math
 import urllib.parse
 from typing import Callable
 
-from twin.device.device import Device
-from twin.device.fixture import OperatorFixture, RemoteFixture, SimFixture
-from twin.device.igtl_source import URL_KEYS as IGTL_KEYS
-from twin.device.igtl_source import OpenIGTLinkSource, settings_from_options
-from twin.device.serial_transport import SerialTransport
-from twin.device.sim_twin import SimTwin
-from twin.device.tracker import TipTracker, sim_probe_source
+from twin.driver.device import Device
+from twin.driver.fixture import OperatorFixture, RemoteFixture
+from twin.driver.igtl_source import URL_KEYS as IGTL_KEYS
+from twin.driver.igtl_source import OpenIGTLinkSource, settings_from_options
+from twin.driver.serial_transport import SerialTransport
+from twin.driver.tracker import TipTracker, sim_probe_source
 from twin.params import Params, load_params
 from twin.pose import base_rotation_from
 from twin.tracking import CapCalibration, FusionSettings
@@ -106,6 +105,8 @@ def open_device(
         # Imported here: a host on the rig needs neither MuJoCo nor the firmware build.
         from twin.device.board import EmulatedBoard
         from twin.device.sim_transport import SimTransport
+        from twin.device.sim_twin import SimTwin
+        from twin.driver.fixture import SimFixture
 
         board = EmulatedBoard(params, seed=_seed(url, options, seed), base_rotation=device_args["base_rotation"])
         # The fixture settles through the device so the firmware keeps ticking meanwhile.

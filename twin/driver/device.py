@@ -1,9 +1,9 @@
 """The device interface: one protocol client for the rig and its twin.
 
 Everything above the hardware (experiments, controllers, the Gymnasium env) talks to a
-:class:`Device`; :func:`twin.device.open_device` picks the backend from a URL. The client
+:class:`Device`; :func:`twin.driver.open_device` picks the backend from a URL. The client
 speaks the binary protocol of ``firmware/PROTOCOL.md`` through a
-:class:`twin.device.transport.Transport`, and the two backends differ only in their clock
+:class:`twin.driver.transport.Transport`, and the two backends differ only in their clock
 (:attr:`Device.clock`):
 
 ``"simulated"`` (``sim://``)
@@ -47,19 +47,19 @@ from typing import TYPE_CHECKING, ContextManager, Iterable, Sequence
 import numpy as np
 
 from twin.board_limits import GAIN_TOLERANCE, MAX_OFFSET_COUNTS, MAX_TENSION_LIMIT_N, RATED_GAIN_COUNTS_PER_N
-from twin.device import codec
-from twin.device.errors import (ChannelCountError, CommandRejected, DeviceDisconnected, DeviceError, DeviceTimeout,
+from twin.driver import codec
+from twin.driver.errors import (ChannelCountError, CommandRejected, DeviceDisconnected, DeviceError, DeviceTimeout,
                                 ProtocolVersionError)
-from twin.device.inbox import Inbox, LinkStats
-from twin.device.telemetry import DeviceInfo, Telemetry
-from twin.device.transport import Transport
+from twin.driver.inbox import Inbox, LinkStats
+from twin.driver.telemetry import DeviceInfo, Telemetry
+from twin.driver.transport import Transport
 from twin.pose import HORIZONTAL
 
 if TYPE_CHECKING:
     from twin.calibration import Calibration
-    from twin.device.fixture import Fixture
+    from twin.driver.fixture import Fixture
     from twin.device.sim_twin import SimTwin
-    from twin.device.tracker import TipTracker
+    from twin.driver.tracker import TipTracker
 
 __all__ = ["GAIN_TOLERANCE", "MAX_LENGTH_SETPOINT_M", "MAX_OFFSET_COUNTS", "MAX_TENSION_LIMIT_N", "RATED_GAIN_COUNTS_PER_N",
            "MODE_NAMES", "Device"]
@@ -143,7 +143,7 @@ def _mask(name: str, channels: bool | Iterable[int], count: int) -> int:
 class Device:
     """A board behind the protocol: the rig's Teensy, or its emulation.
 
-    Usually made by :func:`twin.device.open_device`. Commands block until the board's ACK and
+    Usually made by :func:`twin.driver.open_device`. Commands block until the board's ACK and
     raise :class:`CommandRejected` on a NACK; waits raise :class:`DeviceDisconnected` once the
     board is gone, while the samples received before stay readable (:meth:`latest`,
     :meth:`drain`).
@@ -159,7 +159,7 @@ class Device:
             keepalives, so the watchdog trips while the host only waits.
         queue_size: samples kept for :meth:`drain`.
         tension_limit_n: the configured per-channel tension limit (N, in (0, 50]), e.g. the
-            parameter set's ``rig.tension_limit_n`` (:func:`twin.device.open_device` passes it):
+            parameter set's ``rig.tension_limit_n`` (:func:`twin.driver.open_device` passes it):
             every :meth:`enable` sends it first, so that the board never drives with another
             limit than the host's. None keeps the board's default (6 N) until :meth:`set_limits`.
         base_rotation: the clamp's orientation (3×3, body → world) the board's robot is mounted
@@ -177,8 +177,8 @@ class Device:
             (another spool, gearbox or encoder). None takes the board's as it comes.
 
     Attributes:
-        fixture: the :class:`twin.device.fixture.Fixture` (None if the backend has none).
-        tracker: the :class:`twin.device.tracker.TipTracker`, or None.
+        fixture: the :class:`twin.driver.fixture.Fixture` (None if the backend has none).
+        tracker: the :class:`twin.driver.tracker.TipTracker`, or None.
     """
 
     def __init__(
@@ -605,7 +605,7 @@ class Device:
     @property
     def stats(self) -> LinkStats:
         """What the host dropped or missed on the link, with the reason for the latest drop
-        (:class:`twin.device.inbox.LinkStats`)."""
+        (:class:`twin.driver.inbox.LinkStats`)."""
         return self._inbox.stats()
 
     @property

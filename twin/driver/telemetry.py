@@ -2,7 +2,7 @@
 
 :class:`Telemetry` is the host's view of one 40 Hz TELEMETRY frame (arrays, SI units, enums);
 :class:`DeviceInfo` is what the handshake told the host. Both are produced by
-:class:`twin.device.Device` whatever the backend.
+:class:`twin.driver.Device` whatever the backend.
 """
 
 from __future__ import annotations
@@ -12,7 +12,7 @@ import functools
 
 import numpy as np
 
-from twin.device import codec
+from twin.driver import codec
 
 __all__ = ["DeviceInfo", "Telemetry"]
 
@@ -106,7 +106,7 @@ class DeviceInfo:
 
     Attributes:
         url: the device URL.
-        clock: ``"simulated"`` or ``"wall"`` (see :attr:`twin.device.Device.clock`).
+        clock: ``"simulated"`` or ``"wall"`` (see :attr:`twin.driver.Device.clock`).
         protocol_version: the board's protocol version (equal to the host's once connected).
         firmware_version: (major, minor, patch).
         channels: motors / load cells (the robot's tendon count once connected).

@@ -9,7 +9,7 @@ process that dies, stops the rig within the watchdog timeout.
 
 When the port fails (board unplugged, pseudo-terminal closed), or the reader thread stops for
 any other reason, the inbox is told and every later call raises :class:`DeviceDisconnected`
-naming the cause; :meth:`twin.device.Device.reconnect` opens the port again.
+naming the cause; :meth:`twin.driver.Device.reconnect` opens the port again.
 """
 
 from __future__ import annotations
@@ -21,9 +21,9 @@ from typing import Callable, Iterator
 
 import serial
 
-from twin.device.errors import DeviceDisconnected, DeviceError
-from twin.device.inbox import Inbox
-from twin.device.transport import Transport
+from twin.driver.errors import DeviceDisconnected, DeviceError
+from twin.driver.inbox import Inbox
+from twin.driver.transport import Transport
 
 __all__ = ["SerialTransport"]
 

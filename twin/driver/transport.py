@@ -1,8 +1,8 @@
-"""How bytes and time reach a board: the interface :class:`twin.device.Device` talks through.
+"""How bytes and time reach a board: the interface :class:`twin.driver.Device` talks through.
 
 Two kinds exist and differ in their clock:
 
-* ``"wall"`` (:class:`twin.device.serial_transport.SerialTransport`): the board runs on its
+* ``"wall"`` (:class:`twin.driver.serial_transport.SerialTransport`): the board runs on its
   own; a reader thread hands received bytes to the inbox as they arrive, and waiting is
   sleeping.
 * ``"simulated"`` (:class:`twin.device.sim_transport.SimTransport`): the board is emulated in
@@ -20,7 +20,7 @@ from __future__ import annotations
 import abc
 from typing import Callable, ContextManager
 
-from twin.device.inbox import Inbox
+from twin.driver.inbox import Inbox
 
 __all__ = ["Transport"]
 

@@ -2,8 +2,8 @@
 
 On ``sim://`` the probes are the twin's (:meth:`twin.sim.plant.Plant.tracker_probes`, 40 Hz,
 timestamped in simulated time); on ``serial://`` they come from the rig's OpenIGTLink server
-(:class:`twin.device.igtl_source.OpenIGTLinkSource`) when the URL names one (``?igtl=host:port``,
-with the ``igtl_…`` and ``cap_…`` keys of :mod:`twin.device.url`).
+(:class:`twin.driver.igtl_source.OpenIGTLinkSource`) when the URL names one (``?igtl=host:port``,
+with the ``igtl_…`` and ``cap_…`` keys of :mod:`twin.driver.url`).
 Either way :meth:`TipTracker.read` fuses the newest frame with :func:`twin.tracking.fuse_frame`.
 """
 

@@ -6,7 +6,7 @@ catch the family or one member; messages name the device URL and the value at fa
 
 from __future__ import annotations
 
-from twin.device import codec
+from twin.driver import codec
 
 __all__ = ["ChannelCountError", "CommandRejected", "DeviceDisconnected", "DeviceError", "DeviceTimeout",
            "ProtocolVersionError"]
@@ -22,7 +22,7 @@ class DeviceTimeout(DeviceError, TimeoutError):
 
 class DeviceDisconnected(DeviceError, ConnectionError):
     """The board went away (unplugged, reset, pseudo-terminal closed). The telemetry received
-    before stays readable through :meth:`twin.device.Device.drain` and ``latest()``."""
+    before stays readable through :meth:`twin.driver.Device.drain` and ``latest()``."""
 
 
 class ProtocolVersionError(DeviceError):
@@ -31,7 +31,7 @@ class ProtocolVersionError(DeviceError):
 
     Attributes:
         board_version: the version in the board's HELLO_REPLY.
-        host_version: :data:`twin.device.codec.PROTOCOL_VERSION`.
+        host_version: :data:`twin.driver.codec.PROTOCOL_VERSION`.
     """
 
     def __init__(self, url: str, board_version: int, host_version: int = codec.PROTOCOL_VERSION):
@@ -77,9 +77,9 @@ class CommandRejected(DeviceError):
     """The board answered a command with NACK.
 
     Attributes:
-        command: the refused message (a :mod:`twin.device.codec` message).
+        command: the refused message (a :mod:`twin.driver.codec` message).
         seq: the command's sequence number.
-        error: the board's :class:`twin.device.codec.NackError` (or the raw code if unknown).
+        error: the board's :class:`twin.driver.codec.NackError` (or the raw code if unknown).
     """
 
     def __init__(self, url: str, command: codec.Message, seq: int, error: int):
