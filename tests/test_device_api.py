@@ -17,7 +17,10 @@ from twin.params import load_params
 
 
 @pytest.mark.parametrize("url, message", [
-    ("tcp://localhost:1", r"scheme 'tcp' unknown; use one of sim://, serial://"),
+    ("tcp://localhost:1", r"scheme 'tcp' unknown; use one of serial://, socket://, rfc2217://, sim://"),
+    ("socket://127.0.0.1", r"address = '127.0.0.1': expected host:port"),
+    ("rfc2217://127.0.0.1:7000/ttyS0", r"rfc2217:// takes host:port only"),
+    ("socket://127.0.0.1:7000?seed=1", r"options seed not understood; socket:// takes igtl"),
     ("sim://?seed=x", r"seed = 'x' is not a whole number"),
     ("sim://?pose=sideways", r"pose = 'sideways'"),
     ("sim://?speed=2", r"options speed not understood; sim:// takes seed, pose"),

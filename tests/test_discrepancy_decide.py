@@ -109,7 +109,7 @@ def test_a_device_in_another_pose_than_the_dataset_is_refused_before_any_work(tm
 
 
 def test_a_deciding_experiment_the_twin_diverges_in_leaves_the_dataset_as_it_was(tmp_path, capsys, monkeypatch):
-    from twin.driver.fixture import SimFixture
+    from twin.device.sim_fixture import SimFixture
 
     data = tmp_path / "data"
     _older_friction_dataset(data)

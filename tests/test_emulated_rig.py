@@ -92,7 +92,7 @@ def test_validate_runs_the_quick_grid_unattended_against_twin_emulate(tmp_path, 
             # board's watchdog, as on the rig; the run then goes on as a lab's would, resumed.
             assert code == 4 and "WATCHDOG" in first.err, first.err
             (run,) = tmp_path.glob("validate-*")
-            code = main(["validate", "--resume", str(run), "--device", url])
+            code = main(["validate", "--resume", str(run), "--quick", "--device", url])
         assert code == 0, capsys.readouterr().err
     finally:
         process.send_signal(signal.SIGTERM)

@@ -2,13 +2,17 @@
 
 Every import under ``twin/`` and ``envs/`` counts, including relative imports and imports inside
 functions (a lazy import is still a dependency). Each subpackage of ``twin`` is one node
-(``twin.device``, ``twin.data``, ...), each top-level module of ``twin`` is its own node
+(``twin.driver``, ``twin.device``, ``twin.data``, ...), each top-level module of ``twin`` is its own node
 (``twin.params``, ``twin.tuning``, ...), and ``envs/``, installed as ``twin.envs``, is one node.
 """
 
 from __future__ import annotations
 
 import ast
+import json
+import subprocess
+import sys
+import textwrap
 from pathlib import Path
 
 import pytest
@@ -116,6 +120,10 @@ _MUST_NOT_IMPORT = {
     "twin.control": ("twin.tuning", "twin.envs"),
     "twin.envs": ("twin.tuning",),
     "twin.device": ("twin.data", "twin.experiments", "twin.discrepancy", "twin.control", "twin.tuning", "twin.envs"),
+    # The rig driver sits below the twin: the emulated board, sim:// and the twin server are
+    # above it (twin.device), the simulation further up still (twin.sim, twin.rod).
+    "twin.driver": ("twin.device", "twin.sim", "twin.rod", "twin.data", "twin.experiments", "twin.discrepancy",
+                    "twin.control", "twin.tuning", "twin.envs"),
 }
 
 
@@ -144,9 +152,62 @@ def test_the_graph_sees_relative_and_function_level_imports(tmp_path, monkeypatc
     assert find_cycle(graph) in (["twin.high", "twin.low", "twin.high"], ["twin.low", "twin.high", "twin.low"])
 
 
+def _reachable(graph: dict[str, dict[str, list[str]]], start: str) -> dict[str, list[str]]:
+    """Every layer ``start`` reaches through imports (lazy ones too) → the path that reaches it."""
+    paths = {start: [start]}
+    todo = [start]
+    while todo:
+        node = todo.pop()
+        for target in sorted(graph.get(node, {})):
+            if target not in paths:
+                paths[target] = paths[node] + [target]
+                todo.append(target)
+    return paths
+
+
+def test_the_driver_reaches_no_twin_through_any_import():
+    """Not only its own imports: no module the driver imports, however indirectly or lazily,
+    imports the twin's rooms (so a host on the rig can never be made to load them)."""
+    paths = _reachable(import_graph(), "twin.driver")
+    assert "twin.tracking" in paths, "the graph lost the driver's tracker client"
+    found = {node: " -> ".join(path) for node, path in paths.items()
+             if node in ("twin.device", "twin.sim", "twin.rod", "twin.envs")}
+    assert not found, f"twin.driver reaches the twin: {found}"
+
+
+# What importing the driver and opening a board over the network may not load.
+_NOT_ON_THE_RIG = ("mujoco", "numba", "llvmlite", "scipy", "gymnasium", "twin.sim", "twin.rod", "twin.device")
+
+
+def test_importing_the_driver_and_opening_a_network_board_loads_no_twin():
+    """The driver in a fresh interpreter: import it, list its schemes (the twin's ``sim://``
+    among them, found by name) and build a ``socket://`` device; nothing of the twin, MuJoCo,
+    Numba or SciPy is loaded."""
+    code = textwrap.dedent("""
+        import json, sys
+        import twin.driver
+        from twin.driver import open_device, schemes
+        before = sorted(m for m in sys.modules if m.startswith(tuple(sys.argv[1].split(","))))
+        names = sorted(schemes())
+        device = open_device("socket://127.0.0.1:9?igtl=127.0.0.1:18944&pose=up")
+        loaded = sorted(m for m in sys.modules if m.startswith(tuple(sys.argv[1].split(","))))
+        print(json.dumps({"before": before, "schemes": names, "loaded": loaded, "url": device.url}))
+    """)
+    run = subprocess.run([sys.executable, "-c", code, ",".join(_NOT_ON_THE_RIG)], capture_output=True, text=True,
+                         timeout=120)
+    assert run.returncode == 0, run.stderr
+    out = json.loads(run.stdout)
+    assert out["before"] == []
+    assert {"serial", "socket", "rfc2217", "sim"} <= set(out["schemes"])
+    # Listing sim:// imports its registering module, but not the board, the plant or MuJoCo.
+    assert "twin.device.sim_url" in out["loaded"]
+    assert all(m.startswith("twin.device") for m in out["loaded"]), out["loaded"]
+    assert not {"twin.device.board", "twin.device.firmware_lib", "twin.device.sim_transport"} & set(out["loaded"])
+    assert out["url"].startswith("socket://127.0.0.1:9")
+
+
 # The device layer's own parts: what is above it reaches the twin through device.twin.
-_DEVICE_INTERNALS = ("twin.device.board", "twin.device.board_loop", "twin.device.sim_transport",
-                     "twin.device.firmware_lib")
+_DEVICE_INTERNALS = ("twin.device.board", "twin.device.sim_transport", "twin.device.firmware_lib")
 
 
 def _seam_violations(path: Path, *, check_imports: bool) -> list[str]:

@@ -19,7 +19,7 @@ from twin.tracking import (
     fuse,
     fuse_frame,
 )
-from twin.tracking import _wahba
+from twin.tracking_kernels import _wahba
 from twin.driver.igtl_source import OpenIGTLinkSource
 
 CAL = CapCalibration()

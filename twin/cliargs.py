@@ -1,4 +1,5 @@
-"""Argument helpers shared by the subcommands (parameters, poses, vectors, run folders, user errors)."""
+"""Argument helpers shared by the subcommands (parameters, poses, devices, the twin's hidden settings,
+vectors, run folders, user errors)."""
 
 from __future__ import annotations
 
@@ -13,12 +14,16 @@ from typing import Iterator
 
 import numpy as np
 
-from twin.params import ParameterError, Params, load_params
+from twin.params import ParameterError, Params, load_params, parse_override
 from twin.robots import DEFAULT_ROBOT, robot_path
 from twin.pose import base_rotation_from, matrix_to_quat
 
-__all__ = ["UsageError", "add_param_args", "add_pose_args", "count", "new_run_folder", "params_from_args", "pose_overrides",
-           "nonnegative", "positive", "sigterm_event", "values_as_arguments", "vector"]
+__all__ = ["DEFAULT_DEVICE", "UsageError", "add_device_arg", "add_param_args", "add_pose_args", "add_twin_set_arg", "count",
+           "new_run_folder", "nonnegative", "open_device_arg", "params_from_args", "pose_overrides", "positive",
+           "sigterm_event", "twin_params", "values_as_arguments", "vector"]
+
+# The device a command runs on unless told otherwise: the twin.
+DEFAULT_DEVICE = "sim://"
 
 
 class UsageError(Exception):
@@ -181,3 +186,50 @@ def params_from_args(args: argparse.Namespace) -> Params:
         raise ParameterError(f"--params {args.params}: cannot read it ({exc.strerror or exc})") from None
     pose = pose_overrides(args)
     return params.replace(pose, source="command line") if pose else params
+
+
+def add_device_arg(parser: argparse.ArgumentParser, *, default: str | None = DEFAULT_DEVICE,
+                   help: str | None = None) -> None:
+    """``--device URL``: what the command runs on (:func:`twin.driver.open_device`), the twin unless
+    told otherwise; ``default=None`` for a command that runs on a device only when given one."""
+    schemes = ("sim:// (the twin), serial:///dev/ttyACM0 (the rig), socket://HOST:PORT or rfc2217://HOST:PORT "
+               "(a board over the network)")
+    parser.add_argument("--device", default=default, metavar="URL",
+                        help=help or f"device URL: {schemes}; default {default}")
+
+
+def add_twin_set_arg(parser: argparse.ArgumentParser, *, help: str | None = None) -> None:
+    """``--twin-set KEY=VALUE`` (repeatable), into ``args.twin_overrides``: a hidden change of the
+    simulated rig that the model does not know (:func:`twin_params`)."""
+    parser.add_argument("--twin-set", dest="twin_overrides", action="append", default=[], metavar="KEY=VALUE",
+                        help=help or "sim:// only: change the simulated rig but not the model (a hidden effect, e.g. "
+                        "effects.tendon_friction_coeff=0.3), repeatable")
+
+
+def twin_params(args: argparse.Namespace, params: Params) -> Params:
+    """The parameter set the device is built with: ``params``, with ``--twin-set`` on ``sim://``.
+
+    Raises:
+        UsageError: ``--twin-set`` on another device, or a bad key or value (the argument named).
+    """
+    overrides = getattr(args, "twin_overrides", None) or []
+    if not overrides:
+        return params
+    device = getattr(args, "device", None)
+    if not (device or "").startswith("sim://"):
+        raise UsageError(f"--twin-set {overrides[0]}: applies to sim:// only, not --device {device}")
+    try:
+        return params.replace(dict(parse_override(o) for o in overrides), source="twin-set (hidden)")
+    except ParameterError as exc:
+        raise UsageError(f"--twin-set: {exc}") from None
+
+
+def open_device_arg(url: str, **kwargs):
+    """:func:`twin.driver.open_device` for a ``--device`` argument; a bad URL is a
+    :class:`UsageError` naming it."""
+    from twin.driver import open_device
+
+    try:
+        return open_device(url, **kwargs)
+    except ValueError as exc:
+        raise UsageError(f"--device {url}: {exc}") from None

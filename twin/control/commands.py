@@ -9,9 +9,8 @@ import sys
 import time
 from pathlib import Path
 
-from twin.cliargs import UsageError, add_param_args, count, new_run_folder, params_from_args, robot_name
-from twin.params import ParameterError, parse_override
-from twin.device.commands import open_device_arg
+from twin.cliargs import (UsageError, add_device_arg, add_param_args, add_twin_set_arg, count, new_run_folder, open_device_arg,
+                          params_from_args, robot_name, twin_params)
 
 __all__ = ["register"]
 
@@ -20,7 +19,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("compensate", help="load compensation over the validation grid: PCC lengths vs "
                                           "model-compensated tensions (feed-forward, then tracker-corrected) "
                                           "under 5 g and 10 g (Markdown report)")
-    p.add_argument("--device", default="sim://?seed=0", help="device URL (default the twin)")
+    add_device_arg(p)
     p.add_argument("--quick", action="store_true", help="6 configurations instead of the 60 bends of the grid")
     p.add_argument("--out", default=None, metavar="DIR",
                    help="report folder (default a new runs/compensate-YYYYmmdd-HHMMSS)")
@@ -30,15 +29,13 @@ def register(sub: argparse._SubParsersAction) -> None:
                         "at its duty clamp, with headroom (5.12 N for the tuned gains)")
     p.add_argument("--corrections", type=count, default=2,
                    help="most closed-loop corrections from the tracker per mass (0: feed-forward only)")
-    p.add_argument("--twin-set", dest="twin_overrides", action="append", default=[], metavar="KEY=VALUE",
-                   help="sim:// only: change the simulated rig but not the model (a hidden effect, e.g. "
-                        "effects.tendon_friction_coeff=0.3), repeatable")
+    add_twin_set_arg(p)
     add_param_args(p)
     p.set_defaults(func=run_compensate)
 
     p = sub.add_parser("cocontraction", help="length vs tension control on an antagonistic pair: "
                                              "pair tensions while bending, under load and with a length mismatch")
-    p.add_argument("--device", default="sim://?seed=0", help="device URL (default the twin)")
+    add_device_arg(p)
     p.add_argument("--out", default=None, metavar="DIR",
                    help="report folder (default a new runs/cocontraction-YYYYmmdd-HHMMSS)")
     p.add_argument("--pair", default=None, metavar="A,B",
@@ -58,7 +55,7 @@ def run_compensate(args: argparse.Namespace) -> int:
     from twin.sim.plant import SimulationError
 
     params = params_from_args(args)
-    twin = _twin_params(args, params)
+    twin = twin_params(args, params)
     gains = tension_gains_for(params)
     holds_n = tension_ceiling_n(params, gains, margin_n=0.0, headroom=1.0)
     if args.ceiling is not None and not args.floor < args.ceiling <= holds_n:
@@ -89,18 +86,6 @@ def run_compensate(args: argparse.Namespace) -> int:
     for problem in problems:
         print(f"twin compensate: {problem}", file=sys.stderr)
     return 0 if met else 3
-
-
-def _twin_params(args: argparse.Namespace, params):
-    """The parameter set the device is built with: the model's, with ``--twin-set`` on sim://."""
-    if not args.twin_overrides:
-        return params
-    if not args.device.startswith("sim://"):
-        raise UsageError(f"--twin-set {args.twin_overrides[0]}: applies to sim:// only, not --device {args.device}")
-    try:
-        return params.replace(dict(parse_override(o) for o in args.twin_overrides), source="twin-set (hidden)")
-    except ParameterError as exc:
-        raise UsageError(f"--twin-set: {exc}") from None
 
 
 def run_cocontraction(args: argparse.Namespace) -> int:

@@ -1,4 +1,4 @@
-"""``twin emulate``: the emulated rig — board on a pseudo-terminal, EM tracker over OpenIGTLink,
+"""``twin emulate``: the emulated rig — board on a pseudo-terminal or a TCP port, EM tracker over OpenIGTLink,
 automatic fixture — for work without the rig (:class:`twin.device.emulated_rig.EmulatedRig`)."""
 
 from __future__ import annotations
@@ -8,22 +8,11 @@ import os
 import sys
 import threading
 
-from twin.cliargs import (UsageError, add_param_args, add_pose_args, count, params_from_args, pose_overrides,
+from twin.cliargs import (add_param_args, add_pose_args, count, params_from_args, pose_overrides,
                           sigterm_event)
 from twin.live import add_live_argument
 
-__all__ = ["open_device_arg", "register"]
-
-
-def open_device_arg(url: str, **kwargs):
-    """:func:`twin.driver.open_device` for a ``--device`` argument; a bad URL is a
-    :class:`twin.cliargs.UsageError` naming it."""
-    from twin.driver import open_device
-
-    try:
-        return open_device(url, **kwargs)
-    except ValueError as exc:
-        raise UsageError(f"--device {url}: {exc}") from None
+__all__ = ["register"]
 
 
 def register(subparsers) -> None:
@@ -35,7 +24,11 @@ def register(subparsers) -> None:
     p.add_argument("--seed", type=count, default=0, help="sensor-noise seed of the twin")
     p.add_argument("--link", metavar="PATH", default=None,
                    help="also make PATH a symbolic link to the port (stable across replugs); PATH must not exist")
-    p.add_argument("--host", default="127.0.0.1", help="interface the tracker and fixture listen on (default 127.0.0.1)")
+    p.add_argument("--host", default="127.0.0.1",
+                   help="interface the tracker, the fixture and a --tcp board listen on (default 127.0.0.1)")
+    p.add_argument("--tcp", metavar="PORT", type=int, default=None,
+                   help="serve the board on this TCP port (0 picks a free one) instead of a pseudo-terminal: "
+                        "the URL is then socket://HOST:PORT, for a host on another machine")
     p.add_argument("--igtl-port", type=int, default=18944,
                    help="TCP port of the tracker's OpenIGTLink server (default 18944, PLUS's; 0 picks a free one; "
                         "-1 serves no tracker)")
@@ -53,6 +46,12 @@ def run_emulate(args: argparse.Namespace) -> int:
     from twin.device.board import TICK_S
     from twin.device.emulated_rig import EmulatedRig
 
+    if args.tcp is not None and not 0 <= args.tcp < 65536:
+        print(f"twin emulate: --tcp {args.tcp}: expected 0..65535", file=sys.stderr)
+        return 2
+    if args.tcp is not None and args.link is not None:
+        print(f"twin emulate: --link {args.link}: a board on --tcp has no device file to link to", file=sys.stderr)
+        return 2
     for name in ("igtl_port", "fixture_port"):
         if not -1 <= getattr(args, name) < 65536:
             print(f"twin emulate: --{name.replace('_', '-')} {getattr(args, name)}: expected 0..65535, or -1 for none",
@@ -73,12 +72,21 @@ def run_emulate(args: argparse.Namespace) -> int:
             rig = EmulatedRig(params, seed=args.seed, link_path=args.link, host=args.host,
                               base_rotation=params.rig.base_rotation if pose_overrides(args) else None,
                               igtl_port=None if args.igtl_port < 0 else args.igtl_port,
-                              fixture_port=None if args.fixture_port < 0 else args.fixture_port)
+                              fixture_port=None if args.fixture_port < 0 else args.fixture_port,
+                              board_port=args.tcp)
         except (ValueError, NativeBuildError) as exc:
             # One line: a build error's compiler output is for make to show, not this command.
             print(f"twin emulate: the board cannot start: {_first_line(exc)}", file=sys.stderr)
             return 1
-        rig.board.plug()  # a --link that cannot be made is the command line's one-line OSError
+        try:
+            rig.board.plug()  # a --link that cannot be made is the command line's one-line OSError
+        except OSError as exc:
+            if args.tcp is None:
+                raise
+            print(f"twin emulate: --host {args.host} --tcp {args.tcp}: cannot listen: {exc.strerror or exc}",
+                  file=sys.stderr)
+            rig.close()
+            return 1
         try:
             rig.start()
         except OSError as exc:

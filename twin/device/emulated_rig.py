@@ -1,7 +1,7 @@
-"""The whole rig emulated for a host on ``serial://``: board, EM tracker and an automatic fixture.
+"""The whole rig emulated for a host on ``serial://`` or ``socket://``: board, EM tracker and an automatic fixture.
 
-:class:`EmulatedRig` is what ``twin emulate`` runs: the emulated board on a pseudo-terminal
-(:class:`twin.device.pty_board.PtyBoard`) and, beside it,
+:class:`EmulatedRig` is what ``twin emulate`` runs: the emulated board on a pseudo-terminal or a
+TCP port (:class:`twin.device.pty_board.PtyBoard`) and, beside it,
 
 * **the tracker**: the twin's two 5-DOF probes streamed over OpenIGTLink as PLUS streams the
   rig's NDI Aurora (:class:`TrackerPublisher`: TRANSFORM messages named
@@ -9,7 +9,7 @@
   frame at the tracker's 40 Hz of board time, stamped with the wall clock as PLUS stamps with its
   own), served by :class:`twin.device.igtl_server.OpenIGTLinkServer`;
 * **the fixture**: :class:`FixtureServer`, which hangs the tip and calibration masses and clamps
-  the reference holder on the twin as :class:`twin.driver.fixture.SimFixture` does on
+  the reference holder on the twin as :class:`twin.device.sim_fixture.SimFixture` does on
   ``sim://``, asked over TCP by :class:`twin.driver.fixture.RemoteFixture`.
 
 :attr:`EmulatedRig.url` is the device URL that uses all three, e.g.
@@ -28,7 +28,8 @@ import time
 
 import numpy as np
 
-from twin.driver.fixture import ACTIONS, SimFixture
+from twin.device.sim_fixture import SimFixture
+from twin.driver.fixture import ACTIONS
 from twin.device.pty_board import PtyBoard
 from twin.params import Params
 
@@ -164,7 +165,9 @@ class EmulatedRig:
         seed: sensor-noise seed.
         base_rotation: clamp orientation (default the parameter set's).
         link_path: optional stable link to the port (:class:`PtyBoard`).
-        host: interface the tracker and fixture listen on.
+        host: interface the tracker and fixture (and the board, with ``board_port``) listen on.
+        board_port: serve the board on this TCP port of ``host`` (0: a free one), reached as
+            ``socket://host:port``, instead of on a pseudo-terminal (None).
         igtl_port, fixture_port: their TCP ports (0: free ones), or None for none.
         probe_names: the tracker's device names of probes A and B.
 
@@ -173,8 +176,9 @@ class EmulatedRig:
 
     def __init__(self, params: Params | None = None, *, seed: int = 0, base_rotation=None, link_path=None,
                  host: str = "127.0.0.1", igtl_port: int | None = 18944, fixture_port: int | None = 18945,
-                 probe_names: tuple[str, str] = PLUS_PROBE_NAMES):
-        self.board = PtyBoard(params, seed=seed, base_rotation=base_rotation, link_path=link_path)
+                 probe_names: tuple[str, str] = PLUS_PROBE_NAMES, board_port: int | None = None):
+        self.board = PtyBoard(params, seed=seed, base_rotation=base_rotation, link_path=link_path,
+                              tcp=None if board_port is None else (host, board_port))
         self.host, self.probe_names = host, tuple(probe_names)
         self._ports = (igtl_port, fixture_port)
         self.igtl_server = self.tracker = self.fixture = None

@@ -1,9 +1,11 @@
-"""The emulated board behind a pseudo-terminal, in wall-clock time: a rig without the rig.
+"""The emulated board behind a pseudo-terminal or a TCP port, in wall-clock time: a rig without the rig.
 
 :class:`PtyBoard` runs an :class:`twin.device.board.EmulatedBoard` (the real firmware core and
 the MuJoCo plant) in a background thread, one 5 ms tick per 5 ms of wall-clock time, and
 exposes one end of an ``os.openpty()`` pair in raw mode. ``serial://<port>`` on that end goes
-through the real serial driver, protocol and PID. Host bytes are handed to the firmware as
+through the real serial driver, protocol and PID. With ``tcp=(host, port)`` the board listens
+there instead and ``socket://host:port`` reaches it over the network, one host at a time (as
+ser2net serves a rig's port in raw mode; a second connection is closed at once). Host bytes are handed to the firmware as
 they arrive (commands are answered at once, as on the Teensy); board bytes are written after
 each tick and each command.
 
@@ -25,6 +27,7 @@ import math
 import os
 import queue
 import select
+import socket
 import threading
 import time
 import tty
@@ -49,6 +52,8 @@ class PtyBoard:
         seed: seed of the plant's sensor noise.
         base_rotation: clamp orientation (default the parameter set's ``rig.base_quat``).
         link_path: optional path of a symbolic link to the current port.
+        tcp: ``(host, port)`` to serve on a TCP port instead of a pseudo-terminal (port 0 picks
+            a free one: see :attr:`port`).
 
     Attributes:
         board: the :class:`EmulatedBoard` (its ``plant`` is the twin behind the port).
@@ -68,7 +73,10 @@ class PtyBoard:
         seed: int = 0,
         base_rotation=None,
         link_path: str | os.PathLike | None = None,
+        tcp: tuple[str, int] | None = None,
     ):
+        if tcp is not None and link_path is not None:
+            raise ValueError(f"link_path = {str(link_path)!r}: a board on a TCP port has no device file to link to")
         self.board = EmulatedBoard(params, seed=seed, base_rotation=base_rotation)
         self.link_path = Path(link_path) if link_path is not None else None
         self.ticks = 0
@@ -76,6 +84,9 @@ class PtyBoard:
         self.tx_dropped_bytes = 0
         self.error: BaseException | None = None
         self._fds: tuple[int, int] | None = None
+        self.tcp = tcp
+        self._listener: socket.socket | None = None
+        self._client: socket.socket | None = None
         self._device_path = ""
         self._thread: threading.Thread | None = None
         self._stop = threading.Event()
@@ -85,12 +96,13 @@ class PtyBoard:
 
     @property
     def port(self) -> str:
-        """The path a host opens: ``link_path`` if given, else the pseudo-terminal itself."""
+        """What a host opens: ``link_path`` if given, else the pseudo-terminal itself, or the
+        ``host:port`` the board listens on."""
         return str(self.link_path) if self.link_path is not None else self._device_path
 
     @property
     def url(self) -> str:
-        return f"serial://{self.port}"
+        return f"{'socket' if self.tcp is not None else 'serial'}://{self.port}"
 
     @property
     def plugged(self) -> bool:
@@ -107,6 +119,23 @@ class PtyBoard:
         if self._powered_before:
             self.board.power_cycle()
         self._powered_before = True
+        if self.tcp is not None:
+            self._listen(self.tcp)
+        else:
+            self._open_pty()
+        self._stop.clear()
+        self._thread = threading.Thread(target=self._run, name=f"PtyBoard {self._device_path}", daemon=True)
+        self._thread.start()
+        return self.port
+
+    def _listen(self, address: tuple[str, int]) -> None:
+        listener = socket.create_server(address)
+        listener.setblocking(False)
+        self._listener = listener
+        host, port = listener.getsockname()[:2]
+        self._device_path = f"{host}:{port}"
+
+    def _open_pty(self) -> None:
         master, slave = os.openpty()
         # The slave end is the host's; raw mode there, or the line discipline echoes and
         # mangles bytes before the host's driver has set the port up.
@@ -127,10 +156,6 @@ class PtyBoard:
                 self._fds = None
                 raise ValueError(f"link {self.link_path}: already exists; not replacing it "
                                  "(remove it or choose another path)") from None
-        self._stop.clear()
-        self._thread = threading.Thread(target=self._run, name=f"PtyBoard {self._device_path}", daemon=True)
-        self._thread.start()
-        return self.port
 
     def unplug(self) -> None:
         """Stop the board and close the pseudo-terminal: the host's port fails as when a USB
@@ -140,6 +165,12 @@ class PtyBoard:
         self._stop.set()
         self._thread.join()
         self._thread = None
+        if self.tcp is not None:
+            self._drop_client()
+            listener, self._listener = self._listener, None
+            if listener is not None:
+                listener.close()
+            return
         for fd in self._fds:
             os.close(fd)
         self._fds = None
@@ -200,17 +231,22 @@ class PtyBoard:
             self.error = exc
 
     def _serve(self) -> None:
-        master = self._fds[0]
         next_tick_s = time.monotonic()
         while not self._stop.is_set():
-            ready, _, _ = select.select([master], [], [], max(0.0, next_tick_s - time.monotonic()))
-            if ready:
-                self.board.receive(self._read(master))
-                self._write(master, self.board.take_tx())
+            if self.tcp is None:
+                watched: list = [self._fds[0]]
+            else:
+                watched = [self._listener] + ([self._client] if self._client is not None else [])
+            ready, _, _ = select.select(watched, [], [], max(0.0, next_tick_s - time.monotonic()))
+            if self._listener is not None and self._listener in ready:
+                self._accept(self._listener)
+            if self._client in ready or (self.tcp is None and ready):
+                self.board.receive(self._read())
+                self._write(self.board.take_tx())
             now_s = time.monotonic()
             if now_s < next_tick_s:
                 continue
-            self._write(master, self.board.run_tick())
+            self._write(self.board.run_tick())
             self.ticks += 1
             for hook in self.tick_hooks:
                 hook()
@@ -225,19 +261,56 @@ class PtyBoard:
                 next_tick_s = now_s
                 self.overruns += 1
 
-    @staticmethod
-    def _read(master: int) -> bytes:
+    def _accept(self, listener: socket.socket) -> None:
+        connection, _ = listener.accept()
+        if self._client is not None:
+            connection.close()  # one host at a time, as a serial port opened exclusively
+            return
+        connection.setblocking(False)
+        # Frames are a few bytes: sent as they are made, not held back to fill a segment.
+        connection.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        self._client = connection
+
+    def _drop_client(self) -> None:
+        client, self._client = self._client, None
+        if client is not None:
+            client.close()
+
+    def _read(self) -> bytes:
+        if self.tcp is None:
+            try:
+                return os.read(self._fds[0], 4096)
+            except BlockingIOError:
+                return b""
+        if self._client is None:
+            return b""
         try:
-            return os.read(master, 4096)
+            data = self._client.recv(4096)
         except BlockingIOError:
             return b""
+        except OSError:
+            data = b""
+        if not data:
+            self._drop_client()  # the host hung up; the board runs on, as the rig does
+        return data
 
-    def _write(self, master: int, data: bytes) -> None:
+    def _write(self, data: bytes) -> None:
         while data:
             try:
-                written = os.write(master, data)
+                if self.tcp is None:
+                    written = os.write(self._fds[0], data)
+                elif self._client is None:
+                    raise BlockingIOError
+                else:
+                    written = self._client.send(data)
             except BlockingIOError:
                 # Nobody reads the port: drop, as a USB serial device does without a host.
+                self.tx_dropped_bytes += len(data)
+                return
+            except OSError:
+                if self.tcp is None:
+                    raise
+                self._drop_client()  # the host is gone
                 self.tx_dropped_bytes += len(data)
                 return
             data = data[written:]

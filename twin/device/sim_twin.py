@@ -14,7 +14,7 @@ import numpy as np
 
 if TYPE_CHECKING:
     from twin.device.board import EmulatedBoard
-    from twin.driver.fixture import SimFixture
+    from twin.device.sim_fixture import SimFixture
 
 __all__ = ["SimTwin"]
 
@@ -29,7 +29,7 @@ class SimTwin:
             host's fixture is elsewhere (a pseudo-terminal board's host asks an operator).
 
     Attributes:
-        fixture: the :class:`twin.driver.fixture.SimFixture`, or None.
+        fixture: the :class:`twin.device.sim_fixture.SimFixture`, or None.
     """
 
     def __init__(self, board: EmulatedBoard, fixture: SimFixture | None = None):

@@ -9,6 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
+from twin.cliargs import UsageError, add_device_arg, add_twin_set_arg, open_device_arg, twin_params
 from twin.params import ParameterError, load_params, parse_override
 
 __all__ = ["EXIT_CODES", "register"]
@@ -81,13 +82,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--model-form-mm", type=float, default=None, metavar="MM",
                    help="structured RMS (mm) the model's form may leave on a perfect rig's data, below which no "
                    "effect is sought (default 0.17, the predictor against the twin; a rig's is larger)")
-    p.add_argument("--device", metavar="URL",
+    add_device_arg(p, default=None,
                    help="when the static data cannot decide (a tie, or structure the best candidates leave), run the "
                    "experiments that tell the contenders apart on this device (the rig the data were taken on, or "
                    "sim://), append them to DATASET and decide (twin.discrepancy.decide)")
-    p.add_argument("--twin-set", dest="twin_overrides", action="append", default=[], metavar="KEY=VALUE",
-                   help="with --device sim://: the twin's hidden settings, the rig the dataset was taken on (as "
-                   "given to twin validate --twin-set), repeatable")
+    add_twin_set_arg(p, help="with --device sim://: the twin's hidden settings, the rig the dataset was taken on (as "
+                     "given to twin validate --twin-set), repeatable")
     p.add_argument("--device-seed", type=int, default=None, metavar="SEED", help="sim:// noise seed of --device")
     p.set_defaults(func=run_discrepancy_command)
 
@@ -127,12 +127,10 @@ def run_discrepancy_command(args: argparse.Namespace) -> int:
         return refuse(f"--params {args.params}: cannot be read ({exc.strerror})")
     if args.model_form_mm is not None and not (np.isfinite(args.model_form_mm) and args.model_form_mm >= 0):
         return refuse(f"--model-form-mm {args.model_form_mm!r}: must be a finite length >= 0 (mm)")
-    if args.twin_overrides and not (args.device or "").startswith("sim://"):
-        return refuse("--twin-set applies to --device sim:// only")
     # Opened (not connected) before the long work, so a bad URL or --twin-set is refused at once.
     try:
-        device = _open_device(args, dataset, params) if args.device else None
-    except (ValueError, ParameterError) as exc:
+        device = _open_device(args, dataset, params) if args.device or args.twin_overrides else None
+    except (ValueError, UsageError) as exc:
         return refuse(str(exc))
 
     def workflow(data):
@@ -196,17 +194,10 @@ def _open_device(args, dataset, params):
     yet connected.
 
     Raises:
-        ValueError: a bad URL; ParameterError: a bad ``--twin-set``.
+        UsageError: a bad URL, or a bad ``--twin-set`` or one without ``--device sim://``.
     """
-    from twin.cliargs import UsageError
-    from twin.device.commands import open_device_arg
-
-    twin = params.replace(dict(parse_override(o) for o in args.twin_overrides), source="twin-set (hidden)") \
-        if args.twin_overrides else params
-    try:
-        device = open_device_arg(args.device, params=twin, seed=args.device_seed, robot=dataset.robot)
-    except UsageError as exc:
-        raise ValueError(str(exc)) from None
+    twin = twin_params(args, params)
+    device = open_device_arg(args.device, params=twin, seed=args.device_seed, robot=dataset.robot)
     if not np.allclose(device.base_rotation, dataset.base_rotation, atol=1e-6):
         device.close()
         raise ValueError(f"--device {args.device}: runs in another base pose than {dataset.path} was recorded in "

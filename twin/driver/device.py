@@ -42,7 +42,7 @@ from __future__ import annotations
 
 import math
 import threading
-from typing import TYPE_CHECKING, ContextManager, Iterable, Sequence
+from typing import TYPE_CHECKING, Any, ContextManager, Iterable, Sequence
 
 import numpy as np
 
@@ -58,7 +58,6 @@ from twin.pose import HORIZONTAL
 if TYPE_CHECKING:
     from twin.calibration import Calibration
     from twin.driver.fixture import Fixture
-    from twin.device.sim_twin import SimTwin
     from twin.driver.tracker import TipTracker
 
 __all__ = ["GAIN_TOLERANCE", "MAX_LENGTH_SETPOINT_M", "MAX_OFFSET_COUNTS", "MAX_TENSION_LIMIT_N", "RATED_GAIN_COUNTS_PER_N",
@@ -187,7 +186,7 @@ class Device:
         *,
         fixture: Fixture | None = None,
         tracker: TipTracker | None = None,
-        twin: SimTwin | None = None,
+        twin: Any = None,
         command_timeout_s: float = 0.5,
         keepalive_s: float | None = 0.1,
         queue_size: int = 4096,
@@ -256,8 +255,9 @@ class Device:
         return self._transport
 
     @property
-    def twin(self) -> SimTwin:
-        """The twin behind a ``sim://`` device (:class:`twin.device.sim_twin.SimTwin`): its
+    def twin(self) -> Any:
+        """The twin behind a ``sim://`` device (the driver knows no twin: this is what the scheme
+        gave, :class:`twin.device.sim_twin.SimTwin` on ``sim://``): its
         ground truth (tip pose, true tensions, simulated time) and a fast reset.
 
         Raises:

@@ -5,14 +5,14 @@ clamping the reference holder around the discs, hanging calibration masses on th
 the load-cell pulleys. :class:`Fixture` names them; ``device.fixture`` provides them for the
 device's backend. Every action returns once the load or clamp is in place and still:
 
-* :class:`SimFixture` (``sim://``) acts on the twin's plant at once, then lets the twin run
-  for ``settle_s`` of simulated time.
+* :class:`twin.device.sim_fixture.SimFixture` (``sim://``, above the driver) acts on the twin's
+  plant at once, then lets the twin run for ``settle_s`` of simulated time.
 * :class:`OperatorFixture` (``serial://``) asks the operator on the console and returns when
   they press Enter. With no console to answer (stdin at its end) it stops the run with a
   :class:`FixtureUnavailable`, one line, instead of waiting for nobody.
 * :class:`RemoteFixture` (``serial://…?fixture=host:port``) asks an automatic fixture over TCP:
   ``twin emulate`` serves one (:class:`twin.device.emulated_rig.FixtureServer`) that does to its
-  twin what :class:`SimFixture` does, so the rig's commands run against the emulated board with
+  twin what the ``sim://`` fixture does, so the rig's commands run against the emulated board with
   no person at hand. The requests are lines of JSON, ``{"action": NAME, "args": [...]}`` with
   NAME a method of :class:`Fixture` (:data:`ACTIONS`), answered ``{"ok": true}`` once the action
   is done and settled, or ``{"ok": false, "error": "…"}``.
@@ -27,17 +27,15 @@ import contextlib
 import json
 import math
 import socket
-from typing import TYPE_CHECKING, Callable, ContextManager, Iterable
+from typing import Callable, ContextManager, Iterable
 
 import numpy as np
 
 from twin.driver.codec import DEFAULT_CHANNELS
 from twin.driver.errors import DeviceError
 
-if TYPE_CHECKING:
-    from twin.device.board import EmulatedBoard
-
-__all__ = ["ACTIONS", "Fixture", "FixtureUnavailable", "OperatorFixture", "RemoteFixture", "SimFixture"]
+__all__ = ["ACTIONS", "Fixture", "FixtureUnavailable", "OperatorFixture", "RemoteFixture", "check_channels",
+           "check_mass"]
 
 # The fixture's actions, by method name: what a RemoteFixture may ask of a fixture server.
 ACTIONS = ("hang_tip_mass", "apply_tip_load", "engage_holder", "release_holder", "hang_calibration_mass",
@@ -49,13 +47,13 @@ class FixtureUnavailable(DeviceError):
     automatic fixture cannot be reached or refused the action. The message names the action."""
 
 
-def _check_mass(name: str, value: float) -> float:
+def check_mass(name: str, value: float) -> float:
     if not (math.isfinite(value) and value >= 0):
         raise ValueError(f"{name} = {value!r}: must be finite and >= 0")
     return float(value)
 
 
-def _channels(channels: Iterable[int], count: int) -> tuple[int, ...]:
+def check_channels(channels: Iterable[int], count: int) -> tuple[int, ...]:
     channels = tuple(channels)
     if not channels or any(not (isinstance(c, (int, np.integer)) and 0 <= c < count) for c in channels):
         raise ValueError(f"channels = {channels!r}: expected one or more of 0..{count - 1}")
@@ -102,55 +100,6 @@ class Fixture(abc.ABC):
         """Take every calibration mass off; the motors drive the tendons again."""
 
 
-class SimFixture(Fixture):
-    """Fixture actions on the emulated board's plant.
-
-    Calibration masses: the plant models no mass hanging over a pulley, so the board pulls each
-    tendon at the spool with the mass's weight (m·g with the twin's gravity) by ideal tension
-    sources, and the load cells read that tension; meanwhile the firmware's motor outputs are
-    ignored (see :meth:`EmulatedBoard.hold_tensions`) until :meth:`remove_calibration_masses`.
-
-    Args:
-        board: the emulated board.
-        settle: lets simulated time pass (s), e.g. ``device.wait``.
-        settle_s: simulated time each action is given to come to rest (s).
-    """
-
-    def __init__(self, board: EmulatedBoard, settle: Callable[[float], None], *, settle_s: float = 0.5):
-        self._board = board
-        self._settle = settle
-        self.settle_s = settle_s
-        self._calibration_g = np.zeros(board.plant.tendon_count)
-
-    def hang_tip_mass(self, mass_kg: float) -> None:
-        self._board.plant.set_tip_mass_kg(_check_mass("mass_kg", mass_kg))
-        self._settle(self.settle_s)
-
-    def apply_tip_load(self, force_n=(0.0, 0.0, 0.0), moment_nm=(0.0, 0.0, 0.0)) -> None:
-        self._board.plant.set_tip_load(force_n, moment_nm)
-        self._settle(self.settle_s)
-
-    def engage_holder(self) -> None:
-        self._board.plant.engage_holder()
-        self._settle(self.settle_s)
-
-    def release_holder(self) -> None:
-        self._board.plant.release_holder()
-        self._settle(self.settle_s)
-
-    def hang_calibration_mass(self, mass_g: float, channels: Iterable[int]) -> None:
-        mass_g = _check_mass("mass_g", mass_g)
-        self._calibration_g[list(_channels(channels, len(self._calibration_g)))] = mass_g
-        gravity = self._board.plant.params.environment.gravity_m_s2
-        self._board.hold_tensions(self._calibration_g * 1e-3 * gravity)
-        self._settle(self.settle_s)
-
-    def remove_calibration_masses(self) -> None:
-        self._calibration_g[:] = 0.0
-        self._board.release_tensions()
-        self._settle(self.settle_s)
-
-
 class OperatorFixture(Fixture):
     """Fixture actions asked of the operator at the rig.
 
@@ -166,7 +115,7 @@ class OperatorFixture(Fixture):
         self._count = channels
 
     def hang_tip_mass(self, mass_kg: float) -> None:
-        mass_kg = _check_mass("mass_kg", mass_kg)
+        mass_kg = check_mass("mass_kg", mass_kg)
         if mass_kg > 0:
             self._ask(f"Hang {mass_kg * 1e3:g} g at the tip, let it hang still")
         else:
@@ -189,8 +138,8 @@ class OperatorFixture(Fixture):
         self._ask("Open and remove the reference holder")
 
     def hang_calibration_mass(self, mass_g: float, channels: Iterable[int]) -> None:
-        mass_g = _check_mass("mass_g", mass_g)
-        tendons = ", ".join(str(c + 1) for c in _channels(channels, self._count))
+        mass_g = check_mass("mass_g", mass_g)
+        tendons = ", ".join(str(c + 1) for c in check_channels(channels, self._count))
         if mass_g > 0:
             self._ask(f"Hang {mass_g:g} g on tendon(s) {tendons} over the load-cell pulley, let it hang still")
         else:
@@ -232,7 +181,7 @@ class RemoteFixture(Fixture):
         self._reader = None
 
     def hang_tip_mass(self, mass_kg: float) -> None:
-        self._do("hang_tip_mass", _check_mass("mass_kg", mass_kg))
+        self._do("hang_tip_mass", check_mass("mass_kg", mass_kg))
 
     def apply_tip_load(self, force_n=(0.0, 0.0, 0.0), moment_nm=(0.0, 0.0, 0.0)) -> None:
         force, moment = np.asarray(force_n, dtype=float), np.asarray(moment_nm, dtype=float)
@@ -247,7 +196,7 @@ class RemoteFixture(Fixture):
         self._do("release_holder")
 
     def hang_calibration_mass(self, mass_g: float, channels: Iterable[int]) -> None:
-        self._do("hang_calibration_mass", _check_mass("mass_g", mass_g), [int(c) for c in channels])
+        self._do("hang_calibration_mass", check_mass("mass_g", mass_g), [int(c) for c in channels])
 
     def remove_calibration_masses(self) -> None:
         self._do("remove_calibration_masses")

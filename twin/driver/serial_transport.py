@@ -1,5 +1,6 @@
-"""``serial://``: a board on a serial port (the Teensy's USB CDC, or a pseudo-terminal), in
-wall-clock time.
+"""A board on a serial port, in wall-clock time: ``serial://`` (the Teensy's USB CDC, or a
+pseudo-terminal), or a port over the network, ``socket://`` (raw TCP) and ``rfc2217://``, all
+opened by pyserial's ``serial_for_url``.
 
 A reader thread hands bytes to the inbox as they arrive; waits are real sleeps. The keepalive
 PINGs are sent by the host's own calls: a wait sends those that fall due while it sleeps, a
@@ -40,7 +41,9 @@ class SerialTransport(Transport):
     """A transport over a serial port.
 
     Args:
-        port: device path, e.g. ``/dev/ttyACM0`` or a pseudo-terminal such as ``/dev/pts/4``.
+        port: what ``serial.serial_for_url`` opens: a device path, e.g. ``/dev/ttyACM0`` or a
+            pseudo-terminal such as ``/dev/pts/4``, or a pyserial URL such as
+            ``socket://127.0.0.1:7000`` or ``rfc2217://host:port``.
         url: the device URL, for messages.
     """
 
@@ -63,8 +66,13 @@ class SerialTransport(Transport):
         while True:
             try:
                 # exclusive: a second host on the same board would interleave commands.
-                port = serial.Serial(self.port, baudrate=115200, timeout=_READ_POLL_S,
-                                     write_timeout=_WRITE_TIMEOUT_S, exclusive=True)
+                port = serial.serial_for_url(self.port, baudrate=115200, timeout=_READ_POLL_S, exclusive=True,
+                                             do_not_open=True)
+                # pyserial's RFC 2217 client refuses a write timeout (3.5); its writes go to a TCP
+                # socket, which a board that stops reading fills only after kilobytes.
+                if not self.port.startswith("rfc2217://"):
+                    port.write_timeout = _WRITE_TIMEOUT_S
+                port.open()
                 break
             except (serial.SerialException, OSError) as exc:
                 if time.monotonic() >= deadline:
@@ -141,8 +149,11 @@ class SerialTransport(Transport):
         self._stop.set()
         self._keepalive_s = self._ping = None
         port, self._serial = self._serial, None
-        if port is not None:
-            port.cancel_read()
+        # A local port's blocked read returns at once; a network port has no cancel_read, and
+        # its reader notices the stop within one read timeout.
+        cancel_read = getattr(port, "cancel_read", None)
+        if cancel_read is not None:
+            cancel_read()
         for thread in self._threads:
             if thread is not threading.current_thread():
                 thread.join()

@@ -1,6 +1,6 @@
 """The EM tracker as a device sees it: fused 6-DOF tip poses from two 5-DOF probes.
 
-On ``sim://`` the probes are the twin's (:meth:`twin.sim.plant.Plant.tracker_probes`, 40 Hz,
+On ``sim://`` the probes are the twin's (``Plant.tracker_probes``, 40 Hz,
 timestamped in simulated time); on ``serial://`` they come from the rig's OpenIGTLink server
 (:class:`twin.driver.igtl_source.OpenIGTLinkSource`) when the URL names one (``?igtl=host:port``,
 with the ``igtl_…`` and ``cap_…`` keys of :mod:`twin.driver.url`).
@@ -11,9 +11,9 @@ from __future__ import annotations
 
 from typing import Callable, Protocol
 
-from twin.tracking import CallableSource, CapCalibration, FusionResult, FusionSettings, ProbeFrame, fuse_frame
+from twin.tracking import CapCalibration, FusionResult, FusionSettings, ProbeFrame, fuse_frame
 
-__all__ = ["TipTracker", "sim_probe_source"]
+__all__ = ["TipTracker"]
 
 
 class ProbeSource(Protocol):
@@ -58,13 +58,3 @@ class TipTracker:
         close = getattr(source, "close", None)
         if close is not None:
             close()
-
-
-def sim_probe_source(plant) -> CallableSource:
-    """The twin's probe frames (held between its 40 Hz samples), as a tracking source."""
-
-    def sample():
-        frame = plant.tracker_probes()
-        return frame.time_s, frame.positions_m, frame.axes
-
-    return CallableSource(sample)

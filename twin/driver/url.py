@@ -1,20 +1,36 @@
-"""Device URLs → devices: ``sim://`` (the twin) and ``serial://`` (the rig, or an emulated board
-on a pseudo-terminal).
+"""Device URLs → devices, through a registry of schemes.
 
-``sim://[?seed=N][&pose=horizontal|up | &base_quat=W,X,Y,Z]``
-    The emulated board (:class:`twin.device.board.EmulatedBoard`) in simulated time.
-``serial://<path>[?igtl=host:port[&igtl_…][&cap_…]][&fixture=host:port][&pose=… | &base_quat=…]``
+As in pyserial's ``serial_for_url``, a scheme is a name and a function that builds the device
+(:class:`Scheme`, :func:`register_scheme`), and the modules that add schemes are named in
+:data:`SCHEME_MODULES` and imported when a URL first asks for a scheme not yet known: the driver
+names the twin's module without importing it, so a host on the rig never loads the twin.
+
+The driver's own schemes reach a board through pyserial (``serial.serial_for_url``), in
+wall-clock time:
+
+``serial://<path>``
     A board on a serial port: ``serial:///dev/ttyACM0``, or the pseudo-terminal printed by
-    ``twin emulate`` (which prints the whole URL, its tracker and fixture included). ``fixture``
-    names an automatic fixture (:class:`twin.driver.fixture.RemoteFixture`; ``twin emulate``
-    serves one) that hangs the masses and clamps the holder; without it the operator is asked
-    on the console. ``igtl`` names the OpenIGTLink server of the EM tracker (PLUS); without
-    it ``device.tracker`` is None. With it: ``igtl_probes=Probe1ToTracker,Probe2ToTracker``
-    (device names of probes A and B), ``igtl_axis=z`` (tool axis along the probe, e.g. ``-z``),
-    ``igtl_scale=mm`` (length unit), ``igtl_clock=auto`` (or the server clock minus ours, s),
-    ``igtl_timeout_s=5`` (see :func:`twin.driver.igtl_source.settings_from_options`), and the cap
-    calibration (:class:`twin.tracking.CapCalibration`): ``cap_a_mm=x,y,z`` and
-    ``cap_a_axis=x,y,z`` for probe A in the tip frame, ``cap_b_mm``, ``cap_b_axis`` for B.
+    ``twin emulate`` (which prints the whole URL, its tracker and fixture included).
+``socket://<host>:<port>``
+    A board whose serial bytes are served raw over TCP (``twin emulate --tcp PORT``, or ser2net
+    in raw mode in front of the rig's port).
+``rfc2217://<host>:<port>``
+    A serial port shared over the network by an RFC 2217 server (ser2net in telnet mode,
+    pyserial's ``rfc2217_server.py``).
+
+Each takes ``?igtl=host:port[&igtl_…][&cap_…]``, ``&fixture=host:port`` and ``&pose=… | &base_quat=…``.
+``fixture`` names an automatic fixture (:class:`twin.driver.fixture.RemoteFixture`; ``twin
+emulate`` serves one) that hangs the masses and clamps the holder; without it the operator is
+asked on the console. ``igtl`` names the OpenIGTLink server of the EM tracker (PLUS); without
+it ``device.tracker`` is None. With it: ``igtl_probes=Probe1ToTracker,Probe2ToTracker``
+(device names of probes A and B), ``igtl_axis=z`` (tool axis along the probe, e.g. ``-z``),
+``igtl_scale=mm`` (length unit), ``igtl_clock=auto`` (or the server clock minus ours, s),
+``igtl_timeout_s=5`` (see :func:`twin.driver.igtl_source.settings_from_options`), and the cap
+calibration (:class:`twin.tracking.CapCalibration`): ``cap_a_mm=x,y,z`` and
+``cap_a_axis=x,y,z`` for probe A in the tip frame, ``cap_b_mm``, ``cap_b_axis`` for B.
+
+``sim://[?seed=N][&pose=…]`` is the twin behind the real firmware in simulated time, registered
+by :mod:`twin.device.sim_url` above the driver.
 
 ``pose`` / ``base_quat`` give the clamp's orientation (body → world; the twin is built in it, the
 rig is mounted so); default the parameter set's ``rig.base_quat``. It is
@@ -23,36 +39,107 @@ rig is mounted so); default the parameter set's ``rig.base_quat``. It is
 
 from __future__ import annotations
 
+import dataclasses
+import importlib
 import math
 import urllib.parse
-from typing import Callable
+from typing import Any, Callable
 
 from twin.driver.device import Device
-from twin.driver.fixture import OperatorFixture, RemoteFixture
+from twin.driver.fixture import Fixture, OperatorFixture, RemoteFixture
 from twin.driver.igtl_source import URL_KEYS as IGTL_KEYS
 from twin.driver.igtl_source import OpenIGTLinkSource, settings_from_options
 from twin.driver.serial_transport import SerialTransport
-from twin.driver.tracker import TipTracker, sim_probe_source
+from twin.driver.tracker import TipTracker
 from twin.params import Params, load_params
 from twin.pose import base_rotation_from
 from twin.tracking import CapCalibration, FusionSettings
 
-__all__ = ["SCHEMES", "open_device"]
+__all__ = ["SCHEME_MODULES", "DeviceRequest", "Scheme", "open_device", "register_scheme", "schemes"]
 
-SCHEMES = ("sim", "serial")
 _CAP_KEYS = {"cap_a_mm": "position_a_m", "cap_a_axis": "axis_a", "cap_b_mm": "position_b_m", "cap_b_axis": "axis_b"}
-_QUERY_KEYS = {"sim": ("seed", "pose", "base_quat"),
-               "serial": ("igtl", *IGTL_KEYS, *_CAP_KEYS, "fixture", "pose", "base_quat")}
+# The query keys every scheme takes.
+POSE_KEYS = ("pose", "base_quat")
 
 
-def _query(url: str, scheme: str, query: str) -> dict[str, str]:
+@dataclasses.dataclass(frozen=True)
+class DeviceRequest:
+    """What a scheme's opener is given: the URL taken apart and what every device shares.
+
+    Attributes:
+        url: the URL as given.
+        parts: ``urllib.parse.urlsplit(url)``.
+        options: the query's keys and values, each key one the scheme declared.
+        params: the parameter set.
+        seed: the caller's sensor-noise seed (None: not given); schemes without noise refuse one.
+        prompt: how the operator is asked for fixture actions.
+        device_args: keyword arguments of :class:`Device` every scheme passes on (timeouts, the
+            tension limit, the clamp orientation, tendon count, load-cell gain, m per count).
+        fusion: the tracker fusion's noise settings of the parameter set.
+    """
+
+    url: str
+    parts: urllib.parse.SplitResult
+    options: dict[str, str]
+    params: Params
+    seed: int | None
+    prompt: Callable[[str], object]
+    device_args: dict[str, Any]
+    fusion: FusionSettings
+
+
+@dataclasses.dataclass(frozen=True)
+class Scheme:
+    """One device URL scheme.
+
+    Attributes:
+        name: the scheme, without ``://``.
+        keys: the query keys it takes (any other is refused, naming these).
+        open: builds the device (not yet connected); a bad URL is a ValueError naming it.
+        example: a URL of the scheme, for messages.
+    """
+
+    name: str
+    keys: tuple[str, ...]
+    open: Callable[[DeviceRequest], Device]
+    example: str
+
+
+_SCHEMES: dict[str, Scheme] = {}
+# Modules that register more schemes when imported, named rather than imported (pyserial's
+# ``protocol_handler_packages``): the twin's rooms sit above the driver. Append your own.
+SCHEME_MODULES: list[str] = ["twin.device.sim_url"]
+_LOADED: set[str] = set()
+
+
+def register_scheme(scheme: Scheme) -> None:
+    """Make ``scheme.name://`` URLs open through ``scheme`` (replacing one of that name)."""
+    _SCHEMES[scheme.name] = scheme
+
+
+def _load_scheme_modules(until: str | None = None) -> None:
+    for module in SCHEME_MODULES:
+        if until is not None and until in _SCHEMES:
+            return
+        if module not in _LOADED:
+            importlib.import_module(module)
+            _LOADED.add(module)
+
+
+def schemes() -> dict[str, Scheme]:
+    """Every scheme known, by name (the modules of :data:`SCHEME_MODULES` imported first)."""
+    _load_scheme_modules()
+    return dict(_SCHEMES)
+
+
+def _query(url: str, scheme: Scheme, query: str) -> dict[str, str]:
     pairs = urllib.parse.parse_qsl(query, keep_blank_values=True, strict_parsing=bool(query))
     options = dict(pairs)
-    unknown = sorted(set(options) - set(_QUERY_KEYS[scheme]))
+    unknown = sorted(set(options) - set(scheme.keys))
     if unknown or len(options) != len(pairs):
         raise ValueError(
             f"device URL {url!r}: options {', '.join(unknown) or 'repeated'} not understood; "
-            f"{scheme}:// takes {', '.join(_QUERY_KEYS[scheme])}"
+            f"{scheme.name}:// takes {', '.join(scheme.keys)}"
         )
     return options
 
@@ -71,12 +158,13 @@ def open_device(
     """A :class:`Device` for ``url``, not yet connected (use ``with`` or call ``connect()``).
 
     Args:
-        url: ``sim://…`` or ``serial://…`` (see the module docstring).
+        url: ``sim://…``, ``serial://…``, ``socket://…``, ``rfc2217://…`` or any registered
+            scheme (see the module docstring).
         params: parameter set of the twin (``sim://``) and of the tracker fusion noise
             (default ``models/endoscope/endoscope.toml``).
         seed: sensor-noise seed of the twin; the URL's ``seed`` is used if this is None, and
             0 if neither is given.
-        prompt: how the operator is asked for fixture actions on ``serial://``.
+        prompt: how the operator is asked for fixture actions on a board without an automatic fixture.
         command_timeout_s, keepalive_s, queue_size: see :class:`Device`.
         robot: the robot's name, for the message refusing a board with another channel count
             than its ``tendons.count`` (see :meth:`Device.connect`).
@@ -86,71 +174,60 @@ def open_device(
             with different values.
     """
     parts = urllib.parse.urlsplit(url)
-    if parts.scheme not in SCHEMES:
+    _load_scheme_modules(until=parts.scheme)
+    scheme = _SCHEMES.get(parts.scheme)
+    if scheme is None:
         raise ValueError(f"device URL {url!r}: scheme {parts.scheme!r} unknown; use one of "
-                         + ", ".join(f"{s}://" for s in SCHEMES))
-    options = _query(url, parts.scheme, parts.query)
+                         + ", ".join(f"{s}://" for s in schemes()))
+    options = _query(url, scheme, parts.query)
     params = params if params is not None else load_params()
-    settings = FusionSettings.from_params(params)
     # The parameter set's tension limit is what the board drives with: Device.enable sends it.
     device_args = dict(command_timeout_s=command_timeout_s, keepalive_s=keepalive_s, queue_size=queue_size,
                        tension_limit_n=params.rig.tension_limit_n, base_rotation=_pose(url, options, params),
                        tendons=params.tendons.count, robot=robot,
                        loadcell_gain_counts_per_n=params.sensors.loadcell_gain_counts_per_n,
                        tendon_m_per_count=params.rig.tendon_m_per_count)
+    return scheme.open(DeviceRequest(url, parts, options, params, seed, prompt, device_args,
+                                     FusionSettings.from_params(params)))
 
-    if parts.scheme == "sim":
-        if parts.netloc or parts.path not in ("", "/"):
-            raise ValueError(f"device URL {url!r}: sim:// takes options only, e.g. sim://?seed=3&pose=up")
-        # Imported here: a host on the rig needs neither MuJoCo nor the firmware build.
-        from twin.device.board import EmulatedBoard
-        from twin.device.sim_transport import SimTransport
-        from twin.device.sim_twin import SimTwin
-        from twin.driver.fixture import SimFixture
 
-        board = EmulatedBoard(params, seed=_seed(url, options, seed), base_rotation=device_args["base_rotation"])
-        # The fixture settles through the device so the firmware keeps ticking meanwhile.
-        fixture = SimFixture(board, settle=lambda duration_s: device.wait(duration_s))
-        device = Device(
-            SimTransport(board, url=url),
-            fixture=fixture,
-            tracker=TipTracker(lambda: sim_probe_source(board.plant), settings=settings),
-            twin=SimTwin(board, fixture),
-            **device_args,
-        )
-        return device
+def _open_port(request: DeviceRequest) -> Device:
+    """A board through pyserial: ``serial://`` a local port, ``socket://`` and ``rfc2217://`` one
+    over the network."""
+    url, parts, options = request.url, request.parts, request.options
+    if parts.scheme == "serial":
+        port = parts.netloc + parts.path
+        if not port:
+            raise ValueError(f"device URL {url!r}: no port; e.g. serial:///dev/ttyACM0")
+    else:
+        if parts.path not in ("", "/"):
+            raise ValueError(f"device URL {url!r}: {parts.scheme}:// takes host:port only, "
+                             f"e.g. {parts.scheme}://127.0.0.1:7000")
+        host, port_number = _host_port(url, parts.netloc, "address")
+        # pyserial's URL, without the query keys that are ours.
+        port = f"{parts.scheme}://{host}:{port_number}"
+    if request.seed is not None:
+        raise ValueError(f"seed = {request.seed!r}: only sim:// devices take a seed, not {url!r}")
+    tracker = _igtl_tracker(url, options, request.fusion)
 
-    path = parts.netloc + parts.path
-    if not path:
-        raise ValueError(f"device URL {url!r}: no port; e.g. serial:///dev/ttyACM0")
-    if seed is not None:
-        raise ValueError(f"seed = {seed!r}: only sim:// devices take a seed, not {url!r}")
-    tracker = _igtl_tracker(url, options, settings)
-
-    def ask(request: str) -> object:
+    def ask(text: str) -> object:
         # The operator may take longer than the watchdog timeout; the host is alive meanwhile.
         with device.attended():
-            return prompt(request)
+            return request.prompt(text)
 
+    fixture: Fixture
     if "fixture" in options:
-        host, port = _host_port(url, options["fixture"], "fixture")
-        fixture = RemoteFixture(host, port, attended=lambda: device.attended())
+        host, fixture_port = _host_port(url, options["fixture"], "fixture")
+        fixture = RemoteFixture(host, fixture_port, attended=lambda: device.attended())
     else:
-        fixture = OperatorFixture(ask, channels=params.tendons.count)
-    device = Device(SerialTransport(path, url=url), fixture=fixture, tracker=tracker, **device_args)
+        fixture = OperatorFixture(ask, channels=request.params.tendons.count)
+    device = Device(SerialTransport(port, url=url), fixture=fixture, tracker=tracker, **request.device_args)
     return device
 
 
-def _seed(url: str, options: dict[str, str], seed: int | None) -> int:
-    if "seed" not in options:
-        return 0 if seed is None else seed
-    try:
-        from_url = int(options["seed"])
-    except ValueError:
-        raise ValueError(f"device URL {url!r}: seed = {options['seed']!r} is not a whole number") from None
-    if seed is not None and seed != from_url:
-        raise ValueError(f"seed = {seed!r} contradicts the URL {url!r}")
-    return from_url
+for _name, _example in (("serial", "serial:///dev/ttyACM0"), ("socket", "socket://127.0.0.1:7000"),
+                        ("rfc2217", "rfc2217://127.0.0.1:7000")):
+    register_scheme(Scheme(_name, ("igtl", *IGTL_KEYS, *_CAP_KEYS, "fixture", *POSE_KEYS), _open_port, _example))
 
 
 def _pose(url: str, options: dict[str, str], params: Params):

@@ -8,9 +8,9 @@ import shutil
 import sys
 from pathlib import Path
 
-from twin.cliargs import (UsageError, add_param_args, add_pose_args, count, new_run_folder, params_from_args,
-                          robot_name)
-from twin.params import ParameterError, parse_override
+from twin.cliargs import (UsageError, add_device_arg, add_param_args, add_pose_args, add_twin_set_arg, count,
+                          new_run_folder, open_device_arg, params_from_args, robot_name, twin_params)
+from twin.params import parse_override
 
 __all__ = ["register"]
 
@@ -37,7 +37,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     r = actions.add_parser("record", help="run the dynamic experiments on a device into a run folder",
                            description="Runs the dynamic experiment set (docs/dynamic-dataset.md) on --device and "
                            "writes its commands and telemetry into RUN/dynamics/ of a new run folder.")
-    r.add_argument("--device", default="sim://", metavar="URL", help="sim:// (default) or serial:///dev/ttyACM0")
+    add_device_arg(r)
     r.add_argument("--out", default="runs", metavar="DIR", help="parent folder of the run folder (default runs)")
     r.add_argument("--quick", action="store_true",
                    help="the first tendon's steps, one pull-release cycle and a 2 s chirp (about 11 s of device time)")
@@ -45,8 +45,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     r.add_argument("--calibration", metavar="FILE", help="load-cell calibration file (default: the parameter set's)")
     r.add_argument("--resume", metavar="RUN_DIR",
                    help="continue a stopped run in this folder: the experiments it holds are kept, the rest recorded")
-    r.add_argument("--twin-set", dest="twin_overrides", action="append", default=[], metavar="KEY=VALUE",
-                   help="sim:// only: change the simulated rig but not the model (a hidden effect), repeatable")
+    add_twin_set_arg(r)
     add_pose_args(r)
     add_param_args(r)
     r.set_defaults(func=run_record)
@@ -83,7 +82,6 @@ def _model_args(p: argparse.ArgumentParser) -> None:
 # ----------------------------------------------------------------------------------------- record
 def run_record(args: argparse.Namespace) -> int:
     from twin.data.dataset import write_atomic
-    from twin.device.commands import open_device_arg
     from twin.driver.errors import DeviceError
     from twin.dynamics.protocols import experiment_set, run_experiment
     from twin.dynamics.series import DYNAMICS_FOLDER, SeriesWriter
@@ -94,16 +92,9 @@ def run_record(args: argparse.Namespace) -> int:
 
     params = params_from_args(args)
     sim = args.device.startswith("sim://")
-    if args.twin_overrides and not sim:
-        raise UsageError(f"--twin-set {args.twin_overrides[0]}: applies to sim:// only, not --device {args.device}")
     if args.seed is not None and not sim:
         raise UsageError(f"--seed {args.seed}: applies to sim:// only, not --device {args.device}")
-    twin_params = params
-    if args.twin_overrides:
-        try:
-            twin_params = params.replace(dict(parse_override(o) for o in args.twin_overrides), source="twin-set (hidden)")
-        except ParameterError as exc:
-            raise UsageError(f"--twin-set: {exc}") from None
+    twin = twin_params(args, params)
     experiments = experiment_set(params, quick=args.quick)
     if args.calibration:
         from twin.calibration import CalibrationFileError, load_calibration
@@ -129,7 +120,7 @@ def run_record(args: argparse.Namespace) -> int:
                   "nothing to do", file=sys.stderr)
             print(f"dynamic dataset: {folder / DYNAMICS_FOLDER}")
             return 0
-    device = open_device_arg(args.device, params=twin_params, seed=args.seed, robot=robot_name(args))
+    device = open_device_arg(args.device, params=twin, seed=args.seed, robot=robot_name(args))
     if not args.resume:
         folder = new_run_folder(args.out, "dynamics")
         write_atomic(folder / RUN_RECORD, json.dumps(invocation, indent=1))

@@ -9,9 +9,8 @@ import sys
 import time
 from pathlib import Path
 
-from twin.cliargs import (UsageError, add_param_args, add_pose_args, count, new_run_folder, params_from_args,
-                          robot_name)
-from twin.device.commands import open_device_arg
+from twin.cliargs import (UsageError, add_device_arg, add_param_args, add_pose_args, add_twin_set_arg, count,
+                          new_run_folder, open_device_arg, params_from_args, robot_name, twin_params)
 from twin.live import add_live_argument
 from twin.params import parse_override
 from twin.pcc import quick_grid, validation_grid
@@ -64,11 +63,10 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def _device_args(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--device", default="sim://", metavar="URL", help="sim:// (default) or serial:///dev/ttyACM0")
+    add_device_arg(p)
     p.add_argument("--out", default="runs", metavar="DIR", help="parent folder of the run folder (default runs)")
     p.add_argument("--calibration", metavar="FILE", help="load-cell calibration file (default: the parameter set's)")
-    p.add_argument("--twin-set", dest="twin_overrides", action="append", default=[], metavar="KEY=VALUE",
-                   help="sim:// only: change the simulated rig but not the model (a hidden effect), repeatable")
+    add_twin_set_arg(p)
     p.add_argument("--seed", type=count, default=None, help="sim:// noise seed")
     add_param_args(p)
     add_pose_args(p)
@@ -83,15 +81,6 @@ class RunRefused(Exception):
     """A run cannot start or resume as asked (the message says why, naming each difference)."""
 
 
-def _twin_params(args, params):
-    """The parameter set the device is built with: on sim://, the model's with ``--twin-set``."""
-    if not args.twin_overrides:
-        return params
-    if not args.device.startswith("sim://"):
-        raise SystemExit("twin: --twin-set applies to sim:// only")
-    return params.replace(dict(parse_override(o) for o in args.twin_overrides), source="twin-set (hidden)")
-
-
 def _twin_warnings(args, params) -> list[str]:
     """On sim://, the warning that the twin's own cross-check against the predictor is out of
     bounds (so differences may be the twin's, not the model's); printed and put in the report."""
@@ -101,7 +90,7 @@ def _twin_warnings(args, params) -> list[str]:
     from twin.sim.plant import SimulationError
 
     try:
-        warning = crosscheck_status(_twin_params(args, params)).warning
+        warning = crosscheck_status(twin_params(args, params)).warning
     except SimulationError as exc:
         # The cross-check settles the twin in tension mode without the firmware; with strong
         # hidden effects (tendon friction on the long robots) that can diverge after the sweep
@@ -113,9 +102,9 @@ def _twin_warnings(args, params) -> list[str]:
 
 
 def _open(args, params):
-    twin_params = _twin_params(args, params)
     try:
-        device = open_device_arg(args.device, params=twin_params, seed=args.seed, robot=robot_name(args))
+        device = open_device_arg(args.device, params=twin_params(args, params), seed=args.seed,
+                                 robot=robot_name(args))
     except UsageError as exc:  # a bad URL or option: nothing was opened
         raise RunRefused(str(exc)) from None
     device.connect()
@@ -409,16 +398,11 @@ def grid_from_arg(text: str | None, params) -> list[tuple]:
 
 def _run_folder(args, command: str, experiment: str, params) -> Path:
     """The run folder: ``--resume``'s once checked, else a new one."""
-    if args.twin_overrides and not args.device.startswith("sim://"):
-        raise RunRefused("--twin-set applies to sim:// only")
-    if args.twin_overrides:
-        # Checked before a run folder exists: a bad hidden setting should not leave one behind.
-        from twin.params import ParameterError
-
-        try:
-            _twin_params(args, params)
-        except ParameterError as exc:
-            raise RunRefused(f"--twin-set: {exc}") from None
+    # Checked before a run folder exists: a bad hidden setting should not leave one behind.
+    try:
+        twin_params(args, params)
+    except UsageError as exc:
+        raise RunRefused(str(exc)) from None
     if args.calibration:
         # Checked before a run folder exists: a typo should not cost a folder or a pretension.
         from twin.calibration import CalibrationFileError, load_calibration
