@@ -159,12 +159,15 @@ def test_a_scheme_module_named_in_the_registry_is_imported_when_its_scheme_is_as
         "def open_loop(request):\n"
         "    parts = request.parts._replace(scheme='socket', netloc='127.0.0.1:' + request.parts.netloc)\n"
         "    return _open_port(dataclasses.replace(request, parts=parts))\n"
-        "register_scheme(Scheme('loopback', (), open_loop, 'loopback://7000'))\n")
+        "register_scheme(Scheme('loopback', (), open_loop))\n")
     monkeypatch.syspath_prepend(str(tmp_path))
     monkeypatch.setattr(device_url, "SCHEME_MODULES", [*device_url.SCHEME_MODULES, "loop_scheme"])
+    schemes()  # the twin's sim:// registered before the registry is copied, so the copy holds it
     monkeypatch.setattr(device_url, "_SCHEMES", dict(device_url._SCHEMES))
+    monkeypatch.setattr(device_url, "_LOADED", set(device_url._LOADED))
     with PtyBoard(seed=4, tcp=("127.0.0.1", 0)) as board:
         tcp_port = board.port.rpartition(":")[2]
         with open_device(f"loopback://{tcp_port}") as device:
             assert device.info.channels == 4
     assert "loopback" in schemes()
+    assert "loop_scheme" in device_url._LOADED

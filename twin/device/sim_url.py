@@ -66,4 +66,4 @@ def _seed(url: str, options: dict[str, str], seed: int | None) -> int:
     return from_url
 
 
-register_scheme(Scheme("sim", ("seed", *POSE_KEYS), open_sim, "sim://?seed=3&pose=up"))
+register_scheme(Scheme("sim", ("seed", *POSE_KEYS), open_sim))

@@ -55,7 +55,7 @@ from twin.params import Params, load_params
 from twin.pose import base_rotation_from
 from twin.tracking import CapCalibration, FusionSettings
 
-__all__ = ["SCHEME_MODULES", "DeviceRequest", "Scheme", "open_device", "register_scheme", "schemes"]
+__all__ = ["POSE_KEYS", "SCHEME_MODULES", "DeviceRequest", "Scheme", "open_device", "register_scheme", "schemes"]
 
 _CAP_KEYS = {"cap_a_mm": "position_a_m", "cap_a_axis": "axis_a", "cap_b_mm": "position_b_m", "cap_b_axis": "axis_b"}
 # The query keys every scheme takes.
@@ -96,13 +96,11 @@ class Scheme:
         name: the scheme, without ``://``.
         keys: the query keys it takes (any other is refused, naming these).
         open: builds the device (not yet connected); a bad URL is a ValueError naming it.
-        example: a URL of the scheme, for messages.
     """
 
     name: str
     keys: tuple[str, ...]
     open: Callable[[DeviceRequest], Device]
-    example: str
 
 
 _SCHEMES: dict[str, Scheme] = {}
@@ -225,9 +223,8 @@ def _open_port(request: DeviceRequest) -> Device:
     return device
 
 
-for _name, _example in (("serial", "serial:///dev/ttyACM0"), ("socket", "socket://127.0.0.1:7000"),
-                        ("rfc2217", "rfc2217://127.0.0.1:7000")):
-    register_scheme(Scheme(_name, ("igtl", *IGTL_KEYS, *_CAP_KEYS, "fixture", *POSE_KEYS), _open_port, _example))
+for _name in ("serial", "socket", "rfc2217"):
+    register_scheme(Scheme(_name, ("igtl", *IGTL_KEYS, *_CAP_KEYS, "fixture", *POSE_KEYS), _open_port))
 
 
 def _pose(url: str, options: dict[str, str], params: Params):
