@@ -1,8 +1,9 @@
 """A host that only talks to the rig needs neither MuJoCo nor a C++ compiler.
 
 The check runs in a fresh interpreter whose imports of ``mujoco`` fail and whose ``PATH`` holds
-no compiler: it imports the device package, opens a ``serial://`` device on a pseudo-terminal
-(a board played by hand answers), and fuses a tracker frame.
+no compiler: it imports the rig driver (:mod:`twin.driver`), opens a ``serial://`` device on a
+pseudo-terminal (a board played by hand answers), and fuses a tracker frame; nothing of the twin's
+rooms (``twin.sim``, ``twin.device``) is loaded.
 """
 
 from __future__ import annotations
@@ -66,7 +67,7 @@ HOST_WITHOUT_MUJOCO = textwrap.dedent("""
     fused = fuse_frame(ProbeFrame(ProbeReading(*rows[0]), ProbeReading(*rows[1]), rows[2]), CapCalibration(),
                        FusionSettings())
     loaded = sorted(m for m in sys.modules if m.partition(".")[0] == "mujoco" or m.startswith(
-        ("twin.sim", "twin.device.board", "twin.device.firmware_lib", "twin.device.sim_transport")))
+        ("twin.sim", "twin.device")))
     print(json.dumps({"seq": sample.seq, "lengths_m": sample.tendon_lengths_m.tolist(), "ok": fused.ok,
                       "position_m": fused.pose.position_m.tolist(), "rotation": fused.pose.rotation.tolist(),
                       "loaded": loaded}))

@@ -233,7 +233,7 @@ class PtyBoard:
     def _serve(self) -> None:
         next_tick_s = time.monotonic()
         while not self._stop.is_set():
-            if self.tcp is None:
+            if self._fds is not None:
                 watched: list = [self._fds[0]]
             else:
                 watched = [self._listener] + ([self._client] if self._client is not None else [])
@@ -277,7 +277,7 @@ class PtyBoard:
             client.close()
 
     def _read(self) -> bytes:
-        if self.tcp is None:
+        if self._fds is not None:
             try:
                 return os.read(self._fds[0], 4096)
             except BlockingIOError:
@@ -297,7 +297,7 @@ class PtyBoard:
     def _write(self, data: bytes) -> None:
         while data:
             try:
-                if self.tcp is None:
+                if self._fds is not None:
                     written = os.write(self._fds[0], data)
                 elif self._client is None:
                     raise BlockingIOError
