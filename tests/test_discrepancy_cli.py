@@ -9,6 +9,8 @@ import pytest
 from twin import load_params
 from twin.cli import main
 from twin.discrepancy import synthetic_validation_dataset
+from twin.discrepancy.commands import EXIT_CODES
+from twin.discrepancy.verdict import Verdict
 from twin.effects import EFFECTS
 from twin.pcc import validation_grid
 
@@ -82,8 +84,8 @@ def test_help_documents_the_exit_codes(capsys):
     with pytest.raises(SystemExit):
         main(["discrepancy", "--help"])
     text = capsys.readouterr().out
-    for verdict, code in (("effect", 0), ("none", 0), ("ambiguous", 3), ("unexplained", 3)):
-        assert any(line.split()[:2] == [verdict, str(code)] for line in text.splitlines()), verdict
+    for verdict in Verdict:
+        assert any(line.split()[:2] == [verdict, str(EXIT_CODES[verdict])] for line in text.splitlines()), verdict
 
 
 @pytest.fixture(scope="module")

@@ -23,7 +23,7 @@ import serial
 
 from twin.device.errors import DeviceDisconnected, DeviceError
 from twin.device.inbox import Inbox
-from twin.device.transport import Transport
+from twin.device.transport import Clock, Transport
 
 __all__ = ["SerialTransport"]
 
@@ -44,7 +44,7 @@ class SerialTransport(Transport):
         url: the device URL, for messages.
     """
 
-    clock = "wall"
+    clock = Clock.WALL
 
     def __init__(self, port: str, *, url: str | None = None):
         self.port = port

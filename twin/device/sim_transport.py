@@ -17,7 +17,7 @@ from typing import Callable, ContextManager
 
 from twin.device.board import EmulatedBoard, Reason
 from twin.device.inbox import Inbox
-from twin.device.transport import Transport
+from twin.device.transport import Clock, Transport
 
 __all__ = ["SimTransport"]
 
@@ -33,7 +33,7 @@ class SimTransport(Transport):
         url: the device URL, for messages.
     """
 
-    clock = "simulated"
+    clock = Clock.SIMULATED
 
     def __init__(self, board: EmulatedBoard, *, url: str = "sim://"):
         self.board = board

@@ -25,7 +25,8 @@ if TYPE_CHECKING:
     from twin.discrepancy.report import write_report
     from twin.discrepancy.residuals import ResidualMap, StructureTest, find_discrepancy, thesis_signature
     from twin.discrepancy.synthetic import synthetic_validation_dataset
-    from twin.discrepancy.workflow import VERDICTS, DiscrepancyResult, run_discrepancy
+    from twin.discrepancy.verdict import Verdict
+    from twin.discrepancy.workflow import DiscrepancyResult, run_discrepancy
 
 # name → the module that defines it, imported when the name is first used
 _EXPORTS = {
@@ -35,13 +36,13 @@ _EXPORTS = {
     "write_report": "twin.discrepancy.report",
     "ResidualMap": "twin.discrepancy.residuals", "StructureTest": "twin.discrepancy.residuals", "find_discrepancy": "twin.discrepancy.residuals", "thesis_signature": "twin.discrepancy.residuals",
     "synthetic_validation_dataset": "twin.discrepancy.synthetic",
-    "VERDICTS": "twin.discrepancy.workflow", "DiscrepancyResult": "twin.discrepancy.workflow", "run_discrepancy": "twin.discrepancy.workflow",
+    "DiscrepancyResult": "twin.discrepancy.workflow", "Verdict": "twin.discrepancy.verdict", "run_discrepancy": "twin.discrepancy.workflow",
 }
 __getattr__, __dir__ = lazy_exports(__name__, _EXPORTS)
 
 __all__ = [
-    "VERDICTS", "Candidate", "CandidateScore", "DiscrepancyResult", "NoiseEstimate", "ResidualMap", "Round",
+    "Candidate", "CandidateScore", "DiscrepancyResult", "NoiseEstimate", "ResidualMap", "Round",
     "StructureTest", "candidate_library", "estimate_noise", "find_discrepancy", "rank_candidates", "rank_pairs",
     "run_discrepancy", "split_rows",
-    "synthetic_validation_dataset", "thesis_signature", "write_report",
+    "synthetic_validation_dataset", "thesis_signature", "Verdict", "write_report",
 ]

@@ -11,7 +11,7 @@ The steps (the ranking rule is in :mod:`twin.discrepancy.naming`):
 * **Check what remains.** The fitted model goes through the Find step again (with the starting
   model's noise estimate): a named effect must leave residuals without structure beyond noise.
 
-The verdict (:data:`VERDICTS`):
+The verdict (:class:`Verdict`):
 
 ``none``
     no structured disagreement beyond noise, or none that matters (:func:`_material`) and
@@ -48,13 +48,13 @@ from twin.discrepancy.naming import (MIN_HELDOUT_GAIN, PAIR_POOL, TIE_Z, Baselin
                                      rank_candidates, rank_pairs, row_errors, split_rows, worse_z)
 from twin.discrepancy.probes import PROBES, fit_probe
 from twin.discrepancy.residuals import ResidualMap, find_discrepancy, thesis_signature
+from twin.discrepancy.verdict import Verdict
 from twin.data.dataset import Dataset
 from twin.data.fitting import ParameterFit
 from twin.params import Params
 
-__all__ = ["VERDICTS", "DiscrepancyResult", "run_discrepancy"]
+__all__ = ["DiscrepancyResult", "Verdict", "run_discrepancy"]
 
-VERDICTS = ("effect", "none", "ambiguous", "unexplained")
 # Configurations listed where a residual remains.
 _WORST_SHOWN = 5
 # Structured RMS, in noise RMS, that a tenth off the held-out RMS stands for (see _material).
@@ -83,7 +83,7 @@ class DiscrepancyResult:
         fit: the joint fit of the named effects' parameters on the training rows (None if none named).
         errors_before_m, errors_after_m: (held-out rows, 3) p̂ − p* before and after (failures charged).
         converged_before, converged_after: (held-out rows,) which held-out predictions exist.
-        verdict: one of :data:`VERDICTS` (module doc).
+        verdict: the answer (:class:`Verdict`, module doc).
         tied: the candidates of a round that tied, best first (the verdict is then ``ambiguous``,
             or ``unexplained`` when even the best of them leaves structure).
         remaining: the Find step on all rows with the model that leaves the least (``params_after``;
@@ -109,7 +109,7 @@ class DiscrepancyResult:
     errors_after_m: np.ndarray
     converged_before: np.ndarray
     converged_after: np.ndarray
-    verdict: str = "none"
+    verdict: Verdict = Verdict.NONE
     tied: tuple[CandidateScore, ...] = ()
     remaining: ResidualMap | None = None
     stand_ins: tuple[CandidateScore, ...] = ()
@@ -213,11 +213,11 @@ class DiscrepancyResult:
         noise = self.residuals.noise.rms_3d_m * 1e3
         left = (f"{self.remaining_rms_m * 1e3:.3g} mm held-out RMS left (from {self.rms_before_m * 1e3:.3g} mm) "
                 f"against {noise:.3g} mm of noise")
-        if self.verdict == "none":
+        if self.verdict == Verdict.NONE:
             return f"none: no structured disagreement beyond noise ({left})."
-        if self.verdict == "effect":
+        if self.verdict == Verdict.EFFECT:
             return f"effect: {_listed(self.named)} the disagreement; {left}."
-        if self.verdict == "ambiguous":
+        if self.verdict == Verdict.AMBIGUOUS:
             tie = ", ".join(f"{_shown(s)} {s.heldout_rms_m * 1e3:.3g} mm" for s in self.tied + self.outside)
             rms = [s.heldout_rms_m for s in self.tied + self.outside]
             spread = (max(rms) - min(rms)) * 1e3
@@ -376,19 +376,19 @@ def run_discrepancy(dataset: Dataset, params: Params | None = None, *, holdout_f
     errors_after, ok_after = row_errors(dataset, current, test, [solutions[i] for i in held])
     after = find_discrepancy(dataset, current, noise=residuals.noise, guesses=list(solutions)) if named else residuals
     if not residuals.structure.beyond_noise or (not named and not tied and not _material(residuals, model_form_m)):
-        verdict = "none"
+        verdict = Verdict.NONE
     elif tied:
         # A tie is the answer only if the tied explanations explain: when even the best of them
         # leaves material structure, what is missing is none of them alone.
         best = find_discrepancy(dataset, tied[0].fit.params, noise=residuals.noise, guesses=list(solutions))
-        verdict = "unexplained" if _material(best, model_form_m) else "ambiguous"
+        verdict = Verdict.UNEXPLAINED if _material(best, model_form_m) else Verdict.AMBIGUOUS
     elif not named or _material(after, model_form_m):
-        verdict = "unexplained"
+        verdict = Verdict.UNEXPLAINED
     else:
-        verdict = "effect"
+        verdict = Verdict.EFFECT
     stand_ins: tuple[CandidateScore, ...] = ()
     outside: tuple[CandidateScore, ...] = ()
-    if verdict != "none":
+    if verdict != Verdict.NONE:
         base = Baseline.of(dataset, params, train, test, source=source, max_evaluations=max_evaluations,
                            tries=len(library) + len(PROBES), guesses=solutions)
         answer = _joint_score(base, rounds, named, fit, errors_after) if named else None
@@ -397,21 +397,21 @@ def run_discrepancy(dataset: Dataset, params: Params | None = None, *, holdout_f
         # With more than one effect named, a single library candidate may explain as much.
         others = [s for s in rounds[0].scores if len(named) > 1 and s.beats_noise and not set(s.effects) & set(named)]
         better, equal = _equivalents(reference, probes + others)
-        if verdict == "unexplained" and reference is None:
+        if verdict == Verdict.UNEXPLAINED and reference is None:
             outside = tuple(sorted((p for p in probes if p.beats_noise), key=lambda p: p.score))
         elif better:
-            verdict, outside = "unexplained", tuple(better + equal)
+            verdict, outside = Verdict.UNEXPLAINED, tuple(better + equal)
         elif equal:
             library_ties = tuple(e for e in equal if e.effect not in PROBES)
-            if verdict == "effect":
-                verdict, tied = "ambiguous", (answer,) + library_ties
+            if verdict == Verdict.EFFECT:
+                verdict, tied = Verdict.AMBIGUOUS, (answer,) + library_ties
             outside = tuple(e for e in equal if e.effect in PROBES)
-        if verdict != "effect" and named:
+        if verdict != Verdict.EFFECT and named:
             # Only what the verdict names goes into the answer: the rest are stand-ins, with figures.
             if not (tied and tied[0] is answer):
                 stand_ins = (answer,)
             named, fit, current = [], None, params
-            if verdict == "ambiguous":
+            if verdict == Verdict.AMBIGUOUS:
                 errors_after, ok_after, after = errors_before, ok_before, residuals
     return DiscrepancyResult(dataset, params, current, train, test, seed, residuals, tuple(rounds), tuple(named),
                              fit, errors_before, errors_after, ok_before, ok_after, verdict, tied, after,

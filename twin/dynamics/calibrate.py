@@ -44,6 +44,7 @@ from scipy import optimize
 from tqdm import tqdm
 
 from twin import effects
+from twin.discrepancy.verdict import Verdict
 from twin.dynamics.protocols import Series
 from twin.dynamics.replay import GROUPS, Comparison, compare, replay
 from twin.effects import FitParameter
@@ -125,7 +126,7 @@ class DynamicResult:
     """What :func:`calibrate` found.
 
     Attributes:
-        verdict: ``"effect"``, ``"none"``, ``"ambiguous"`` or ``"unexplained"``.
+        verdict: the answer (:class:`twin.discrepancy.verdict.Verdict`).
         named: the effect named (``"effect"`` only), else None.
         tied: the candidates of an ambiguous answer.
         fits: every candidate's fit, best held-out score first (empty for ``"none"``).
@@ -138,7 +139,7 @@ class DynamicResult:
         wall_s: wall time of the calibration (s).
     """
 
-    verdict: str
+    verdict: Verdict
     named: str | None
     tied: list[str]
     fits: list[CandidateFit]
@@ -155,29 +156,29 @@ class DynamicResult:
     @property
     def effects(self) -> list[str]:
         """Every effect named: one, or the two of a pair."""
-        if self.verdict != "effect":
+        if self.verdict != Verdict.EFFECT:
             return []
         return [f.effect for f in self.pair] if self.pair else [self.named]
 
     @property
     def named_fits(self) -> list[CandidateFit]:
         """The fits of the named effects (:attr:`effects`)."""
-        if self.verdict != "effect":
+        if self.verdict != Verdict.EFFECT:
             return []
         return list(self.pair) if self.pair else [self.fits[0]]
 
     def statement(self) -> str:
         """One line: the verdict in words."""
-        if self.verdict == "none":
+        if self.verdict == Verdict.NONE:
             return "none: the replay gap is at the noise level; no dynamic effect is missing"
-        if self.verdict == "effect":
+        if self.verdict == Verdict.EFFECT:
             fits = self.named_fits
             score = fits[0].heldout_score
             left = ("to the noise level" if score < NOISE_SCORE else
                     f"to {score:.3g} times the noise level's square: more than noise remains")
             what = " and ".join(f"{f.effect} ({f.parameter.key} = {f.value:.4g})" for f in fits)
             return f"effect: {what}; held-out score {self.score_before[1]:.3g} -> {score:.3g}, {left}"
-        if self.verdict == "ambiguous":
+        if self.verdict == Verdict.AMBIGUOUS:
             return f"ambiguous: {' and '.join(self.tied)} explain the held-out experiments equally well"
         best = self.fits[0] if self.fits else None
         where = ", ".join(f"{g} {self.before.group_rms(g):.3g}" for g in GROUPS)
@@ -365,7 +366,7 @@ def calibrate(measured: list[Series], params: Params, base_rotation, *, training
     common = dict(training=train.names, heldout=test.names, before=before_test, score_before=score_before,
                   noise=noise_out)
     if max(score_before) < NOISE_SCORE:
-        return DynamicResult("none", None, [], [], after=None, params_after=None,
+        return DynamicResult(Verdict.NONE, None, [], [], after=None, params_after=None,
                              wall_s=time.perf_counter() - start, **common)
     candidates = effects.dynamic_candidates(params)
     with tqdm(total=len(candidates) + REFINED, desc="dynamic candidates", unit="fit", disable=not progress,
@@ -395,22 +396,22 @@ def calibrate(measured: list[Series], params: Params, base_rotation, *, training
             close = [" + ".join(f.effect for f in p) for p in pairs
                      if p[0].heldout_score < TIE_FACTOR * pairs[0][0].heldout_score]
             if len(close) > 1:
-                return DynamicResult("ambiguous", None, close, fits, after=None, params_after=None,
+                return DynamicResult(Verdict.AMBIGUOUS, None, close, fits, after=None, params_after=None,
                                      wall_s=time.perf_counter() - start, **common)
             pair = pairs[0]
             fitted = params.replace({f.parameter.key: f.value for f in pair},
                                     source=f"fitted: twin dynamics calibrate on {', '.join(common['training'])}")
-            return DynamicResult("effect", pair[0].effect, [], fits, after=test.comparison_of(fitted, base_rotation),
+            return DynamicResult(Verdict.EFFECT, pair[0].effect, [], fits, after=test.comparison_of(fitted, base_rotation),
                                  params_after=fitted, wall_s=time.perf_counter() - start, pair=list(pair), **common)
     if not explains:
-        return DynamicResult("unexplained", None, [], fits, after=None, params_after=None,
+        return DynamicResult(Verdict.UNEXPLAINED, None, [], fits, after=None, params_after=None,
                              wall_s=time.perf_counter() - start, **common)
     tied = [f.effect for f in fits if f.heldout_score < TIE_FACTOR * best.heldout_score]
     if len(tied) > 1:
-        return DynamicResult("ambiguous", None, tied, fits, after=None, params_after=None,
+        return DynamicResult(Verdict.AMBIGUOUS, None, tied, fits, after=None, params_after=None,
                              wall_s=time.perf_counter() - start, **common)
     fitted = params.replace({best.parameter.key: best.value},
                             source=f"fitted: twin dynamics calibrate on {', '.join(common['training'])}")
     after = test.comparison_of(fitted, base_rotation)
-    return DynamicResult("effect", best.effect, [], fits, after=after, params_after=fitted,
+    return DynamicResult(Verdict.EFFECT, best.effect, [], fits, after=after, params_after=fitted,
                          wall_s=time.perf_counter() - start, **common)
