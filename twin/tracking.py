@@ -26,6 +26,7 @@ from typing import Callable
 import numba
 import numpy as np
 
+from twin.checks import finite_vector
 from twin.params import Params
 from twin.pose import matrix_to_quat
 from twin.resources import announce_kernel_compile
@@ -117,9 +118,7 @@ class CapCalibration:
 
     def __post_init__(self):
         for name in ("position_a_m", "axis_a", "position_b_m", "axis_b"):
-            v = _vector3(name, getattr(self, name))
-            if not np.all(np.isfinite(v)):
-                raise ValueError(f"CapCalibration.{name} = {v.tolist()}: must be finite")
+            v = finite_vector(f"CapCalibration.{name}", getattr(self, name), 3)
             if name.startswith("axis"):
                 if abs(np.linalg.norm(v) - 1.0) > 1e-6:
                     raise ValueError(f"CapCalibration.{name} = {v.tolist()}: must be a unit vector")

@@ -46,13 +46,14 @@ from typing import TYPE_CHECKING, ContextManager, Iterable, Sequence
 
 import numpy as np
 
+from twin.checks import finite_vector
 from twin.board_limits import GAIN_TOLERANCE, MAX_OFFSET_COUNTS, MAX_TENSION_LIMIT_N, RATED_GAIN_COUNTS_PER_N
 from twin.device import codec
 from twin.device.errors import (ChannelCountError, CommandRejected, DeviceDisconnected, DeviceError, DeviceTimeout,
                                 ProtocolVersionError)
 from twin.device.inbox import Inbox, LinkStats
 from twin.device.telemetry import DeviceInfo, Telemetry
-from twin.device.transport import Transport
+from twin.device.transport import Clock, Transport
 from twin.pose import HORIZONTAL
 
 if TYPE_CHECKING:
@@ -77,11 +78,7 @@ def _mode(mode: str | codec.Mode) -> codec.Mode:
 
 
 def _vector(name: str, values: Iterable[float], count: int) -> tuple[float, ...]:
-    array = np.asarray(values, dtype=float)
-    floats = tuple(array.tolist()) if array.shape == (count,) else ()
-    if len(floats) != count or not all(map(math.isfinite, floats)):
-        raise ValueError(f"{name} = {values!r}: expected {count} finite numbers")
-    return floats
+    return tuple(finite_vector(name, values, count).tolist())
 
 
 # Length setpoints the firmware accepts (m): its kMaxLengthSetpointM, a value in mm sent as m
@@ -268,7 +265,7 @@ class Device:
         return self._twin
 
     @property
-    def clock(self) -> str:
+    def clock(self) -> Clock:
         """``"simulated"`` (``sim://``: time passes only in waits) or ``"wall"`` (``serial://``)."""
         return self._transport.clock
 
@@ -323,7 +320,7 @@ class Device:
             self._transport.close()
             raise
         self._info = info
-        if self.tracker is not None and self.clock == "wall":
+        if self.tracker is not None and self.clock == Clock.WALL:
             # The first fusion in a process compiles (numba: 1 s to over a minute on a loaded
             # machine): done here, with the board disabled, not on a run's first tracker reading,
             # when the silent host let the watchdog stop the enabled board. In simulated time

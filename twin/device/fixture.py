@@ -31,6 +31,7 @@ from typing import TYPE_CHECKING, Callable, ContextManager, Iterable
 
 import numpy as np
 
+from twin.checks import finite_vector
 from twin.device.codec import DEFAULT_CHANNELS
 from twin.device.errors import DeviceError
 
@@ -173,9 +174,7 @@ class OperatorFixture(Fixture):
             self._ask("Remove any mass from the tip")
 
     def apply_tip_load(self, force_n=(0.0, 0.0, 0.0), moment_nm=(0.0, 0.0, 0.0)) -> None:
-        force, moment = np.asarray(force_n, dtype=float), np.asarray(moment_nm, dtype=float)
-        if force.shape != (3,) or moment.shape != (3,) or not (np.isfinite(force).all() and np.isfinite(moment).all()):
-            raise ValueError(f"force_n = {force_n!r}, moment_nm = {moment_nm!r}: expected 3 finite numbers each")
+        force, moment = finite_vector("force_n", force_n, 3), finite_vector("moment_nm", moment_nm, 3)
         if not (force.any() or moment.any()):
             self._ask("Remove any force and moment from the tip")
             return
@@ -235,9 +234,7 @@ class RemoteFixture(Fixture):
         self._do("hang_tip_mass", _check_mass("mass_kg", mass_kg))
 
     def apply_tip_load(self, force_n=(0.0, 0.0, 0.0), moment_nm=(0.0, 0.0, 0.0)) -> None:
-        force, moment = np.asarray(force_n, dtype=float), np.asarray(moment_nm, dtype=float)
-        if force.shape != (3,) or moment.shape != (3,) or not (np.isfinite(force).all() and np.isfinite(moment).all()):
-            raise ValueError(f"force_n = {force_n!r}, moment_nm = {moment_nm!r}: expected 3 finite numbers each")
+        force, moment = finite_vector("force_n", force_n, 3), finite_vector("moment_nm", moment_nm, 3)
         self._do("apply_tip_load", force.tolist(), moment.tolist())
 
     def engage_holder(self) -> None:
