@@ -50,7 +50,7 @@ class Reason(enum.IntEnum):
 
 
 class Mode(enum.IntEnum):
-    """The spools' drive (``enum bl_mode``); :data:`twin.sim.plant.MODES` names them in this order."""
+    """The spools' drive (``enum bl_mode``); :class:`twin.sim.plant.DriveMode` names them."""
 
     PWM = 0
     COAST = 1
