@@ -38,6 +38,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from typing import Any
 
 import numpy as np
 from tqdm import tqdm
@@ -237,7 +238,7 @@ class DiscrepancyResult:
             part = "no candidate nor pair removes it; "
         if self.outside:
             best = self.outside[0]
-            values = ", ".join(f"{row['parameter']} = {row['value']:.3g}" for row in best.fit.table())
+            values = ", ".join(f"{row['parameter']} = {row['value']:.3g}" for row in (best.fit.table() if best.fit else []))
             part += (f"a cause outside the library, {best.effect} ({values}), explains it "
                      f"(held-out {best.heldout_rms_m * 1e3:.3g} mm); ")
         return (f"unexplained: {part}{left}; over all rows {w['structured_rms_m'] * 1e3:.3g} mm of structure "
@@ -344,7 +345,7 @@ def run_discrepancy(dataset: Dataset, params: Params | None = None, *, holdout_f
     named: list[str] = []
     fit: ParameterFit | None = None
     tied: tuple[CandidateScore, ...] = ()
-    options = dict(source=source, max_evaluations=max_evaluations, progress=progress, guesses=solutions)
+    options: dict[str, Any] = dict(source=source, max_evaluations=max_evaluations, progress=progress, guesses=solutions)
     while len(named) < max_effects:
         remaining = [c for effect, c in library.items() if effect not in named]
         if not remaining:
@@ -370,6 +371,7 @@ def run_discrepancy(dataset: Dataset, params: Params | None = None, *, holdout_f
             break
         named.extend(ranked.winner.effects)
         fit = ranked.winner.fit
+        assert fit is not None, "a round's winner is a fitted candidate"
         current = fit.params
     held = np.flatnonzero(test)
     errors_before, ok_before = row_errors(dataset, params, test, [solutions[i] for i in held])
@@ -380,6 +382,7 @@ def run_discrepancy(dataset: Dataset, params: Params | None = None, *, holdout_f
     elif tied:
         # A tie is the answer only if the tied explanations explain: when even the best of them
         # leaves material structure, what is missing is none of them alone.
+        assert tied[0].fit is not None, "a tied candidate is a fitted one"
         best = find_discrepancy(dataset, tied[0].fit.params, noise=residuals.noise, guesses=list(solutions))
         verdict = Verdict.UNEXPLAINED if _material(best, model_form_m) else Verdict.AMBIGUOUS
     elif not named or _material(after, model_form_m):
@@ -391,7 +394,7 @@ def run_discrepancy(dataset: Dataset, params: Params | None = None, *, holdout_f
     if verdict != Verdict.NONE:
         base = Baseline.of(dataset, params, train, test, source=source, max_evaluations=max_evaluations,
                            tries=len(library) + len(PROBES), guesses=solutions)
-        answer = _joint_score(base, rounds, named, fit, errors_after) if named else None
+        answer = _joint_score(base, rounds, named, fit, errors_after) if named and fit is not None else None
         reference = tied[0] if tied else answer
         probes = _probe_scores(base, dataset, params, solutions, max_evaluations, progress)
         # With more than one effect named, a single library candidate may explain as much.
@@ -403,12 +406,12 @@ def run_discrepancy(dataset: Dataset, params: Params | None = None, *, holdout_f
             verdict, outside = Verdict.UNEXPLAINED, tuple(better + equal)
         elif equal:
             library_ties = tuple(e for e in equal if e.effect not in PROBES)
-            if verdict == Verdict.EFFECT:
+            if verdict == Verdict.EFFECT and answer is not None:
                 verdict, tied = Verdict.AMBIGUOUS, (answer,) + library_ties
             outside = tuple(e for e in equal if e.effect in PROBES)
         if verdict != Verdict.EFFECT and named:
             # Only what the verdict names goes into the answer: the rest are stand-ins, with figures.
-            if not (tied and tied[0] is answer):
+            if answer is not None and not (tied and tied[0] is answer):
                 stand_ins = (answer,)
             named, fit, current = [], None, params
             if verdict == Verdict.AMBIGUOUS:
@@ -447,15 +450,16 @@ def _equivalents(reference: CandidateScore | None,
     """(better, equal): the alternatives that beat noise and explain the held-out rows better
     than ``reference`` by :data:`twin.discrepancy.naming.TIE_Z` standard errors, and those the
     held-out rows cannot tell from it (each with ``worse_z`` against it), best first."""
-    if reference is None:
+    if reference is None or reference.heldout_errors_m is None:
         return [], []
     better, equal = [], []
     for alt in alternatives:
         if not alt.beats_noise or alt.heldout_errors_m is None:
             continue
         worse = worse_z(reference.heldout_errors_m, alt.heldout_errors_m)
+        better_by = worse_z(alt.heldout_errors_m, reference.heldout_errors_m)
         alt = dataclasses.replace(alt, worse_z=worse)
-        if worse_z(alt.heldout_errors_m, reference.heldout_errors_m) >= TIE_Z:
+        if better_by >= TIE_Z:
             better.append(alt)
         elif worse < TIE_Z:
             equal.append(alt)

@@ -38,6 +38,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import time
+from typing import Any
 
 import numpy as np
 from scipy import optimize
@@ -158,7 +159,9 @@ class DynamicResult:
         """Every effect named: one, or the two of a pair."""
         if self.verdict != Verdict.EFFECT:
             return []
-        return [f.effect for f in self.pair] if self.pair else [self.named]
+        if self.pair:
+            return [f.effect for f in self.pair]
+        return [self.named] if self.named is not None else []
 
     @property
     def named_fits(self) -> list[CandidateFit]:
@@ -180,8 +183,10 @@ class DynamicResult:
             return f"effect: {what}; held-out score {self.score_before[1]:.3g} -> {score:.3g}, {left}"
         if self.verdict == Verdict.AMBIGUOUS:
             return f"ambiguous: {' and '.join(self.tied)} explain the held-out experiments equally well"
-        best = self.fits[0] if self.fits else None
         where = ", ".join(f"{g} {self.before.group_rms(g):.3g}" for g in GROUPS)
+        if not self.fits:
+            return f"unexplained: the library has no dynamic candidate to try; held-out RMS gaps {where}"
+        best = self.fits[0]
         return (f"unexplained: no candidate explains the held-out gap (best {best.effect}: score "
                 f"{self.score_before[1]:.3g} -> {best.heldout_score:.3g}, above {NOISE_SCORE:g} and a gain under "
                 f"{MIN_GAIN:g}); "
@@ -283,7 +288,7 @@ class _Trial:
     def best(self) -> tuple[float, float]:
         """(x, mean training score) of the best replay so far."""
         scores = {x: self.train.score(c) for x, c in self.replays.items()}
-        x = min(scores, key=scores.get)
+        x = min(scores, key=scores.__getitem__)
         return x, scores[x]
 
 
@@ -363,7 +368,7 @@ def calibrate(measured: list[Series], params: Params, base_rotation, *, training
     before_test = test.comparison(nominal)
     score_before = (train.score(train.comparison(nominal)), test.score(before_test))
     noise_out = {s.experiment.name: n for s, n in zip(measured, noise)}
-    common = dict(training=train.names, heldout=test.names, before=before_test, score_before=score_before,
+    common: dict[str, Any] = dict(training=train.names, heldout=test.names, before=before_test, score_before=score_before,
                   noise=noise_out)
     if max(score_before) < NOISE_SCORE:
         return DynamicResult(Verdict.NONE, None, [], [], after=None, params_after=None,
