@@ -42,9 +42,10 @@ from __future__ import annotations
 
 import math
 import threading
-from typing import TYPE_CHECKING, ContextManager, Iterable, Sequence
+from typing import TYPE_CHECKING, ContextManager, Iterable
 
 import numpy as np
+import numpy.typing as npt
 
 from twin.checks import finite_vector
 from twin.board_limits import GAIN_TOLERANCE, MAX_OFFSET_COUNTS, MAX_TENSION_LIMIT_N, RATED_GAIN_COUNTS_PER_N
@@ -77,7 +78,7 @@ def _mode(mode: str | codec.Mode) -> codec.Mode:
     return MODE_NAMES[mode]
 
 
-def _vector(name: str, values: Iterable[float], count: int) -> tuple[float, ...]:
+def _vector(name: str, values: npt.ArrayLike, count: int) -> tuple[float, ...]:
     return tuple(finite_vector(name, values, count).tolist())
 
 
@@ -459,8 +460,8 @@ class Device:
         self,
         calibration: Calibration | None = None,
         *,
-        gain_counts_per_n: Sequence[float] | None = None,
-        offset_counts: Sequence[float] | None = None,
+        gain_counts_per_n: npt.ArrayLike | None = None,
+        offset_counts: npt.ArrayLike | None = None,
     ) -> None:
         """Give the board the load-cell calibration ``raw = offset_counts + gain_counts_per_n · N``.
 
@@ -502,7 +503,7 @@ class Device:
             raise ValueError(f"watchdog_timeout_s = {watchdog_timeout_s!r}: must be in 0.02..10")
         self._command(codec.SetLimits(limit, round(watchdog_timeout_s * 1e3), self._rated_gain))
 
-    def set_lengths(self, lengths_m: Sequence[float]) -> None:
+    def set_lengths(self, lengths_m: npt.ArrayLike) -> None:
         """Setpoints of ``"lengths"`` mode: a relative length per tendon (m, positive = paid out,
         within ±:data:`MAX_LENGTH_SETPOINT_M`).
 
@@ -515,7 +516,7 @@ class Device:
         limit = MAX_LENGTH_SETPOINT_M
         self._command(codec.SetSetpoints.lengths(_bounded("lengths_m", lengths, -limit, limit, "m", "mm sent as m?"), n))
 
-    def set_pairs(self, pairs_m: Sequence[float]) -> None:
+    def set_pairs(self, pairs_m: npt.ArrayLike) -> None:
         """Setpoints of ``"pairs"`` mode, one per antagonistic pair (tendon k and k + N/2 of N):
         d₁₃ and d₂₄ on four tendons (m, within ±:data:`MAX_LENGTH_SETPOINT_M`); tendon 1 goes to
         c₁₃ + d₁₃ and tendon 3 to c₁₃ − d₁₃, c the pair's mean length when the mode was entered.
@@ -530,7 +531,7 @@ class Device:
         limit = MAX_LENGTH_SETPOINT_M
         self._command(codec.SetSetpoints.pairs(_bounded("pairs_m", pairs, -limit, limit, "m", "mm sent as m?"), n))
 
-    def set_tensions(self, tensions_n: Sequence[float]) -> None:
+    def set_tensions(self, tensions_n: npt.ArrayLike) -> None:
         """Setpoints of ``"tensions"`` mode: a tension per tendon (N, from 0 to the tension
         limit this host last set with :meth:`set_limits`, 6 N until then).
 
@@ -562,7 +563,9 @@ class Device:
         count = self._inbox.sample_count
         if not self._wait_for(lambda: self._inbox.sample_count > count, timeout_s):
             raise DeviceTimeout(f"{self.url}: no telemetry within {timeout_s} s ({self.clock} clock)")
-        return self._inbox.latest
+        latest = self._inbox.latest
+        assert latest is not None, "a counted sample is kept"
+        return latest
 
     def wait(self, duration_s: float) -> None:
         """Let ``duration_s`` pass: simulated seconds on ``sim://`` (the twin runs meanwhile),
@@ -626,6 +629,7 @@ class Device:
                 f"{self.url}: no HELLO_REPLY within {timeout_s} s; is the twin firmware running on it?"
             )
         reply = self._inbox.hello_reply
+        assert reply is not None, "a counted HELLO_REPLY is kept"
         if reply.protocol_version != codec.PROTOCOL_VERSION:
             self._send(codec.Disable())
             raise ProtocolVersionError(self.url, reply.protocol_version)

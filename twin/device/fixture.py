@@ -27,7 +27,7 @@ import contextlib
 import json
 import math
 import socket
-from typing import TYPE_CHECKING, Callable, ContextManager, Iterable
+from typing import TYPE_CHECKING, BinaryIO, Callable, ContextManager, Iterable
 
 import numpy as np
 
@@ -228,7 +228,7 @@ class RemoteFixture(Fixture):
         self.timeout_s = timeout_s
         self.settle_s = settle_s
         self._socket: socket.socket | None = None
-        self._reader = None
+        self._reader: BinaryIO | None = None
 
     def hang_tip_mass(self, mass_kg: float) -> None:
         self._do("hang_tip_mass", _check_mass("mass_kg", mass_kg))
@@ -250,10 +250,11 @@ class RemoteFixture(Fixture):
         self._do("remove_calibration_masses")
 
     def close(self) -> None:
-        if self._socket is not None:
+        if self._reader is not None:
             self._reader.close()
+        if self._socket is not None:
             self._socket.close()
-            self._socket = self._reader = None
+        self._socket = self._reader = None
 
     def _do(self, action: str, *args) -> None:
         host, port = self.address
@@ -261,7 +262,7 @@ class RemoteFixture(Fixture):
         request = (json.dumps({"action": action, "args": list(args), "settle_s": self.settle_s}) + "\n").encode()
         with self._attended() if self._attended is not None else contextlib.nullcontext():
             try:
-                if self._socket is None:
+                if self._socket is None or self._reader is None:
                     self._socket = socket.create_connection(self.address, timeout=self.timeout_s)
                     self._reader = self._socket.makefile("rb")
                 self._socket.sendall(request)

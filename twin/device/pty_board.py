@@ -29,7 +29,7 @@ import threading
 import time
 import tty
 from pathlib import Path
-from typing import Callable
+from typing import Any, Callable
 
 from twin.device.board import TICK_S, EmulatedBoard
 from twin.params import Params
@@ -135,12 +135,12 @@ class PtyBoard:
     def unplug(self) -> None:
         """Stop the board and close the pseudo-terminal: the host's port fails as when a USB
         cable is pulled. The link (if any) is removed."""
-        if not self.plugged:
+        if self._thread is None:
             return
         self._stop.set()
         self._thread.join()
         self._thread = None
-        for fd in self._fds:
+        for fd in self._fds or ():
             os.close(fd)
         self._fds = None
         if self.link_path is not None and self.link_path.is_symlink() and \
@@ -157,7 +157,8 @@ class PtyBoard:
         """
         if not self.plugged or self.error is not None:
             raise RuntimeError(f"{self.port or 'the emulated board'}: the board is not running")
-        done, box = threading.Event(), {}
+        done = threading.Event()
+        box: dict[str, Any] = {}
 
         def job():
             try:
@@ -200,6 +201,8 @@ class PtyBoard:
             self.error = exc
 
     def _serve(self) -> None:
+        if self._fds is None:
+            raise RuntimeError(f"{self.port}: the board serves only while plugged")
         master = self._fds[0]
         next_tick_s = time.monotonic()
         while not self._stop.is_set():

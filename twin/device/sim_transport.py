@@ -60,7 +60,7 @@ class SimTransport(Transport):
         while not predicate():
             if board.time_s >= deadline_s:
                 return False
-            if self._run(deadline_s) == Reason.KEEPALIVE:
+            if self._run(deadline_s) == Reason.KEEPALIVE and self._ping is not None:
                 # The PING, then the tick it came before.
                 self._ping()
                 self._run(deadline_s, max_ticks=1)

@@ -135,7 +135,7 @@ class DeviceInfo:
             url=url,
             clock=clock,
             protocol_version=reply.protocol_version,
-            firmware_version=tuple(reply.firmware_version),
+            firmware_version=(reply.firmware_version[0], reply.firmware_version[1], reply.firmware_version[2]),
             channels=reply.channels,
             control_period_s=reply.control_period_us / 1e6,
             telemetry_period_s=reply.telemetry_period_us / 1e6,

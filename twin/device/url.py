@@ -25,10 +25,10 @@ from __future__ import annotations
 
 import math
 import urllib.parse
-from typing import Callable
+from typing import Any, Callable
 
 from twin.device.device import Device
-from twin.device.fixture import OperatorFixture, RemoteFixture, SimFixture
+from twin.device.fixture import Fixture, OperatorFixture, RemoteFixture, SimFixture
 from twin.device.igtl_source import URL_KEYS as IGTL_KEYS
 from twin.device.igtl_source import OpenIGTLinkSource, settings_from_options
 from twin.device.serial_transport import SerialTransport
@@ -131,12 +131,13 @@ def open_device(
         with device.attended():
             return prompt(request)
 
+    rig_fixture: Fixture
     if "fixture" in options:
         host, port = _host_port(url, options["fixture"], "fixture")
-        fixture = RemoteFixture(host, port, attended=lambda: device.attended())
+        rig_fixture = RemoteFixture(host, port, attended=lambda: device.attended())
     else:
-        fixture = OperatorFixture(ask, channels=params.tendons.count)
-    device = Device(SerialTransport(path, url=url), fixture=fixture, tracker=tracker, **device_args)
+        rig_fixture = OperatorFixture(ask, channels=params.tendons.count)
+    device = Device(SerialTransport(path, url=url), fixture=rig_fixture, tracker=tracker, **device_args)
     return device
 
 
@@ -187,7 +188,7 @@ def _igtl_tracker(url: str, options: dict[str, str], settings: FusionSettings) -
         igtl_settings = settings_from_options(options)
     except ValueError as exc:
         raise ValueError(f"device URL {url!r}: {exc}") from None
-    cap = {}
+    cap: dict[str, Any] = {}
     for key, field in _CAP_KEYS.items():
         if key in options:
             try:
