@@ -421,8 +421,8 @@ def compile_fusion(calibration: CapCalibration = CapCalibration()) -> None:
     """Compile :func:`fuse`'s kernels (numba) now, by fusing the cap's own probes at the identity
     pose: the first fusion in a process otherwise takes about a second, which a real-time caller
     (a host feeding the board's watchdog) cannot spend on its first tracker reading."""
-    fuse(ProbeReading(calibration.position_a_m, calibration.axis_a, 0.0),
-         ProbeReading(calibration.position_b_m, calibration.axis_b, 0.0), calibration)
+    fuse(ProbeReading(np.array(calibration.position_a_m), np.array(calibration.axis_a), 0.0),
+         ProbeReading(np.array(calibration.position_b_m), np.array(calibration.axis_b), 0.0), calibration)
 
 
 def fuse_frame(

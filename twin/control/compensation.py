@@ -98,7 +98,7 @@ def compensate_tensions(model: RodModel, target_m, *, tip_force_n=None, tip_mome
         "reference_tensions_n", reference_tensions_n, nt)
     loads = dict(tip_force_n=tip_force_n, tip_moment_nm=tip_moment_nm, base_rotation=base_rotation,
                  friction_direction=friction_direction)
-    guess = [None]  # the last converged base moment: every solve after the first starts warm
+    guess: list[np.ndarray | None] = [None]  # the last converged base moment: every solve after the first starts warm
 
     def shape(tensions):
         sol = solve(model, tensions, guess_nm=guess[0], **loads)

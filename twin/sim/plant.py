@@ -210,7 +210,8 @@ class Plant:
         self.data.eq_active[self._holder] = False
         self.loop.reset()
         self.clear_peak_tensions()
-        self._loadcell = self._tracker_frame = None
+        self._loadcell: LoadCellSample | None = None
+        self._tracker_frame: TrackerSample | None = None
         self._warnings_seen = self.data.warning.number.copy()
 
     @property
