@@ -24,7 +24,8 @@ if TYPE_CHECKING:
 
 # name → the module that defines it, imported when the name is first used
 _EXPORTS = {
-    "Compensation": "twin.control.compensation", "compensate_tensions": "twin.control.compensation", "correct_tensions": "twin.control.compensation", "hold_tensions": "twin.control.compensation",
+    "Compensation": "twin.control.compensation", "compensate_tensions": "twin.control.compensation",
+    "correct_tensions": "twin.control.compensation", "hold_tensions": "twin.control.compensation",
     "pretension_straight": "twin.control.pretension",
 }
 __getattr__, __dir__ = lazy_exports(__name__, _EXPORTS)

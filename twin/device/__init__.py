@@ -23,7 +23,9 @@ if TYPE_CHECKING:
 # name → the module that defines it, imported when the name is first used
 _EXPORTS = {
     "MODE_NAMES": "twin.device.device", "Device": "twin.device.device",
-    "ChannelCountError": "twin.device.errors", "CommandRejected": "twin.device.errors", "DeviceDisconnected": "twin.device.errors", "DeviceError": "twin.device.errors", "DeviceTimeout": "twin.device.errors", "ProtocolVersionError": "twin.device.errors",
+    "ChannelCountError": "twin.device.errors", "CommandRejected": "twin.device.errors",
+    "DeviceDisconnected": "twin.device.errors", "DeviceError": "twin.device.errors",
+    "DeviceTimeout": "twin.device.errors", "ProtocolVersionError": "twin.device.errors",
     "Fixture": "twin.device.fixture", "OperatorFixture": "twin.device.fixture", "SimFixture": "twin.device.fixture",
     "SimTwin": "twin.device.sim_twin",
     "DeviceInfo": "twin.device.telemetry", "Telemetry": "twin.device.telemetry",

@@ -31,12 +31,16 @@ if TYPE_CHECKING:
 # name → the module that defines it, imported when the name is first used
 _EXPORTS = {
     "Candidate": "twin.discrepancy.candidates", "candidate_library": "twin.discrepancy.candidates",
-    "CandidateScore": "twin.discrepancy.naming", "Round": "twin.discrepancy.naming", "rank_candidates": "twin.discrepancy.naming", "rank_pairs": "twin.discrepancy.naming", "split_rows": "twin.discrepancy.naming",
+    "CandidateScore": "twin.discrepancy.naming", "Round": "twin.discrepancy.naming",
+    "rank_candidates": "twin.discrepancy.naming", "rank_pairs": "twin.discrepancy.naming",
+    "split_rows": "twin.discrepancy.naming",
     "NoiseEstimate": "twin.discrepancy.noise", "estimate_noise": "twin.discrepancy.noise",
     "write_report": "twin.discrepancy.report",
-    "ResidualMap": "twin.discrepancy.residuals", "StructureTest": "twin.discrepancy.residuals", "find_discrepancy": "twin.discrepancy.residuals", "thesis_signature": "twin.discrepancy.residuals",
+    "ResidualMap": "twin.discrepancy.residuals", "StructureTest": "twin.discrepancy.residuals",
+    "find_discrepancy": "twin.discrepancy.residuals", "thesis_signature": "twin.discrepancy.residuals",
     "synthetic_validation_dataset": "twin.discrepancy.synthetic",
-    "DiscrepancyResult": "twin.discrepancy.workflow", "Verdict": "twin.discrepancy.verdict", "run_discrepancy": "twin.discrepancy.workflow",
+    "DiscrepancyResult": "twin.discrepancy.workflow", "Verdict": "twin.discrepancy.verdict",
+    "run_discrepancy": "twin.discrepancy.workflow",
 }
 __getattr__, __dir__ = lazy_exports(__name__, _EXPORTS)
 

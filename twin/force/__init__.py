@@ -15,7 +15,8 @@ if TYPE_CHECKING:
 
 # name → the module that defines it, imported when the name is first used
 _EXPORTS = {
-    "WrenchEstimate": "twin.force.estimator", "estimate_tip_wrench": "twin.force.estimator", "rotation_vector": "twin.force.estimator",
+    "WrenchEstimate": "twin.force.estimator", "estimate_tip_wrench": "twin.force.estimator",
+    "rotation_vector": "twin.force.estimator",
 }
 __getattr__, __dir__ = lazy_exports(__name__, _EXPORTS)
 

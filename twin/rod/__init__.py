@@ -20,8 +20,8 @@ from twin.lazy import lazy_exports
 if TYPE_CHECKING:
     from twin.rod.jacobian import TipJacobian, solve_with_jacobian, tip_jacobian
     from twin.rod.model import RodModel, TendonRoute
-    from twin.rod.solver import (ConvergenceError, LoadCase, NewtonIteration, Predictor, RodSolution, SolverStatus, solve,
-                                 solve_batch)
+    from twin.rod.solver import (ConvergenceError, LoadCase, NewtonIteration, Predictor, RodSolution, SolverStatus,
+                                 solve, solve_batch)
 
 # name → the module that defines it
 _EXPORTS = {

@@ -19,8 +19,10 @@ if TYPE_CHECKING:
 # name → the module that defines it, imported when the name is first used
 _EXPORTS = {
     "bench_sim": "twin.sim.bench",
-    "Layout": "twin.sim.model", "build_model": "twin.sim.model", "build_spec": "twin.sim.model", "model_xml": "twin.sim.model",
-    "DriveMode": "twin.sim.plant", "Plant": "twin.sim.plant", "SettleResult": "twin.sim.plant", "SimulationError": "twin.sim.plant",
+    "Layout": "twin.sim.model", "build_model": "twin.sim.model", "build_spec": "twin.sim.model",
+    "model_xml": "twin.sim.model",
+    "DriveMode": "twin.sim.plant", "Plant": "twin.sim.plant", "SettleResult": "twin.sim.plant",
+    "SimulationError": "twin.sim.plant",
     "LoadCellSample": "twin.sim.sensors", "TrackerSample": "twin.sim.sensors",
 }
 __getattr__, __dir__ = lazy_exports(__name__, _EXPORTS)
