@@ -8,6 +8,7 @@ apply) from the env's own generator, so ``reset(seed=...)`` repeats an episode e
 from __future__ import annotations
 
 import dataclasses
+from typing import Any
 
 import numpy as np
 
@@ -69,7 +70,7 @@ class Randomization:
         b, s, n = params.backbone, params.sensors, params.tendons.count
         stiffness = rng.uniform(*self.stiffness_scale)
         noise = rng.uniform(*self.tracker_noise_scale)
-        values = {
+        values: dict[str, Any] = {
             "backbone.youngs_modulus_pa": b.youngs_modulus_pa * stiffness,
             "backbone.shear_modulus_pa": b.shear_modulus_pa * stiffness,
             "backbone.mass_kg": b.mass_kg * rng.uniform(*self.weight_scale),
@@ -79,8 +80,8 @@ class Randomization:
             "sensors.tracker_noise_m": s.tracker_noise_m * noise,
             "sensors.tracker_noise_rad": s.tracker_noise_rad * noise,
         }
-        values = {k: v.tolist() if isinstance(v, np.ndarray) else float(v) for k, v in values.items()}
-        return params.replace(values, source="randomised (twin.envs.randomization)"), latency
+        plain = {k: v.tolist() if isinstance(v, np.ndarray) else float(v) for k, v in values.items()}
+        return params.replace(plain, source="randomised (twin.envs.randomization)"), latency
 
 
 @dataclasses.dataclass(frozen=True)

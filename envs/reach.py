@@ -8,16 +8,21 @@ import os
 import sys
 import urllib.parse
 
+from typing import TYPE_CHECKING, Any
+
 import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
 from twin.envs.randomization import Randomization, TipLoads
 from twin.control.pretension import pretension_straight
-from twin.driver import CommandRejected, open_device
+from twin.driver import CommandRejected, Device, Fixture, open_device
 from twin.driver.codec import Fault
 from twin.params import Params, load_params
 from twin.pcc import arc_tip_position_m
+
+if TYPE_CHECKING:
+    from twin.live import LiveDevice, LiveView
 
 __all__ = ["ACTION_MODES", "EndoscopeReachEnv", "default_curvature_range_per_m", "default_max_length_m",
            "default_tension_range_n"]
@@ -193,23 +198,44 @@ class EndoscopeReachEnv(gym.Env):
         self.tension_weight, self.effort_weight, self.fault_penalty = tension_weight, effort_weight, fault_penalty
 
         n_a = n // 2 if action_mode == "pairs" else n
-        self.action_space = spaces.Box(-1.0, 1.0, (n_a,), np.float32)
+        self.action_space: spaces.Box = spaces.Box(-1.0, 1.0, (n_a,), np.float32)
         self.tip_slice = slice(2 * n, 2 * n + 3)
         high_obs = np.concatenate([np.full(n, _LENGTH_BOUND_M), np.full(n, _TENSION_BOUND_N),
                                    np.full(3, _POSITION_BOUND_M), np.ones(4), np.full(3, _POSITION_BOUND_M),
                                    np.ones(n_a)]).astype(np.float32)
-        self.observation_space = spaces.Box(-high_obs, high_obs, dtype=np.float32)
+        self.observation_space: spaces.Box = spaces.Box(-high_obs, high_obs, dtype=np.float32)
 
         self.render_mode = render_mode
-        self._view = None  # the camera (rgb_array) or viewer (human) on the twin, made on first use
+        self._view: Any = None  # the camera (rgb_array) or viewer (human) on the twin, made on first use
         self.live_port = live_port
-        self._live = None  # the twin.live.LiveView, made with the first device
+        self._live: LiveView | None = None  # made with the first device
         self.live_url: str | None = None
-        self.device = None
+        self.device: Device | LiveDevice | None = None
         self._device_params: Params | None = None
         self._neutral = self._neutral_action()
 
     # ------------------------------------------------------------------ gymnasium API
+    @property
+    def _last_pose(self) -> tuple[np.ndarray, np.ndarray]:
+        """The tip's last tracked (position (m), quaternion): reset() waits for the first."""
+        if self._pose is None:
+            raise RuntimeError("EndoscopeReachEnv: no tracked pose before reset()")
+        return self._pose
+
+    @property
+    def _fixture(self) -> Fixture:
+        fixture = self._dev.fixture
+        if fixture is None:
+            raise ValueError(f"device_url = {self.device_url!r}: the env needs a fixture (tip masses)")
+        return fixture
+
+    @property
+    def _dev(self) -> Device | LiveDevice:
+        """The open device: reset() opens it."""
+        if self.device is None:
+            raise RuntimeError("EndoscopeReachEnv: no device before reset()")
+        return self.device
+
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         """Start an episode. ``options``: ``target_m`` (3,) fixes the target, ``tip_mass_kg``
         the tip mass (no change during the episode)."""
@@ -218,8 +244,9 @@ class EndoscopeReachEnv(gym.Env):
         rng = self.np_random
         params, latency = self.randomization.sample(self.params, rng)
         self._open(params, int(rng.integers(2**31)))
-        device = self.device
-        device.fixture.settle_s = _RESET_SETTLE_S
+        device = self._dev
+        fixture = self._fixture
+        fixture.settle_s = _RESET_SETTLE_S
         for mode, gains in self.gains.items():
             device.set_gains(mode, **gains)
         self._zero_m = pretension_straight(device, params, mode=ACTION_MODES[self.action_mode],
@@ -227,25 +254,28 @@ class EndoscopeReachEnv(gym.Env):
         mass, self._change_step, self._later_mass_kg = self.tip_loads.sample(rng)
         if "tip_mass_kg" in options:
             mass, self._change_step = float(options["tip_mass_kg"]), None
-        device.fixture.hang_tip_mass(mass)
+        fixture.hang_tip_mass(mass)
         # Mid-episode loads land within one step: the env's time must not jump.
-        device.fixture.settle_s = 0.0
+        fixture.settle_s = 0.0
         self._tip_mass_kg = mass
         self.target_m = np.asarray(options["target_m"], dtype=float) if "target_m" in options else self._sample_target(rng)
         if self._live is not None:
-            device.target_m = self.target_m
+            from twin.live import LiveDevice
+
+            if isinstance(device, LiveDevice):
+                device.target_m = self.target_m
         self._latency = latency
         self._queue = collections.deque([self._neutral] * latency)
         self._previous = self._neutral.copy()
         self._steps = 0
-        self._pose = None
+        self._pose: tuple[np.ndarray, np.ndarray] | None = None
         sample = device.wait_next()
         while self._pose is None:
             self._read_tracker()
             if self._pose is None:
                 sample = device.wait_next()
         observation = self._observation(sample)
-        return observation, self._info(sample, np.linalg.norm(self._pose[0] - self.target_m))
+        return observation, self._info(sample, float(np.linalg.norm(self._last_pose[0] - self.target_m)))
 
     def step(self, action):
         action = np.clip(np.asarray(action, dtype=np.float32).reshape(self.action_space.shape), -1.0, 1.0)
@@ -259,12 +289,12 @@ class EndoscopeReachEnv(gym.Env):
             rejected = True
         self._steps += 1
         if self._steps == self._change_step:
-            self.device.fixture.hang_tip_mass(self._later_mass_kg)
+            self._fixture.hang_tip_mass(self._later_mass_kg)
             self._tip_mass_kg = self._later_mass_kg
-        sample = self.device.wait_next()
+        sample = self._dev.wait_next()
         self._read_tracker()
         self._previous = action
-        error = math.dist(self._pose[0].tolist(), self.target_m.tolist())
+        error = math.dist(self._last_pose[0].tolist(), self.target_m.tolist())
         fault = rejected or bool(sample.fault_flags & _FAULTS) or not sample.enabled
         duty = sample.motor_commands.tolist()
         reward = (-error / 0.01
@@ -283,9 +313,9 @@ class EndoscopeReachEnv(gym.Env):
             raise RuntimeError("render(): call reset() first")
         if self.device.url.split(":", 1)[0] != "sim":
             raise ValueError(f"render_mode = {self.render_mode!r}: a picture needs the twin (sim://), not "
-                             f"{self.device.url}")
+                             f"{self._dev.url}")
         if self._view is None:
-            self._view = self.device.twin.camera() if self.render_mode == "rgb_array" else self.device.twin.viewer()
+            self._view = self._dev.twin.camera() if self.render_mode == "rgb_array" else self._dev.twin.viewer()
         if self.render_mode == "rgb_array":
             # The target and a 1 cm floor grid: a recorded episode shows whether the tip reaches it, and how far.
             return self._view.render(target_m=self.target_m, floor_grid=True)
@@ -303,7 +333,7 @@ class EndoscopeReachEnv(gym.Env):
             self._view.close()
             self._view = None
         if self.device is not None:
-            self.device.close()
+            self._dev.close()
             self.device = None
 
     # ------------------------------------------------------------------ mapping
@@ -334,48 +364,52 @@ class EndoscopeReachEnv(gym.Env):
     def _command(self, action) -> None:
         setpoints = self.setpoints(action)
         if self.action_mode == "tensions":
-            self.device.set_tensions(setpoints)
+            self._dev.set_tensions(setpoints)
         elif self.action_mode == "lengths":
-            self.device.set_lengths(self._zero_m + setpoints)
+            self._dev.set_lengths(self._zero_m + setpoints)
         else:
-            self.device.set_pairs(setpoints)
+            self._dev.set_pairs(setpoints)
 
     def _open(self, params: Params, seed: int) -> None:
         scheme = urllib.parse.urlsplit(self.device_url).scheme
         if self.device is not None and (scheme != "sim" or params == self._device_params):
             if scheme == "sim":
                 # The same twin, reset: rebuilding the MuJoCo model is the slow part of a reset.
-                self.device.twin.reset(seed)
-                self.device.reconnect()
+                self._dev.twin.reset(seed)
+                self._dev.reconnect()
             return
         self._close_device()
-        self.device = open_device(self.device_url, params=params, seed=seed if scheme == "sim" else None)
-        self.device.connect()
+        device: Device | LiveDevice = open_device(self.device_url, params=params, seed=seed if scheme == "sim" else None)
+        self.device = device
+        device.connect()
         if self.live_port is not None:
             from twin.live import LiveDevice, LiveView
 
             if self._live is None:
-                self._live = LiveView(self.params, port=self.live_port, base_rotation=self.device.base_rotation)
+                self._live = LiveView(self.params, port=self.live_port, base_rotation=device.base_rotation)
                 self.live_url = self._live.url
             # What the env reads of the device (telemetry, tracker, the twin after each wait) goes to the view.
-            self.device = LiveDevice(self.device, self._live)
-        if self.device.tracker is None:
+            device = self.device = LiveDevice(device, self._live)
+        if device.tracker is None:
             raise ValueError(f"device_url = {self.device_url!r}: the env needs a tracker (serial:// takes ?igtl=host:port)")
         self._device_params = params
 
     def _sample_target(self, rng) -> np.ndarray:
         kappa = rng.uniform(*self.target_curvature_per_m)
         phi = rng.uniform(0.0, 360.0)
-        return self.device.base_rotation @ arc_tip_position_m(kappa, phi, self.params.backbone.length_m)
+        return self._dev.base_rotation @ arc_tip_position_m(kappa, phi, self.params.backbone.length_m)
 
     def _read_tracker(self) -> None:
-        fused = self.device.tracker.read()
-        if fused.ok:
+        tracker = self._dev.tracker
+        if tracker is None:
+            raise RuntimeError(f"{self.device_url}: the device has no tracker")
+        fused = tracker.read()
+        if fused.ok and fused.pose is not None:
             self._pose = (fused.pose.position_m, fused.pose.quaternion)
 
     def _observation(self, sample) -> np.ndarray:
         return np.concatenate([
-            sample.tendon_lengths_m - self._zero_m, sample.tensions_n, self._pose[0], self._pose[1],
+            sample.tendon_lengths_m - self._zero_m, sample.tensions_n, self._last_pose[0], self._last_pose[1],
             self.target_m, self._previous,
         ]).astype(np.float32).clip(self.observation_space.low, self.observation_space.high)
 

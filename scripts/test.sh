@@ -17,5 +17,7 @@ if [ ${#missing[@]} -gt 0 ] && [ "$(id -u)" = 0 ] && command -v apt-get >/dev/nu
   (apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq "${missing[@]}" >/dev/null) \
     || echo "scripts/test.sh: could not install ${missing[*]}; the tests that need them will skip" >&2
 fi
+# The type check first (pyproject.toml's [tool.mypy]: twin/ and envs/; any error fails the run).
+.venv/bin/python -m mypy
 # Two workers (pytest-xdist): the suite is bound by one core per twin or fit, and CI has two.
 exec .venv/bin/python -m pytest -q -n 2 "$@"

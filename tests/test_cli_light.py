@@ -1,4 +1,4 @@
-"""``twin --help`` and the light commands' ``--help`` load no heavy library; the command index
+"""``twin --help`` and every command's ``--help`` load no heavy library; the command index
 read from the sources is what the modules register."""
 
 import subprocess
@@ -21,8 +21,12 @@ print(len(sys.modules), *[name for name in {heavy!r} if name in sys.modules], fi
 """
 
 
-@pytest.mark.parametrize("argv", [["--help"], ["predict", "--help"], ["bench", "--help"], ["demo", "--help"],
-                                  ["dynamics", "--help"], []])
+# Every registered command, read from the sources as ``twin --help`` reads them.
+COMMANDS = [name for commands in command_index().values() for name in commands or {}]
+
+
+@pytest.mark.parametrize("argv", [["--help"], [], *([name, "--help"] for name in COMMANDS)],
+                         ids=lambda argv: " ".join(argv) or "(none)")
 def test_help_imports_no_heavy_library(argv):
     result = subprocess.run([sys.executable, "-c", _PROBE.format(heavy=HEAVY), *argv], capture_output=True, text=True,
                             check=True, timeout=120)

@@ -72,7 +72,8 @@ def results(tmp_path_factory):
     return get
 
 
-@pytest.mark.parametrize("effect", sorted(set(HIDDEN) - set(MIMICKED) - set(OUTSIDE_MIMIC)))
+# Every candidate of the library (a new one fails here until HIDDEN hides it), less the mimicked ones.
+@pytest.mark.parametrize("effect", sorted(set(candidate_library(NOMINAL)) - set(MIMICKED) - set(OUTSIDE_MIMIC)))
 def test_a_hidden_effect_is_named_recovered_and_the_gap_shrinks(results, effect):
     result = results(effect)
     assert result.named == (effect,), [r.to_dict()["ranking"][:3] for r in result.rounds]

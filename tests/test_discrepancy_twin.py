@@ -12,7 +12,7 @@ import pytest
 
 from twin import load_params
 from twin.driver import open_device
-from twin.discrepancy import find_discrepancy, run_discrepancy
+from twin.discrepancy import candidate_library, find_discrepancy, run_discrepancy
 from twin.data.dataset import read_dataset
 from twin.experiments.protocols import nominal_calibration, run_validation
 from twin.pcc import validation_grid
@@ -49,7 +49,9 @@ def test_no_hidden_effect_names_none(tmp_path):
     assert result.rms_after_m == result.rms_before_m < 3e-4
 
 
-@pytest.mark.parametrize("effect", sorted(HIDDEN))
+# Every candidate of the library but friction, whose own test is below (a new one fails here until
+# HIDDEN hides it).
+@pytest.mark.parametrize("effect", sorted(set(candidate_library(MODEL)) - {"tendon_friction"}))
 def test_a_hidden_effect_in_the_twin_is_named_and_the_gap_shrinks(tmp_path, effect):
     hidden, truth, tol = HIDDEN[effect]
     result = run_discrepancy(twin_sweep(tmp_path, hidden, GRID))

@@ -171,7 +171,9 @@ def test_clean_data_with_another_seed_and_twice_the_sensor_noise_give_none(tmp_p
     assert json.loads(out)["verdict"] == "none"
 
 
-@pytest.mark.parametrize("effect", sorted(HIDDEN))
+# Every dynamic candidate (a new one fails here until HIDDEN hides it) but tendon friction, which
+# acts at rest too and is hidden and named in the static workflow's tests.
+@pytest.mark.parametrize("effect", sorted(set(dynamic_candidates(NOMINAL)) - {"tendon_friction"}))
 def test_a_hidden_dynamic_effect_is_named_and_fitted_near_the_truth(tmp_path, capsys, effect):
     setting, tolerance = HIDDEN[effect]
     key, value = setting.split("=")

@@ -243,6 +243,9 @@ def test_a_tip_load_adds_to_the_friction_forces_and_sim_applies_it(capsys):
     assert json.loads(capsys.readouterr().out)["tip_position_m"][1] > 3e-3
     with pytest.raises(ValueError, match="expected 3 finite numbers"):
         plant.set_tip_load((0.0, float("nan"), 0.0))
+    # Six numbers split 2 + 4 are not a force and a moment.
+    with pytest.raises(ValueError, match=r"force_n = \(0.0, 0.05\): expected 3 finite numbers"):
+        plant.set_tip_load((0.0, 0.05), (0.0, 0.0, 0.0, 0.0))
 
 
 def test_the_holder_closes_on_a_helical_robot_without_untwisting_it():

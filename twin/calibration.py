@@ -29,6 +29,8 @@ from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 
+from twin.checks import finite_vector
+
 __all__ = [
     "CALIBRATION_FORMAT",
     "CALIBRATION_VERSION",
@@ -508,10 +510,7 @@ def run_calibration(
         raise ValueError(f"channels = {channels!r}: must be >= 1")
 
     def read() -> np.ndarray:
-        sample = np.asarray(read_raw_counts(), dtype=float)
-        if sample.shape != (channels,) or not np.all(np.isfinite(sample)):
-            raise ValueError(f"read_raw_counts() gave {sample.tolist()!r}: expected {channels} finite counts")
-        return sample
+        return finite_vector("read_raw_counts()", read_raw_counts(), channels, what="counts")
 
     means = np.empty((len(masses), channels))
     stds = np.empty((len(masses), channels))

@@ -59,12 +59,13 @@ def build_parser(argv: list[str] | None = None) -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     index = command_index()
     chosen = None if argv is None else next((word for word in argv if not word.startswith("-")), "")
-    everything = chosen is None or (chosen and not any(chosen in commands for commands in index.values()))
+    everything = chosen is None or (chosen and not any(chosen in (commands or {}) for commands in index.values()))
     for name in COMMAND_MODULES:
-        if everything or index[name] is None or chosen in index[name]:
+        commands = index[name]
+        if everything or commands is None or chosen in commands:
             importlib.import_module(name).register(sub)
         else:
-            for command, help_text in index[name].items():
+            for command, help_text in commands.items():
                 sub.add_parser(command, help=help_text)
     return parser
 
@@ -96,7 +97,8 @@ def command_index() -> dict[str, dict[str, str | None] | None]:
                             and call.func.value.id == sub and call.args
                             and isinstance(call.args[0], ast.Constant) and isinstance(call.args[0].value, str)):
                         help_text = next((kw.value.value for kw in call.keywords if kw.arg == "help"
-                                          and isinstance(kw.value, ast.Constant)), None)
+                                          and isinstance(kw.value, ast.Constant) and isinstance(kw.value.value, str)),
+                                         None)
                         commands[call.args[0].value] = help_text
         index[name] = commands or None
     return index

@@ -14,6 +14,7 @@ from typing import Iterator
 
 import numpy as np
 
+from twin.checks import finite_vector
 from twin.params import ParameterError, Params, load_params, parse_override
 from twin.robots import DEFAULT_ROBOT, robot_path
 from twin.pose import base_rotation_from, matrix_to_quat
@@ -112,12 +113,13 @@ def vector(n: int | None):
 
     def parse(text: str) -> np.ndarray:
         try:
-            values = np.array([float(x) for x in text.split(",")])
+            values = [float(x) for x in text.split(",")]
         except ValueError:
             raise argparse.ArgumentTypeError(f"{text!r}: expected {wanted} comma-separated numbers") from None
-        if (n is not None and values.size != n) or not np.all(np.isfinite(values)):
-            raise argparse.ArgumentTypeError(f"{text!r}: expected {wanted} finite comma-separated numbers")
-        return values
+        try:
+            return finite_vector("value", values, len(values) if n is None else n)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{text!r}: expected {wanted} finite comma-separated numbers") from None
 
     parse.__name__ = f"vector{n or ''}"
     return parse

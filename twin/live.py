@@ -20,7 +20,7 @@ import dataclasses
 import sys
 import threading
 import time
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -161,7 +161,7 @@ class LiveView:
         self._label = gui.add_markdown("waiting for a state")
         self._bars = [gui.add_progress_bar(0.0, color="orange") for _ in range(4)]
         self._text = gui.add_markdown("")
-        self._handles: dict[str, object] = {}
+        self._handles: dict[str, Any] = {}
 
     def _run(self) -> None:
         next_s = 0.0
@@ -212,7 +212,8 @@ class LiveView:
             tensions = np.asarray(state.tensions_n, float)
             limit_n = self.params.rig.tension_limit_n
             for bar, value in zip(self._bars, tensions):
-                bar.value = float(np.clip(100.0 * value / limit_n, 0.0, 100.0))
+                # viser's progress bar has the setter, but its typing also takes `value` from a read-only props class
+                bar.value = float(np.clip(100.0 * value / limit_n, 0.0, 100.0))  # type: ignore[misc]
             self._text.content = ("tensions (N; bars: share of the "
                                   f"{limit_n:g} N limit): " + ", ".join(f"T{i + 1} {v:.2f}" for i, v in enumerate(tensions)))
 
@@ -230,11 +231,13 @@ class LiveView:
         return handle
 
     def _curve(self, name: str, points_m, thickness_m: float) -> None:
-        points = None if points_m is None else np.asarray(points_m, dtype=float)
+        if points_m is None:
+            self._node(name, None, lambda: None)
+            return
+        points = np.asarray(points_m, dtype=float)
         handle = self._node(name, points, lambda: self._server.scene.add_spline_catmull_rom(
             f"/{name}", points, thickness=thickness_m, color=COLORS[name], curve_type="chordal"))
-        if handle is not None:
-            handle.points = points
+        handle.points = points
 
     def _dots(self, name: str, points_m, size_m: float) -> None:
         # Dots, not a second tube: where prediction and measurement agree the tube would hide it.

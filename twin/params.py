@@ -18,7 +18,7 @@ import math
 import tomllib
 import typing
 from pathlib import Path
-from typing import Any, Iterable, Mapping
+from typing import TYPE_CHECKING, Any, Iterable, Mapping
 
 import numpy as np
 
@@ -231,8 +231,14 @@ def _effects_section(keys: tuple[Key, ...]) -> type:
     return cls
 
 
-# The [effects] section of the registered effects (twin.effects.EFFECTS).
-Effects = _effects_section(parameter_keys())
+if TYPE_CHECKING:
+    class Effects:
+        """The type checker's view of the section made at import: a field per registered key."""
+
+        def __getattr__(self, name: str) -> Any: ...
+else:
+    # The [effects] section of the registered effects (twin.effects.EFFECTS).
+    Effects = _effects_section(parameter_keys())
 
 
 @dataclasses.dataclass(frozen=True)
@@ -422,7 +428,7 @@ def _effect_off(name: str, tendons: int):
     key = next(k for k in parameter_keys() if k.name == name)
     if key.size is None:
         return key.off
-    return (key.off,) * (tendons if key.size == PER_TENDON else key.size)
+    return (key.off,) * (key.size if isinstance(key.size, int) else tendons)
 
 
 def _from_dict(raw: Mapping[str, Any], origin: str) -> Params:
@@ -502,7 +508,13 @@ def _from_segments(raw: Mapping[str, Any], origin: str) -> tuple[dict, list[str]
     def plain(entry):
         return (entry.get("value"), str(entry.get("source", ""))) if isinstance(entry, Mapping) else (entry, "")
 
-    lengths, discs, angles, ends, radii, routings, sources = [], [], [], [], set(), set(), []
+    lengths: list[float] = []
+    discs: list[int] = []
+    angles: list[float] = []
+    ends: list[Any] = []
+    radii: set[float] = set()
+    routings: set[str] = set()
+    sources: list[str] = []
     for i, seg in enumerate(segments):
         at = f"segments[{i}]"
         unknown = sorted(set(seg) - set(_SEGMENT_KEYS))
@@ -555,17 +567,17 @@ def _from_segments(raw: Mapping[str, Any], origin: str) -> tuple[dict, list[str]
         return raw, problems
     source = "segments: " + "; ".join(f"[{i}] {s}" for i, s in enumerate(sources) if s) if any(sources) else "segments"
     single = len(segments) == 1
-    settings = {"backbone": {"length_m": sum(lengths)}, "discs": {"count": sum(discs)},
+    settings: dict[str, dict[str, Any]] = {"backbone": {"length_m": sum(lengths)}, "discs": {"count": sum(discs)},
                 "tendons": {"angles_deg": angles, "end_discs": [] if single else [float(e) for e in ends]}}
     if radii:
         settings["tendons"]["radius_m"] = next(iter(radii))
     if routings:
         settings["tendons"]["routing"] = next(iter(routings))
-    for section, values in settings.items():
+    for section, section_values in settings.items():
         table = raw.setdefault(section, {})
         if not isinstance(table, dict):
             continue  # the section's own problem, named when it is read
-        for key, value in values.items():
+        for key, value in section_values.items():
             table[key] = {"value": value, "source": source}
     return raw, []
 

@@ -63,8 +63,8 @@ def matrix_to_quat(rot) -> np.ndarray:
         q[1 + i] = 0.25 * s
         q[1 + j] = (m[j][i] + m[i][j]) / s
         q[1 + k] = (m[k][i] + m[i][k]) / s
-    q = np.array(q)
-    return q if q[0] >= 0 else -q
+    quat = np.array(q)
+    return quat if quat[0] >= 0 else -quat
 
 
 # The thesis's horizontal clamp as a quaternion (w, x, y, z): (cos 45°, 0, sin 45°, 0).

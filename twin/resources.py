@@ -25,7 +25,7 @@ import sys
 import tempfile
 import time
 from pathlib import Path
-from typing import Callable, Iterable
+from typing import Any, Callable, Iterable
 
 __all__ = [
     "announce_kernel_compile",
@@ -98,7 +98,7 @@ def use_user_cache_for_numba() -> None:
         return
     path = str(_cache_root() / "numba")
     os.environ["NUMBA_CACHE_DIR"] = path
-    config = sys.modules.get("numba.core.config")
+    config: Any = sys.modules.get("numba.core.config")  # numba ships no type information
     if config is not None and not config.CACHE_DIR:
         config.CACHE_DIR = path
 

@@ -149,6 +149,7 @@ def connect(cluster: str, workers: int = 1) -> Any:
     if _connected == cluster and ray.is_initialized():
         return ray
     disconnect()
+    options: dict[str, Any]
     if cluster == "local":
         options = {"num_cpus": workers, "include_dashboard": False}
     else:

@@ -25,6 +25,7 @@ from typing import Callable
 
 import numpy as np
 
+from twin.checks import finite_vector
 from twin.params import Params
 from twin.pose import matrix_to_quat
 
@@ -113,9 +114,7 @@ class CapCalibration:
 
     def __post_init__(self):
         for name in ("position_a_m", "axis_a", "position_b_m", "axis_b"):
-            v = _vector3(name, getattr(self, name))
-            if not np.all(np.isfinite(v)):
-                raise ValueError(f"CapCalibration.{name} = {v.tolist()}: must be finite")
+            v = finite_vector(f"CapCalibration.{name}", getattr(self, name), 3)
             if name.startswith("axis"):
                 if abs(np.linalg.norm(v) - 1.0) > 1e-6:
                     raise ValueError(f"CapCalibration.{name} = {v.tolist()}: must be a unit vector")
@@ -371,8 +370,8 @@ def compile_fusion(calibration: CapCalibration = CapCalibration()) -> None:
     """Compile :func:`fuse`'s kernels (numba) now, by fusing the cap's own probes at the identity
     pose: the first fusion in a process otherwise takes about a second, which a real-time caller
     (a host feeding the board's watchdog) cannot spend on its first tracker reading."""
-    fuse(ProbeReading(calibration.position_a_m, calibration.axis_a, 0.0),
-         ProbeReading(calibration.position_b_m, calibration.axis_b, 0.0), calibration)
+    fuse(ProbeReading(np.array(calibration.position_a_m), np.array(calibration.axis_a), 0.0),
+         ProbeReading(np.array(calibration.position_b_m), np.array(calibration.axis_b), 0.0), calibration)
 
 
 def fuse_frame(

@@ -32,17 +32,15 @@ import sys
 from typing import Sequence
 
 import numpy as np
-from scipy.optimize import minimize
 
-from twin.envs.reach import EndoscopeReachEnv, default_tension_range_n
-from twin.envs.randomization import Randomization, TipLoads
 from twin.cliargs import add_param_args, params_from_args
-from twin.control.compensation import compensate_tensions
 from twin.control.gains import DEFAULT_TENSION_GAINS, TUNED_TENSION_GAINS
 from twin.params import Params, load_params
-from twin.rod import Predictor, RodModel, tip_jacobian
 from twin.rod.grid import GRAVITY_TIP_FORCE_N
 from twin.scaleout import Executor, connect, map_ordered
+
+# The env (gymnasium, MuJoCo), SciPy and the predictor's kernels are imported where they are
+# used: `twin tune --help` builds this module's parser without loading them.
 
 __all__ = ["TipTrackingController", "TuningResult", "tension_cost", "tension_steps_n", "tracking_cost", "tune_tension_gains", "tune_tracking_gains",
            "main", "register"]
@@ -60,6 +58,7 @@ def tension_steps_n(params: Params, tension_range_n: tuple[float, float] | None 
     """The PID rollout's setpoints (steps, tendons) (N) for ``params``'s robot: :data:`_PAIR_STEPS`
     on its antagonistic pair (:func:`twin.control.cocontraction.antagonistic_pair`), within
     ``tension_range_n`` (default the env's for the robot)."""
+    from twin.envs.reach import default_tension_range_n
     from twin.control.cocontraction import antagonistic_pair
 
     a, b = antagonistic_pair(params)
@@ -93,6 +92,8 @@ def tension_cost(gains: dict, *, params: Params | None = None, seed: int = 0) ->
     The first 5 samples after each step are left out: no loop follows a step in 25 ms, and the
     metric should reward settling, not the size of the steps.
     """
+    from twin.envs.randomization import TipLoads
+    from twin.envs.reach import EndoscopeReachEnv
     env = EndoscopeReachEnv(params=params, gains={"tensions": gains}, tip_loads=TipLoads.none())
     try:
         env.reset(seed=seed)
@@ -116,6 +117,7 @@ def tension_cost(gains: dict, *, params: Params | None = None, seed: int = 0) ->
 def tune_tension_gains(*, params: Params | None = None, start: dict | None = None, evaluations: int = 30,
                        seed: int = 0) -> TuningResult:
     """Nelder–Mead on (log kp, log ki, log output_limit) of the tension PID, kd = 0."""
+    from scipy.optimize import minimize
     start = dict(start or DEFAULT_TENSION_GAINS)
     x0 = np.log([start["kp"], start["ki"], start["output_limit"]])
 
@@ -162,6 +164,8 @@ class TipTrackingController:
     def __init__(self, params: Params, *, gain: float = 0.05, velocity_gain_s: float = 0.0,
                  period_s: float = 0.025, damping: float = 2e-3, floor_n: float | None = None,
                  limit_n: float | None = None, base_rotation=None):
+        from twin.envs.reach import default_tension_range_n
+        from twin.rod import Predictor, RodModel
         if not (gain >= 0 and velocity_gain_s >= 0 and period_s > 0):
             raise ValueError(f"gain = {gain!r}, velocity_gain_s = {velocity_gain_s!r}, period_s = {period_s!r}: "
                              "gains must be >= 0 and the period > 0")
@@ -180,6 +184,7 @@ class TipTrackingController:
 
     def reset(self, target_m, tip_mass_kg: float) -> np.ndarray:
         """Feedforward tensions (N) for ``target_m`` under ``tip_mass_kg``."""
+        from twin.control.compensation import compensate_tensions
         force = GRAVITY_TIP_FORCE_N(tip_mass_kg, self.gravity_m_s2)
         plan = compensate_tensions(self.model, target_m, tip_force_n=force, base_rotation=self.base_rotation,
                                    floor_n=self.floor_n, limit_n=self.limit_n)
@@ -191,6 +196,7 @@ class TipTrackingController:
 
     def update(self, tip_m) -> np.ndarray:
         """Next tensions (N) from the measured tip position (m)."""
+        from twin.rod import tip_jacobian
         tip = np.asarray(tip_m, dtype=float)
         if self.gain > 0 or (self.velocity_gain_s > 0 and self._pinv is None):
             # The integral needs J where the tensions are now; the damping alone makes do with J
@@ -216,6 +222,8 @@ TRACKING_STEPS = 160
 
 
 def _tracking_episode(args) -> float:
+    from twin.envs.randomization import Randomization, TipLoads
+    from twin.envs.reach import EndoscopeReachEnv
     gains, params, seed, steps, tension_gains = args
     env = EndoscopeReachEnv(params=params, gains={"tensions": tension_gains},
                             tip_loads=TipLoads(change_probability=0.0), randomization=Randomization.typical())
@@ -261,6 +269,7 @@ def tune_tracking_gains(*, params: Params | None = None, start: dict | None = No
         A :class:`TuningResult` whose parameters are ``gain``, ``velocity_gain_s`` and
         ``tension_ki``.
     """
+    from scipy.optimize import minimize
     tension_gains = dict(tension_gains or TUNED_TENSION_GAINS)
     start = {"gain": 0.01, "velocity_gain_s": 0.05, "tension_ki": tension_gains["ki"], **(start or {})}
     baseline = {"gain": 0.0, "velocity_gain_s": 0.0, "tension_ki": tension_gains["ki"]}

@@ -14,7 +14,20 @@ Example:
     True
 """
 
-from twin.control.compensation import Compensation, compensate_tensions, correct_tensions, hold_tensions
-from twin.control.pretension import pretension_straight
+from typing import TYPE_CHECKING
+
+from twin.lazy import lazy_exports
+
+if TYPE_CHECKING:
+    from twin.control.compensation import Compensation, compensate_tensions, correct_tensions, hold_tensions
+    from twin.control.pretension import pretension_straight
+
+# name → the module that defines it, imported when the name is first used
+_EXPORTS = {
+    "Compensation": "twin.control.compensation", "compensate_tensions": "twin.control.compensation",
+    "correct_tensions": "twin.control.compensation", "hold_tensions": "twin.control.compensation",
+    "pretension_straight": "twin.control.pretension",
+}
+__getattr__, __dir__ = lazy_exports(__name__, _EXPORTS)
 
 __all__ = ["Compensation", "compensate_tensions", "correct_tensions", "hold_tensions", "pretension_straight"]

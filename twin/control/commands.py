@@ -92,16 +92,17 @@ def run_cocontraction(args: argparse.Namespace) -> int:
     from twin.control.cocontraction import antagonistic_pair, run_cocontraction_study
 
     params = params_from_args(args)
-    pair = None
+    given: tuple[int, int] | None = None
     if args.pair is not None:
         try:
-            pair = tuple(int(k) - 1 for k in args.pair.split(","))
+            numbers = [int(k) - 1 for k in args.pair.split(",")]
         except ValueError:
-            pair = ()
-        if len(pair) != 2:
+            numbers = []
+        if len(numbers) != 2:
             raise UsageError(f"--pair {args.pair}: expected two tendon numbers, e.g. 1,3")
+        given = (numbers[0], numbers[1])
     try:
-        pair = antagonistic_pair(params, pair)
+        pair = antagonistic_pair(params, given)
     except ValueError as exc:
         raise UsageError(f"--pair {args.pair}: {exc}" if args.pair else str(exc)) from None
     with open_device_arg(args.device, params=params, robot=robot_name(args)) as device:

@@ -28,6 +28,7 @@ import dataclasses
 import numpy as np
 from scipy.optimize import least_squares
 
+from twin.checks import finite_vector
 from twin.rod import RodModel, solve, tip_jacobian
 
 __all__ = ["Compensation", "compensate_tensions", "correct_tensions", "hold_tensions"]
@@ -92,16 +93,12 @@ def compensate_tensions(model: RodModel, target_m, *, tip_force_n=None, tip_mome
     if not 0 <= floor_n < limit_n:
         raise ValueError(f"floor_n = {floor_n!r}, limit_n = {limit_n!r}: need 0 <= floor_n < limit_n")
     nt = model.tendon_count
-    target = np.asarray(target_m, dtype=float)
-    if target.shape != (3,) or not np.all(np.isfinite(target)):
-        raise ValueError(f"target_m = {target_m!r}: expected 3 finite numbers")
-    reference = np.full(nt, floor_n + 0.5) if reference_tensions_n is None else np.asarray(
-        reference_tensions_n, dtype=float)
-    if reference.shape != (nt,) or not np.all(np.isfinite(reference)):
-        raise ValueError(f"reference_tensions_n = {reference_tensions_n!r}: expected {nt} finite numbers")
+    target = finite_vector("target_m", target_m, 3)
+    reference = np.full(nt, floor_n + 0.5) if reference_tensions_n is None else finite_vector(
+        "reference_tensions_n", reference_tensions_n, nt)
     loads = dict(tip_force_n=tip_force_n, tip_moment_nm=tip_moment_nm, base_rotation=base_rotation,
                  friction_direction=friction_direction)
-    guess = [None]  # the last converged base moment: every solve after the first starts warm
+    guess: list[np.ndarray | None] = [None]  # the last converged base moment: every solve after the first starts warm
 
     def shape(tensions):
         sol = solve(model, tensions, guess_nm=guess[0], **loads)
@@ -214,10 +211,7 @@ def correct_tensions(model: RodModel, applied: Compensation, goal_m, measured_mi
         The corrected :class:`Compensation`; its ``target_m`` is the re-aimed point and its
         ``residual_m`` the predictor's miss of it.
     """
-    goal = np.asarray(goal_m, dtype=float)
-    miss = np.asarray(measured_miss_m, dtype=float)
-    if goal.shape != (3,) or miss.shape != (3,) or not np.all(np.isfinite(np.concatenate([goal, miss]))):
-        raise ValueError(f"goal_m = {goal_m!r}, measured_miss_m = {measured_miss_m!r}: expected 3 finite numbers each")
+    goal, miss = finite_vector("goal_m", goal_m, 3), finite_vector("measured_miss_m", measured_miss_m, 3)
     predicted = applied.predicted_tip_m if friction_direction is None else solve(
         model, applied.tensions_n, tip_force_n=tip_force_n, tip_moment_nm=tip_moment_nm, base_rotation=base_rotation,
         friction_direction=friction_direction).tip_position_m

@@ -35,7 +35,7 @@ import dataclasses
 import json
 import math
 from pathlib import Path
-from typing import Sequence
+from typing import Any, Sequence
 
 import numpy as np
 
@@ -127,7 +127,7 @@ class CompensationTrial:
         for label, group in [("all", self.rows)] + [(f"{m:g} g", [r for r in self.rows if r["mass_g"] == m])
                                                     for m in sorted({r["mass_g"] for r in self.rows})]:
             rows = [r for r in group if not r["fault"]]
-            entry = {"configurations": len(rows), "faulted": len(group) - len(rows)}
+            entry: dict[str, float] = {"configurations": len(rows), "faulted": len(group) - len(rows)}
             for stage, _ in _STAGES:
                 errors = np.array([r[f"{stage}_mm"] for r in rows])
                 entry[f"{stage}_median_mm"] = float(np.median(errors)) if rows else math.nan
@@ -378,7 +378,7 @@ def run_compensation_trial(device, params: Params, *, configs: Sequence[tuple[fl
         raise ValueError(f"no configuration is within reach of the compensation (ceiling {limit_n:.2f} N): "
                          f"e.g. κ {first['kappa_per_m']:g} 1/m φ {first['phi_deg']:g}° {first['reason']}")
     steps = max(1, round(ramp_s * params.rig.telemetry_rate_hz))
-    rows = []
+    rows: list[dict[str, Any]] = []
     # Each tendon's friction sliding state, followed from the encoders over the whole trial: a
     # model with friction predicts every static shape in the state it was reached in.
     sliding = _Sliding(device, params)
@@ -401,7 +401,8 @@ def run_compensation_trial(device, params: Params, *, configs: Sequence[tuple[fl
         for mass in masses_kg:
             load = GRAVITY_TIP_FORCE_N(mass, g)
             plan = sliding.plan(model, unloaded.tensions_n, unloaded_sigma, load, bounds) if unloaded is not None else None
-            sag = _predicted_sag_m(model, unloaded.tensions_n, load, bounds["base_rotation"]) if plan else 0.0
+            sag = (_predicted_sag_m(model, unloaded.tensions_n, load, bounds["base_rotation"])
+                   if plan is not None and unloaded is not None else 0.0)
             if plan is not None and plan.residual_m > _REACH_SHARE * sag:
                 # At best the row would end above half its uncompensated error: out of reach, not run.
                 left_out.append({"kappa_per_m": kappa, "phi_deg": phi, "mass_g": round(mass * 1e3, 3),
@@ -416,7 +417,7 @@ def run_compensation_trial(device, params: Params, *, configs: Sequence[tuple[fl
                    "feedforward_tensions_n": plan.tensions_n.round(4).tolist() if plan else [],
                    "tensions_n": plan.tensions_n.round(4).tolist() if plan else [], "fault": fault}
             rows.append(row)
-            if fault:
+            if fault or unloaded is None:
                 continue
             try:
                 _run_mass(device, row, model, plan, unloaded.tip_position_m, mass, load, pcc_lengths, bounds,

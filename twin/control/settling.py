@@ -13,6 +13,7 @@ from __future__ import annotations
 import numpy as np
 
 from twin.control.gains import TUNED_TENSION_GAINS
+from twin.driver.errors import DeviceError
 from twin.control.pretension import pretension_straight
 from twin.params import Params, load_params
 from twin.pcc import tendon_length_changes_m
@@ -70,6 +71,8 @@ def hold_figures(params: Params | None = None, *, kappa_per_m: float = HOLD_KAPP
                 break
         length_s = device.time_s - start_s
 
+        if device.fixture is None:
+            raise DeviceError(f"{device.url}: hanging a tip mass needs the device's fixture; it has none")
         device.fixture.hang_tip_mass(mass_kg)
         device.wait(1.0)
         device.set_mode("tensions")

@@ -543,7 +543,7 @@ class DatasetWriter:
                 (self.folder / METADATA).unlink(missing_ok=True)
                 raise
             complete_bytes = None
-        self._fd = os.open(self.path, os.O_RDWR | os.O_APPEND)
+        self._fd: int | None = os.open(self.path, os.O_RDWR | os.O_APPEND)
         try:
             _lock(self._fd, self.path)
             if complete_bytes is not None and os.fstat(self._fd).st_size > complete_bytes:
@@ -585,16 +585,19 @@ class DatasetWriter:
         values.setdefault("repeat", 0)
         cells = [self._cell(c, values.get(c), config) for c in layout.columns]
         data = _line(cells).encode("utf-8")
-        start = os.fstat(self._fd).st_size
+        fd = self._fd
+        if fd is None:
+            raise DatasetError(f"{self.path}: row for config {config!r} written after close(); not written")
+        start = os.fstat(fd).st_size
         try:
             written = 0
             while written < len(data):
-                written += os.write(self._fd, data[written:])
+                written += os.write(fd, data[written:])
             if self._sync:
-                os.fsync(self._fd)
+                os.fsync(fd)
         except OSError as exc:
             try:
-                os.ftruncate(self._fd, start)
+                os.ftruncate(fd, start)
             except OSError:
                 pass  # the reader drops a torn last row anyway
             raise OSError(exc.errno, f"{exc.strerror} (writing the row for config {config})",

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from typing import Sequence
+from typing import Any, Sequence
 
 import numpy as np
 from scipy.optimize import least_squares
@@ -84,7 +84,7 @@ class ParameterFit:
 def apply_values(params: Params, parameters: Sequence[FitParameter], values, source: str) -> Params:
     """``params`` with each fitted scalar written into its key (list keys at their index), and
     the keys a parameter carries (:attr:`FitParameter.follows`) moved with it."""
-    changes: dict[str, object] = {}
+    changes: dict[str, Any] = {}
     for p, v in zip(parameters, values):
         if p.index is None:
             changes[p.key] = float(v)

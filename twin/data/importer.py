@@ -49,7 +49,7 @@ import numpy as np
 __all__ = ["MapError", "import_csv", "register"]
 
 # Units per kind of quantity: name → factor to SI (None: converted through the robot).
-_UNITS = {
+_UNITS: dict[str, dict[str, float | None]] = {
     "position": {"m": 1.0, "cm": 1e-2, "mm": 1e-3, "um": 1e-6},
     "length": {"m": 1.0, "mm": 1e-3, "um": 1e-6, "counts": None},
     "tension": {"N": 1.0, "mN": 1e-3, "kg": None, "g": None, "counts": None},
@@ -117,17 +117,16 @@ def read_map(path: str | Path, tendons: int) -> dict:
         raise MapError(f"{path}: no [{missing[0]}]: the {missing[0].replace('_', ' ')} is required "
                            f"(required: {', '.join(_REQUIRED)})")
     tables = {name: _table(mapping, name, path) for name in _TABLES}
+    # The required tables are there (checked above): a missing one is the only None.
+    tip, tension, mass = (tables[name] or {} for name in _REQUIRED)
     out: dict = {"csv": tables["csv"] or {}}
-    tip = tables["tip"]
     out["tip"] = (_columns(path, "tip.columns", tip.get("columns"), 3),
                   _unit(path, "tip.unit", tip.get("unit"), "position")[1],
                   np.asarray(tip.get("origin", [0.0, 0.0, 0.0]), dtype=float))
     if out["tip"][2].shape != (3,):
         raise MapError(f"{path}: tip.origin = {tip.get('origin')!r}: expected 3 numbers")
-    tension = tables["tension"]
     out["tension"] = (_columns(path, "tension.columns", tension.get("columns"), tendons),
                       _unit(path, "tension.unit", tension.get("unit"), "tension")[0])
-    mass = tables["tip_mass"]
     if ("column" in mass) == ("value" in mass):
         raise MapError(f"{path}: [tip_mass] needs a column or a value (one of them)")
     out["tip_mass"] = (mass.get("column"), mass.get("value"), _unit(path, "tip_mass.unit", mass.get("unit"), "mass")[1])
@@ -144,8 +143,9 @@ def read_map(path: str | Path, tendons: int) -> dict:
         out["command"] = (command["kappa"], _unit(path, "command.kappa_unit", command.get("kappa_unit"), "curvature")[1],
                           command["phi"], _unit(path, "command.phi_unit", command.get("phi_unit"), "angle")[1])
     for name in ("config", "repeat"):
-        if tables[name] is not None:
-            out[name] = _columns(path, f"{name}.column", [tables[name].get("column")], 1)[0]
+        table = tables[name]
+        if table is not None:
+            out[name] = _columns(path, f"{name}.column", [table.get("column")], 1)[0]
     if tables["orientation"] is not None:
         out["orientation"] = _columns(path, "orientation.columns", tables["orientation"].get("columns"), 4)
     if tables["time"] is not None:

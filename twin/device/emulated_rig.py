@@ -25,6 +25,7 @@ import json
 import socketserver
 import threading
 import time
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -32,6 +33,9 @@ from twin.device.sim_fixture import SimFixture
 from twin.driver.fixture import ACTIONS
 from twin.device.pty_board import PtyBoard
 from twin.params import Params
+
+if TYPE_CHECKING:
+    from twin.device.igtl_server import OpenIGTLinkServer
 
 __all__ = ["EmulatedRig", "FixtureServer", "PLUS_PROBE_NAMES", "TrackerPublisher"]
 
@@ -56,9 +60,9 @@ class TrackerPublisher:
     """
 
     def __init__(self, board: PtyBoard, server, probe_names: tuple[str, str] = PLUS_PROBE_NAMES):
-        self._board, self._server, self.probe_names = board, server, tuple(probe_names)
-        self._frame = None
-        self._index = None
+        self._board, self._server, self.probe_names = board, server, (probe_names[0], probe_names[1])
+        self._frame: tuple[np.ndarray, np.ndarray] | None = None
+        self._index: int | None = None
         self._ready = threading.Condition()
         self._stop = False
         self.frames = 0
@@ -179,9 +183,11 @@ class EmulatedRig:
                  probe_names: tuple[str, str] = PLUS_PROBE_NAMES, board_port: int | None = None):
         self.board = PtyBoard(params, seed=seed, base_rotation=base_rotation, link_path=link_path,
                               tcp=None if board_port is None else (host, board_port))
-        self.host, self.probe_names = host, tuple(probe_names)
+        self.host, self.probe_names = host, (probe_names[0], probe_names[1])
         self._ports = (igtl_port, fixture_port)
-        self.igtl_server = self.tracker = self.fixture = None
+        self.igtl_server: OpenIGTLinkServer | None = None
+        self.tracker: TrackerPublisher | None = None
+        self.fixture: FixtureServer | None = None
         self._base_rotation = base_rotation
         self._started = False
 

@@ -130,7 +130,10 @@ def tick_entry_points() -> tuple[int, int]:
     """Addresses of ``twinfw_tick`` and ``twinfw_tx_pending``, for a native loop that ticks a
     :attr:`FirmwareLib.handle` itself (the emulated board's, :mod:`twin.device.board`)."""
     lib = load_library()
-    return tuple(ctypes.cast(f, ctypes.c_void_p).value for f in (lib.twinfw_tick, lib.twinfw_tx_pending))
+    tick, tx_pending = (ctypes.cast(f, ctypes.c_void_p).value for f in (lib.twinfw_tick, lib.twinfw_tx_pending))
+    if tick is None or tx_pending is None:
+        raise FirmwareBuildError("the firmware library's twinfw_tick or twinfw_tx_pending resolves to a null address")
+    return tick, tx_pending
 
 
 _INT32_MIN, _INT32_MAX = -(2**31), 2**31 - 1

@@ -32,7 +32,7 @@ import threading
 import time
 import tty
 from pathlib import Path
-from typing import Callable
+from typing import Any, Callable
 
 from twin.device.board import TICK_S, EmulatedBoard
 from twin.params import Params
@@ -160,7 +160,7 @@ class PtyBoard:
     def unplug(self) -> None:
         """Stop the board and close the pseudo-terminal: the host's port fails as when a USB
         cable is pulled. The link (if any) is removed."""
-        if not self.plugged:
+        if self._thread is None:
             return
         self._stop.set()
         self._thread.join()
@@ -171,7 +171,7 @@ class PtyBoard:
             if listener is not None:
                 listener.close()
             return
-        for fd in self._fds:
+        for fd in self._fds or ():
             os.close(fd)
         self._fds = None
         if self.link_path is not None and self.link_path.is_symlink() and \
@@ -188,7 +188,8 @@ class PtyBoard:
         """
         if not self.plugged or self.error is not None:
             raise RuntimeError(f"{self.port or 'the emulated board'}: the board is not running")
-        done, box = threading.Event(), {}
+        done = threading.Event()
+        box: dict[str, Any] = {}
 
         def job():
             try:

@@ -17,7 +17,7 @@ from typing import Callable, ContextManager
 
 from twin.device.board import EmulatedBoard, Reason
 from twin.driver.inbox import Inbox
-from twin.driver.transport import Transport
+from twin.driver.transport import Clock, Transport
 
 __all__ = ["SimTransport"]
 
@@ -33,7 +33,7 @@ class SimTransport(Transport):
         url: the device URL, for messages.
     """
 
-    clock = "simulated"
+    clock = Clock.SIMULATED
 
     def __init__(self, board: EmulatedBoard, *, url: str = "sim://"):
         self.board = board
@@ -60,7 +60,7 @@ class SimTransport(Transport):
         while not predicate():
             if board.time_s >= deadline_s:
                 return False
-            if self._run(deadline_s) == Reason.KEEPALIVE:
+            if self._run(deadline_s) == Reason.KEEPALIVE and self._ping is not None:
                 # The PING, then the tick it came before.
                 self._ping()
                 self._run(deadline_s, max_ticks=1)

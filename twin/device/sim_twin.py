@@ -15,6 +15,7 @@ import numpy as np
 if TYPE_CHECKING:
     from twin.device.board import EmulatedBoard
     from twin.device.sim_fixture import SimFixture
+    from twin.sim.plant import DriveMode
 
 __all__ = ["SimTwin"]
 
@@ -97,8 +98,8 @@ class SimTwin:
         return self._board.held_tensions_n
 
     @property
-    def drive_mode(self) -> str:
-        """How the spools are driven, one of :data:`twin.sim.plant.MODES`: ``"pwm"`` (the
+    def drive_mode(self) -> DriveMode:
+        """How the spools are driven (:class:`twin.sim.plant.DriveMode`): ``"pwm"`` (the
         firmware's duty), ``"coast"`` (H-bridges off: disabled or faulted), ..."""
         return self._board.plant.mode
 

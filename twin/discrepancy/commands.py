@@ -10,12 +10,13 @@ from pathlib import Path
 import numpy as np
 
 from twin.cliargs import UsageError, add_device_arg, add_twin_set_arg, open_device_arg, twin_params
+from twin.discrepancy.verdict import Verdict
 from twin.params import ParameterError, load_params, parse_override
 
 __all__ = ["EXIT_CODES", "register"]
 
 # Exit code per verdict: a lab's script can branch on the answer without reading the JSON.
-EXIT_CODES = {"effect": 0, "none": 0, "ambiguous": 3, "unexplained": 3}
+EXIT_CODES = {Verdict.EFFECT: 0, Verdict.NONE: 0, Verdict.AMBIGUOUS: 3, Verdict.UNEXPLAINED: 3}
 # Exit code for a dataset, parameter file or option the command cannot use.
 EXIT_BAD_INPUT = 2
 # Exit code for a deciding experiment that the device, the protocol or a diverging twin stopped

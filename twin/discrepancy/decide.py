@@ -54,6 +54,7 @@ import numpy as np
 from twin import effects
 from twin.data.dataset import Dataset
 from twin.discrepancy.residuals import grouping_values
+from twin.discrepancy.verdict import Verdict
 from twin.params import Params
 
 __all__ = ["DESIGNS", "MANUAL_EXPERIMENTS", "Design", "contenders", "decide", "designs_for", "experiments_for"]
@@ -194,7 +195,7 @@ def contenders(result) -> tuple[str, ...]:
     ``unexplained``, a tie's candidates, the stand-ins, the causes outside the library that
     explain as well, and every first-round candidate whose held-out RMS is within a quarter of
     the best's. Empty when the verdict needs no deciding."""
-    if result.verdict not in ("ambiguous", "unexplained"):
+    if result.verdict not in (Verdict.AMBIGUOUS, Verdict.UNEXPLAINED):
         return ()
     names = list(result.named) + [e for s in result.tied + result.stand_ins + result.outside for e in s.effects]
     scores = [s for s in result.rounds[0].scores if np.isfinite(s.score)] if result.rounds else []

@@ -236,7 +236,7 @@ class Baseline:
                 fit, dropped = trial, lost
         kept = [p for p in (fit.parameters if fit is not None else ()) if p in own]
         note = "; ".join(f"not determined, kept: {p.label} ({v:.3g} ± {e:.2g})" for p, v, e in dropped)
-        if not kept:
+        if fit is None or not kept:
             return CandidateScore(effect, fit, 0, _rms3(self.base_train), _rms3(self.base_test), math.inf, 0.0, 1.0,
                                   False, note or "not determined by the data")
         k = len(kept) + (1 if len(variants) > 1 else 0)
@@ -270,7 +270,7 @@ class Baseline:
             scores[0] = dataclasses.replace(best, worse_z=0.0)
             best = scores[0]
             for i, s in enumerate(scores[1:], start=1):
-                if s.heldout_errors_m is None:
+                if s.heldout_errors_m is None or best.heldout_errors_m is None:
                     continue
                 scores[i] = s = dataclasses.replace(s, worse_z=worse_z(best.heldout_errors_m, s.heldout_errors_m))
                 if s.beats_noise and s.worse_z < TIE_Z:
@@ -359,7 +359,8 @@ def rank_pairs(dataset: Dataset, params: Params, candidates: Sequence[Candidate]
     pairs = list(itertools.combinations(usable, 2))
     scores = []
     for a, b in tqdm(pairs, desc="pairs", unit="pair", disable=not progress, leave=False):
-        variants = [{**va, **vb} for va in (a.variants or ({},)) for vb in (b.variants or ({},))]
+        unvaried: tuple[dict, ...] = ({},)
+        variants = [{**va, **vb} for va in (a.variants or unvaried) for vb in (b.variants or unvaried)]
         score = base.score(f"{a.effect}+{b.effect}", (), a.parameters + b.parameters, a.x0(params) + b.x0(params),
                            variants if len(variants) > 1 else ())
         scores.append(score)

@@ -1,6 +1,6 @@
 """Show: the workflow's outcome as a Markdown report with figures and a JSON summary.
 
-``report.md`` holds the workflow's verdict (:data:`twin.discrepancy.workflow.VERDICTS`: the tie's
+``report.md`` holds the workflow's verdict (:class:`twin.discrepancy.verdict.Verdict`: the tie's
 candidates, or where the unexplained residual is), the verdict of the Find step and its
 breakdowns (axis, plane, load, curvature), every round's ranking, the named effects with fitted
 values and uncertainties, and the held-out error per configuration and in total before and
@@ -19,6 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
+from twin.discrepancy.verdict import Verdict
 from twin.discrepancy.workflow import DiscrepancyResult
 from twin.experiments.analysis import ValidationResult, plot_validation
 from twin.experiments.report import markdown_table
@@ -140,7 +141,7 @@ def write_report(result: DiscrepancyResult, folder: str | Path) -> Path:
             {"between": " / ".join(s["between"]), "experiment": name,
              "what": DESIGNS[name].purpose if name in DESIGNS else MANUAL_EXPERIMENTS[name],
              "run_by_device": name in s["runnable"]} for s in result.separations() for name in s["experiments"]])]
-    if result.verdict == "unexplained":
+    if result.verdict == Verdict.UNEXPLAINED:
         where = result.where()
         lines += ["### What remains (all rows, the fitted model)", "", markdown_table(where["by_axis"]),
                   markdown_table(where["by_plane"]), markdown_table(where["by_curvature"]),

@@ -11,7 +11,7 @@ The steps (the ranking rule is in :mod:`twin.discrepancy.naming`):
 * **Check what remains.** The fitted model goes through the Find step again (with the starting
   model's noise estimate): a named effect must leave residuals without structure beyond noise.
 
-The verdict (:data:`VERDICTS`):
+The verdict (:class:`Verdict`):
 
 ``none``
     no structured disagreement beyond noise, or none that matters (:func:`_material`) and
@@ -38,6 +38,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from typing import Any
 
 import numpy as np
 from tqdm import tqdm
@@ -48,13 +49,13 @@ from twin.discrepancy.naming import (MIN_HELDOUT_GAIN, PAIR_POOL, TIE_Z, Baselin
                                      rank_candidates, rank_pairs, row_errors, split_rows, worse_z)
 from twin.discrepancy.probes import PROBES, fit_probe
 from twin.discrepancy.residuals import ResidualMap, find_discrepancy, thesis_signature
+from twin.discrepancy.verdict import Verdict
 from twin.data.dataset import Dataset
 from twin.data.fitting import ParameterFit
 from twin.params import Params
 
-__all__ = ["VERDICTS", "DiscrepancyResult", "run_discrepancy"]
+__all__ = ["DiscrepancyResult", "Verdict", "run_discrepancy"]
 
-VERDICTS = ("effect", "none", "ambiguous", "unexplained")
 # Configurations listed where a residual remains.
 _WORST_SHOWN = 5
 # Structured RMS, in noise RMS, that a tenth off the held-out RMS stands for (see _material).
@@ -83,7 +84,7 @@ class DiscrepancyResult:
         fit: the joint fit of the named effects' parameters on the training rows (None if none named).
         errors_before_m, errors_after_m: (held-out rows, 3) p̂ − p* before and after (failures charged).
         converged_before, converged_after: (held-out rows,) which held-out predictions exist.
-        verdict: one of :data:`VERDICTS` (module doc).
+        verdict: the answer (:class:`Verdict`, module doc).
         tied: the candidates of a round that tied, best first (the verdict is then ``ambiguous``,
             or ``unexplained`` when even the best of them leaves structure).
         remaining: the Find step on all rows with the model that leaves the least (``params_after``;
@@ -109,7 +110,7 @@ class DiscrepancyResult:
     errors_after_m: np.ndarray
     converged_before: np.ndarray
     converged_after: np.ndarray
-    verdict: str = "none"
+    verdict: Verdict = Verdict.NONE
     tied: tuple[CandidateScore, ...] = ()
     remaining: ResidualMap | None = None
     stand_ins: tuple[CandidateScore, ...] = ()
@@ -213,11 +214,11 @@ class DiscrepancyResult:
         noise = self.residuals.noise.rms_3d_m * 1e3
         left = (f"{self.remaining_rms_m * 1e3:.3g} mm held-out RMS left (from {self.rms_before_m * 1e3:.3g} mm) "
                 f"against {noise:.3g} mm of noise")
-        if self.verdict == "none":
+        if self.verdict == Verdict.NONE:
             return f"none: no structured disagreement beyond noise ({left})."
-        if self.verdict == "effect":
+        if self.verdict == Verdict.EFFECT:
             return f"effect: {_listed(self.named)} the disagreement; {left}."
-        if self.verdict == "ambiguous":
+        if self.verdict == Verdict.AMBIGUOUS:
             tie = ", ".join(f"{_shown(s)} {s.heldout_rms_m * 1e3:.3g} mm" for s in self.tied + self.outside)
             rms = [s.heldout_rms_m for s in self.tied + self.outside]
             spread = (max(rms) - min(rms)) * 1e3
@@ -237,7 +238,7 @@ class DiscrepancyResult:
             part = "no candidate nor pair removes it; "
         if self.outside:
             best = self.outside[0]
-            values = ", ".join(f"{row['parameter']} = {row['value']:.3g}" for row in best.fit.table())
+            values = ", ".join(f"{row['parameter']} = {row['value']:.3g}" for row in (best.fit.table() if best.fit else []))
             part += (f"a cause outside the library, {best.effect} ({values}), explains it "
                      f"(held-out {best.heldout_rms_m * 1e3:.3g} mm); ")
         return (f"unexplained: {part}{left}; over all rows {w['structured_rms_m'] * 1e3:.3g} mm of structure "
@@ -344,7 +345,7 @@ def run_discrepancy(dataset: Dataset, params: Params | None = None, *, holdout_f
     named: list[str] = []
     fit: ParameterFit | None = None
     tied: tuple[CandidateScore, ...] = ()
-    options = dict(source=source, max_evaluations=max_evaluations, progress=progress, guesses=solutions)
+    options: dict[str, Any] = dict(source=source, max_evaluations=max_evaluations, progress=progress, guesses=solutions)
     while len(named) < max_effects:
         remaining = [c for effect, c in library.items() if effect not in named]
         if not remaining:
@@ -370,48 +371,50 @@ def run_discrepancy(dataset: Dataset, params: Params | None = None, *, holdout_f
             break
         named.extend(ranked.winner.effects)
         fit = ranked.winner.fit
+        assert fit is not None, "a round's winner is a fitted candidate"
         current = fit.params
     held = np.flatnonzero(test)
     errors_before, ok_before = row_errors(dataset, params, test, [solutions[i] for i in held])
     errors_after, ok_after = row_errors(dataset, current, test, [solutions[i] for i in held])
     after = find_discrepancy(dataset, current, noise=residuals.noise, guesses=list(solutions)) if named else residuals
     if not residuals.structure.beyond_noise or (not named and not tied and not _material(residuals, model_form_m)):
-        verdict = "none"
+        verdict = Verdict.NONE
     elif tied:
         # A tie is the answer only if the tied explanations explain: when even the best of them
         # leaves material structure, what is missing is none of them alone.
+        assert tied[0].fit is not None, "a tied candidate is a fitted one"
         best = find_discrepancy(dataset, tied[0].fit.params, noise=residuals.noise, guesses=list(solutions))
-        verdict = "unexplained" if _material(best, model_form_m) else "ambiguous"
+        verdict = Verdict.UNEXPLAINED if _material(best, model_form_m) else Verdict.AMBIGUOUS
     elif not named or _material(after, model_form_m):
-        verdict = "unexplained"
+        verdict = Verdict.UNEXPLAINED
     else:
-        verdict = "effect"
+        verdict = Verdict.EFFECT
     stand_ins: tuple[CandidateScore, ...] = ()
     outside: tuple[CandidateScore, ...] = ()
-    if verdict != "none":
+    if verdict != Verdict.NONE:
         base = Baseline.of(dataset, params, train, test, source=source, max_evaluations=max_evaluations,
                            tries=len(library) + len(PROBES), guesses=solutions)
-        answer = _joint_score(base, rounds, named, fit, errors_after) if named else None
+        answer = _joint_score(base, rounds, named, fit, errors_after) if named and fit is not None else None
         reference = tied[0] if tied else answer
         probes = _probe_scores(base, dataset, params, solutions, max_evaluations, progress)
         # With more than one effect named, a single library candidate may explain as much.
         others = [s for s in rounds[0].scores if len(named) > 1 and s.beats_noise and not set(s.effects) & set(named)]
         better, equal = _equivalents(reference, probes + others)
-        if verdict == "unexplained" and reference is None:
+        if verdict == Verdict.UNEXPLAINED and reference is None:
             outside = tuple(sorted((p for p in probes if p.beats_noise), key=lambda p: p.score))
         elif better:
-            verdict, outside = "unexplained", tuple(better + equal)
+            verdict, outside = Verdict.UNEXPLAINED, tuple(better + equal)
         elif equal:
             library_ties = tuple(e for e in equal if e.effect not in PROBES)
-            if verdict == "effect":
-                verdict, tied = "ambiguous", (answer,) + library_ties
+            if verdict == Verdict.EFFECT and answer is not None:
+                verdict, tied = Verdict.AMBIGUOUS, (answer,) + library_ties
             outside = tuple(e for e in equal if e.effect in PROBES)
-        if verdict != "effect" and named:
+        if verdict != Verdict.EFFECT and named:
             # Only what the verdict names goes into the answer: the rest are stand-ins, with figures.
-            if not (tied and tied[0] is answer):
+            if answer is not None and not (tied and tied[0] is answer):
                 stand_ins = (answer,)
             named, fit, current = [], None, params
-            if verdict == "ambiguous":
+            if verdict == Verdict.AMBIGUOUS:
                 errors_after, ok_after, after = errors_before, ok_before, residuals
     return DiscrepancyResult(dataset, params, current, train, test, seed, residuals, tuple(rounds), tuple(named),
                              fit, errors_before, errors_after, ok_before, ok_after, verdict, tied, after,
@@ -447,15 +450,16 @@ def _equivalents(reference: CandidateScore | None,
     """(better, equal): the alternatives that beat noise and explain the held-out rows better
     than ``reference`` by :data:`twin.discrepancy.naming.TIE_Z` standard errors, and those the
     held-out rows cannot tell from it (each with ``worse_z`` against it), best first."""
-    if reference is None:
+    if reference is None or reference.heldout_errors_m is None:
         return [], []
     better, equal = [], []
     for alt in alternatives:
         if not alt.beats_noise or alt.heldout_errors_m is None:
             continue
         worse = worse_z(reference.heldout_errors_m, alt.heldout_errors_m)
+        better_by = worse_z(alt.heldout_errors_m, reference.heldout_errors_m)
         alt = dataclasses.replace(alt, worse_z=worse)
-        if worse_z(alt.heldout_errors_m, reference.heldout_errors_m) >= TIE_Z:
+        if better_by >= TIE_Z:
             better.append(alt)
         elif worse < TIE_Z:
             equal.append(alt)

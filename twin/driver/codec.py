@@ -24,7 +24,7 @@ import enum
 import functools
 import math
 import struct
-from typing import ClassVar, Iterable, Sequence
+from typing import TYPE_CHECKING, Any, Callable, ClassVar, Iterable, Sequence, TypeVar, cast
 
 __all__ = [
     "PROTOCOL_VERSION",
@@ -133,10 +133,17 @@ class Drive(enum.IntEnum):
     BRAKE = 2
 
 
-@functools.lru_cache(maxsize=512)
-def enum_member(enum_cls: type[enum.Enum], value: int) -> enum.Enum:
+_E = TypeVar("_E", bound=enum.Enum)
+
+
+def enum_member(enum_cls: type[_E], value: int) -> _E:
     """``enum_cls(value)``, cached: each telemetry sample looks up seven enum members. A value
     the enum refuses still raises."""
+    return cast(_E, _enum_member(enum_cls, value))
+
+
+@functools.lru_cache(maxsize=512)
+def _enum_member(enum_cls: type[enum.Enum], value: int) -> enum.Enum:
     return enum_cls(value)
 
 
@@ -151,15 +158,24 @@ class NackError(enum.IntEnum):
     NOT_CALIBRATED = 8
 
 
-Fault = enum.IntFlag("Fault", {
-    "WATCHDOG": 1 << 0,
-    "TENSION_LIMIT": 1 << 1,
-    "LOADCELL_STALE": 1 << 2,
-    "LOADCELL_IMPLAUSIBLE": 1 << 3,
-    # The channel bits, 1-based names as the operator counts tendons: bits 8..19 and 20..31.
-    **{f"TENSION_CHANNEL_{i + 1}": 1 << (8 + i) for i in range(MAX_CHANNELS)},
-    **{f"IMPLAUSIBLE_CHANNEL_{i + 1}": 1 << (20 + i) for i in range(MAX_CHANNELS)},
-}, module=__name__)
+if TYPE_CHECKING:
+    class Fault(enum.IntFlag):
+        """The type checker's view of the flags below: the named ones (a channel's by ``Fault[name]``)."""
+
+        WATCHDOG = 1 << 0
+        TENSION_LIMIT = 1 << 1
+        LOADCELL_STALE = 1 << 2
+        LOADCELL_IMPLAUSIBLE = 1 << 3
+else:
+    Fault = enum.IntFlag("Fault", {
+        "WATCHDOG": 1 << 0,
+        "TENSION_LIMIT": 1 << 1,
+        "LOADCELL_STALE": 1 << 2,
+        "LOADCELL_IMPLAUSIBLE": 1 << 3,
+        # The channel bits, 1-based names as the operator counts tendons: bits 8..19 and 20..31.
+        **{f"TENSION_CHANNEL_{i + 1}": 1 << (8 + i) for i in range(MAX_CHANNELS)},
+        **{f"IMPLAUSIBLE_CHANNEL_{i + 1}": 1 << (20 + i) for i in range(MAX_CHANNELS)},
+    }, module=__name__)
 Fault.__doc__ = """Telemetry fault flags: WATCHDOG, TENSION_LIMIT and LOADCELL_IMPLAUSIBLE latch until
 ENABLE; LOADCELL_STALE is live. TENSION_CHANNEL_k and IMPLAUSIBLE_CHANNEL_k say which channel
 (1-based) tripped."""
@@ -438,7 +454,7 @@ _MASK_CODES = {1: "B", 2: "H"}
 
 def _codes(cls: type[Message], channels: int) -> list[tuple[str, str, int | None]]:
     """(name, struct code, count or None for a scalar) of each field of ``cls`` at ``channels``."""
-    out = []
+    out: list[tuple[str, str, int | None]] = []
     for name, code in cls.LAYOUT:
         if code[0] == "*":
             out.append((name, f"{channels}{code[1:]}", channels))
@@ -540,7 +556,7 @@ def _raise_cobs_error(data: bytes) -> None:
 
 
 def _channels_of(message: Message) -> int:
-    channels = message.channels if message.TYPE in _SIZED else DEFAULT_CHANNELS
+    channels = getattr(message, "channels") if message.TYPE in _SIZED else DEFAULT_CHANNELS
     if not (isinstance(channels, int) and 1 <= channels <= MAX_CHANNELS):
         raise CodecError(f"{type(message).__name__}.channels = {channels!r}: must be in 1..{MAX_CHANNELS}")
     return channels
@@ -690,7 +706,7 @@ def _check_hello_reply(m: HelloReply) -> None:
 # here: the board answers a bad value with NACK BAD_VALUE, which is the protocol's verdict.
 # Fault flags are checked too: the handshake refuses another protocol version, so within this
 # one a bit no fault defines is corruption, not a fault the host has no name for.
-_FIELD_CHECKS = {MsgType.TELEMETRY: _check_telemetry, MsgType.HELLO_REPLY: _check_hello_reply,
+_FIELD_CHECKS: dict[int, Callable[[Any], None]] = {MsgType.TELEMETRY: _check_telemetry, MsgType.HELLO_REPLY: _check_hello_reply,
                  MsgType.ACK: _check_reply, MsgType.NACK: _check_reply}
 
 
@@ -742,7 +758,7 @@ class FrameDecoder:
         self.last_error: str | None = None
 
     def feed(self, data: bytes) -> list[Frame]:
-        frames = []
+        frames: list[Frame] = []
         start = 0
         while True:
             end = data.find(0, start)

@@ -45,14 +45,16 @@ import threading
 from typing import TYPE_CHECKING, Any, ContextManager, Iterable, Sequence
 
 import numpy as np
+import numpy.typing as npt
 
+from twin.checks import finite_vector
 from twin.board_limits import GAIN_TOLERANCE, MAX_OFFSET_COUNTS, MAX_TENSION_LIMIT_N, RATED_GAIN_COUNTS_PER_N
 from twin.driver import codec
 from twin.driver.errors import (ChannelCountError, CommandRejected, DeviceDisconnected, DeviceError, DeviceTimeout,
                                 ProtocolVersionError)
 from twin.driver.inbox import Inbox, LinkStats
 from twin.driver.telemetry import DeviceInfo, Telemetry
-from twin.driver.transport import Transport
+from twin.driver.transport import Clock, Transport
 from twin.pose import HORIZONTAL
 
 if TYPE_CHECKING:
@@ -75,12 +77,8 @@ def _mode(mode: str | codec.Mode) -> codec.Mode:
     return MODE_NAMES[mode]
 
 
-def _vector(name: str, values: Iterable[float], count: int) -> tuple[float, ...]:
-    array = np.asarray(values, dtype=float)
-    floats = tuple(array.tolist()) if array.shape == (count,) else ()
-    if len(floats) != count or not all(map(math.isfinite, floats)):
-        raise ValueError(f"{name} = {values!r}: expected {count} finite numbers")
-    return floats
+def _vector(name: str, values: npt.ArrayLike, count: int) -> tuple[float, ...]:
+    return tuple(finite_vector(name, values, count).tolist())
 
 
 # Length setpoints the firmware accepts (m): its kMaxLengthSetpointM, a value in mm sent as m
@@ -268,7 +266,7 @@ class Device:
         return self._twin
 
     @property
-    def clock(self) -> str:
+    def clock(self) -> Clock:
         """``"simulated"`` (``sim://``: time passes only in waits) or ``"wall"`` (``serial://``)."""
         return self._transport.clock
 
@@ -323,7 +321,7 @@ class Device:
             self._transport.close()
             raise
         self._info = info
-        if self.tracker is not None and self.clock == "wall":
+        if self.tracker is not None and self.clock == Clock.WALL:
             # The first fusion in a process compiles (numba: 1 s to over a minute on a loaded
             # machine): done here, with the board disabled, not on a run's first tracker reading,
             # when the silent host let the watchdog stop the enabled board. In simulated time
@@ -462,8 +460,8 @@ class Device:
         self,
         calibration: Calibration | None = None,
         *,
-        gain_counts_per_n: Sequence[float] | None = None,
-        offset_counts: Sequence[float] | None = None,
+        gain_counts_per_n: npt.ArrayLike | None = None,
+        offset_counts: npt.ArrayLike | None = None,
     ) -> None:
         """Give the board the load-cell calibration ``raw = offset_counts + gain_counts_per_n · N``.
 
@@ -505,7 +503,7 @@ class Device:
             raise ValueError(f"watchdog_timeout_s = {watchdog_timeout_s!r}: must be in 0.02..10")
         self._command(codec.SetLimits(limit, round(watchdog_timeout_s * 1e3), self._rated_gain))
 
-    def set_lengths(self, lengths_m: Sequence[float]) -> None:
+    def set_lengths(self, lengths_m: npt.ArrayLike) -> None:
         """Setpoints of ``"lengths"`` mode: a relative length per tendon (m, positive = paid out,
         within ±:data:`MAX_LENGTH_SETPOINT_M`).
 
@@ -518,7 +516,7 @@ class Device:
         limit = MAX_LENGTH_SETPOINT_M
         self._command(codec.SetSetpoints.lengths(_bounded("lengths_m", lengths, -limit, limit, "m", "mm sent as m?"), n))
 
-    def set_pairs(self, pairs_m: Sequence[float]) -> None:
+    def set_pairs(self, pairs_m: npt.ArrayLike) -> None:
         """Setpoints of ``"pairs"`` mode, one per antagonistic pair (tendon k and k + N/2 of N):
         d₁₃ and d₂₄ on four tendons (m, within ±:data:`MAX_LENGTH_SETPOINT_M`); tendon 1 goes to
         c₁₃ + d₁₃ and tendon 3 to c₁₃ − d₁₃, c the pair's mean length when the mode was entered.
@@ -533,7 +531,7 @@ class Device:
         limit = MAX_LENGTH_SETPOINT_M
         self._command(codec.SetSetpoints.pairs(_bounded("pairs_m", pairs, -limit, limit, "m", "mm sent as m?"), n))
 
-    def set_tensions(self, tensions_n: Sequence[float]) -> None:
+    def set_tensions(self, tensions_n: npt.ArrayLike) -> None:
         """Setpoints of ``"tensions"`` mode: a tension per tendon (N, from 0 to the tension
         limit this host last set with :meth:`set_limits`, 6 N until then).
 
@@ -565,7 +563,9 @@ class Device:
         count = self._inbox.sample_count
         if not self._wait_for(lambda: self._inbox.sample_count > count, timeout_s):
             raise DeviceTimeout(f"{self.url}: no telemetry within {timeout_s} s ({self.clock} clock)")
-        return self._inbox.latest
+        latest = self._inbox.latest
+        assert latest is not None, "a counted sample is kept"
+        return latest
 
     def wait(self, duration_s: float) -> None:
         """Let ``duration_s`` pass: simulated seconds on ``sim://`` (the twin runs meanwhile),
@@ -629,6 +629,7 @@ class Device:
                 f"{self.url}: no HELLO_REPLY within {timeout_s} s; is the twin firmware running on it?"
             )
         reply = self._inbox.hello_reply
+        assert reply is not None, "a counted HELLO_REPLY is kept"
         if reply.protocol_version != codec.PROTOCOL_VERSION:
             self._send(codec.Disable())
             raise ProtocolVersionError(self.url, reply.protocol_version)

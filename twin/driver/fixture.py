@@ -27,10 +27,11 @@ import contextlib
 import json
 import math
 import socket
-from typing import Callable, ContextManager, Iterable
+from typing import TYPE_CHECKING, BinaryIO, Callable, ContextManager, Iterable
 
 import numpy as np
 
+from twin.checks import finite_vector
 from twin.driver.codec import DEFAULT_CHANNELS
 from twin.driver.errors import DeviceError
 
@@ -122,9 +123,7 @@ class OperatorFixture(Fixture):
             self._ask("Remove any mass from the tip")
 
     def apply_tip_load(self, force_n=(0.0, 0.0, 0.0), moment_nm=(0.0, 0.0, 0.0)) -> None:
-        force, moment = np.asarray(force_n, dtype=float), np.asarray(moment_nm, dtype=float)
-        if force.shape != (3,) or moment.shape != (3,) or not (np.isfinite(force).all() and np.isfinite(moment).all()):
-            raise ValueError(f"force_n = {force_n!r}, moment_nm = {moment_nm!r}: expected 3 finite numbers each")
+        force, moment = finite_vector("force_n", force_n, 3), finite_vector("moment_nm", moment_nm, 3)
         if not (force.any() or moment.any()):
             self._ask("Remove any force and moment from the tip")
             return
@@ -178,15 +177,13 @@ class RemoteFixture(Fixture):
         self.timeout_s = timeout_s
         self.settle_s = settle_s
         self._socket: socket.socket | None = None
-        self._reader = None
+        self._reader: BinaryIO | None = None
 
     def hang_tip_mass(self, mass_kg: float) -> None:
         self._do("hang_tip_mass", check_mass("mass_kg", mass_kg))
 
     def apply_tip_load(self, force_n=(0.0, 0.0, 0.0), moment_nm=(0.0, 0.0, 0.0)) -> None:
-        force, moment = np.asarray(force_n, dtype=float), np.asarray(moment_nm, dtype=float)
-        if force.shape != (3,) or moment.shape != (3,) or not (np.isfinite(force).all() and np.isfinite(moment).all()):
-            raise ValueError(f"force_n = {force_n!r}, moment_nm = {moment_nm!r}: expected 3 finite numbers each")
+        force, moment = finite_vector("force_n", force_n, 3), finite_vector("moment_nm", moment_nm, 3)
         self._do("apply_tip_load", force.tolist(), moment.tolist())
 
     def engage_holder(self) -> None:
@@ -202,10 +199,11 @@ class RemoteFixture(Fixture):
         self._do("remove_calibration_masses")
 
     def close(self) -> None:
-        if self._socket is not None:
+        if self._reader is not None:
             self._reader.close()
+        if self._socket is not None:
             self._socket.close()
-            self._socket = self._reader = None
+        self._socket = self._reader = None
 
     def _do(self, action: str, *args) -> None:
         host, port = self.address
@@ -213,7 +211,7 @@ class RemoteFixture(Fixture):
         request = (json.dumps({"action": action, "args": list(args), "settle_s": self.settle_s}) + "\n").encode()
         with self._attended() if self._attended is not None else contextlib.nullcontext():
             try:
-                if self._socket is None:
+                if self._socket is None or self._reader is None:
                     self._socket = socket.create_connection(self.address, timeout=self.timeout_s)
                     self._reader = self._socket.makefile("rb")
                 self._socket.sendall(request)

@@ -351,7 +351,8 @@ def decode_polydata(content: bytes) -> tuple[np.ndarray, list[list[int]]]:
     points = np.frombuffer(content, dtype=">f4", count=3 * n, offset=start).astype(float).reshape(n, 3)
     offset = start + 12 * n + vert_bytes
     flat = np.frombuffer(content, dtype=">u4", count=line_bytes // 4, offset=offset).tolist()
-    lines, i = [], 0
+    lines: list[list[int]] = []
+    i = 0
     while i < len(flat) and len(lines) < n_lines:
         count = flat[i]
         lines.append(flat[i + 1:i + 1 + count])

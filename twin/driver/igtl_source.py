@@ -418,7 +418,7 @@ MAX_POSE_BODY_BYTES = 64 * 1024
 def _is_pose(pose: igtl.Pose) -> bool:
     """Finite translation and a proper rotation (orthonormal, determinant +1, within float32 rounding)."""
     r = pose.rotation
-    if not (np.isfinite(pose.translation).all() and np.isfinite(r).all()):
+    if r is None or not (np.isfinite(pose.translation).all() and np.isfinite(r).all()):
         return False
     return bool(np.abs(r.T @ r - np.eye(3)).max() < _ROTATION_TOLERANCE and np.linalg.det(r) > 0)
 

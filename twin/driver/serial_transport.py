@@ -24,7 +24,7 @@ import serial
 
 from twin.driver.errors import DeviceDisconnected, DeviceError
 from twin.driver.inbox import Inbox
-from twin.driver.transport import Transport
+from twin.driver.transport import Clock, Transport
 
 __all__ = ["SerialTransport"]
 
@@ -47,7 +47,7 @@ class SerialTransport(Transport):
         url: the device URL, for messages.
     """
 
-    clock = "wall"
+    clock = Clock.WALL
 
     def __init__(self, port: str, *, url: str | None = None):
         self.port = port
@@ -97,10 +97,13 @@ class SerialTransport(Transport):
                 self._last_write_s = time.monotonic()
         if error is not None:
             # Outside the lock: whoever is told of the loss may want to write.
-            self._inbox.lost(error, writable=False)
+            if self._inbox is not None:
+                self._inbox.lost(error, writable=False)
             raise error from cause
 
     def wait_until(self, predicate: Callable[[], bool], timeout_s: float) -> bool:
+        if self._inbox is None:
+            raise DeviceDisconnected(f"{self.url}: not connected")
         condition = self._inbox.condition
         deadline_s = time.monotonic() + max(0.0, timeout_s)
         keepalive_s = self._keepalive_s
@@ -165,7 +168,7 @@ class SerialTransport(Transport):
         """Send the PING if one is due; False if it failed (the inbox holds the loss, and the
         host's next wait or command raises it)."""
         period_s, ping = self._keepalive_s, self._ping
-        if period_s is None or time.monotonic() - self._last_write_s < period_s:
+        if period_s is None or ping is None or time.monotonic() - self._last_write_s < period_s:
             return True
         try:
             ping()
@@ -180,6 +183,8 @@ class SerialTransport(Transport):
 
     def _read_loop(self) -> None:
         port, inbox = self._serial, self._inbox
+        if port is None or inbox is None:
+            return  # started by open(), which sets both
         try:
             while not self._stop.is_set():
                 try:

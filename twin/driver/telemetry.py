@@ -9,10 +9,15 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from twin.driver import codec
+
+if TYPE_CHECKING:
+    # The transport imports the inbox, which imports this module.
+    from twin.driver.transport import Clock
 
 __all__ = ["DeviceInfo", "Telemetry"]
 
@@ -106,7 +111,7 @@ class DeviceInfo:
 
     Attributes:
         url: the device URL.
-        clock: ``"simulated"`` or ``"wall"`` (see :attr:`twin.driver.Device.clock`).
+        clock: how the device's time advances (:attr:`twin.driver.Device.clock`).
         protocol_version: the board's protocol version (equal to the host's once connected).
         firmware_version: (major, minor, patch).
         channels: motors / load cells (the robot's tendon count once connected).
@@ -116,7 +121,7 @@ class DeviceInfo:
     """
 
     url: str
-    clock: str
+    clock: Clock
     protocol_version: int
     firmware_version: tuple[int, int, int]
     channels: int
@@ -125,12 +130,12 @@ class DeviceInfo:
     tendon_m_per_count: float
 
     @classmethod
-    def from_reply(cls, reply: codec.HelloReply, *, url: str, clock: str) -> "DeviceInfo":
+    def from_reply(cls, reply: codec.HelloReply, *, url: str, clock: Clock) -> "DeviceInfo":
         return cls(
             url=url,
             clock=clock,
             protocol_version=reply.protocol_version,
-            firmware_version=tuple(reply.firmware_version),
+            firmware_version=(reply.firmware_version[0], reply.firmware_version[1], reply.firmware_version[2]),
             channels=reply.channels,
             control_period_s=reply.control_period_us / 1e6,
             telemetry_period_s=reply.telemetry_period_us / 1e6,

@@ -18,11 +18,19 @@ else in the process is still running.
 from __future__ import annotations
 
 import abc
+import enum
 from typing import Callable, ContextManager
 
 from twin.driver.inbox import Inbox
 
-__all__ = ["Transport"]
+__all__ = ["Clock", "Transport"]
+
+
+class Clock(enum.StrEnum):
+    """How a transport's time advances (module doc); the value is what the reports spell."""
+
+    WALL = "wall"
+    SIMULATED = "simulated"
 
 
 class Transport(abc.ABC):
@@ -30,11 +38,11 @@ class Transport(abc.ABC):
 
     Attributes:
         url: the device URL this transport was made for.
-        clock: ``"simulated"`` or ``"wall"``.
+        clock: how its time advances.
     """
 
     url: str
-    clock: str
+    clock: Clock
 
     @abc.abstractmethod
     def open(self, inbox: Inbox, *, timeout_s: float) -> None:

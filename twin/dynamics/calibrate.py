@@ -38,12 +38,14 @@ from __future__ import annotations
 import dataclasses
 import math
 import time
+from typing import Any
 
 import numpy as np
 from scipy import optimize
 from tqdm import tqdm
 
 from twin import effects
+from twin.discrepancy.verdict import Verdict
 from twin.dynamics.protocols import Series
 from twin.dynamics.replay import GROUPS, Comparison, compare, replay
 from twin.effects import FitParameter
@@ -125,7 +127,7 @@ class DynamicResult:
     """What :func:`calibrate` found.
 
     Attributes:
-        verdict: ``"effect"``, ``"none"``, ``"ambiguous"`` or ``"unexplained"``.
+        verdict: the answer (:class:`twin.discrepancy.verdict.Verdict`).
         named: the effect named (``"effect"`` only), else None.
         tied: the candidates of an ambiguous answer.
         fits: every candidate's fit, best held-out score first (empty for ``"none"``).
@@ -138,7 +140,7 @@ class DynamicResult:
         wall_s: wall time of the calibration (s).
     """
 
-    verdict: str
+    verdict: Verdict
     named: str | None
     tied: list[str]
     fits: list[CandidateFit]
@@ -155,32 +157,36 @@ class DynamicResult:
     @property
     def effects(self) -> list[str]:
         """Every effect named: one, or the two of a pair."""
-        if self.verdict != "effect":
+        if self.verdict != Verdict.EFFECT:
             return []
-        return [f.effect for f in self.pair] if self.pair else [self.named]
+        if self.pair:
+            return [f.effect for f in self.pair]
+        return [self.named] if self.named is not None else []
 
     @property
     def named_fits(self) -> list[CandidateFit]:
         """The fits of the named effects (:attr:`effects`)."""
-        if self.verdict != "effect":
+        if self.verdict != Verdict.EFFECT:
             return []
         return list(self.pair) if self.pair else [self.fits[0]]
 
     def statement(self) -> str:
         """One line: the verdict in words."""
-        if self.verdict == "none":
+        if self.verdict == Verdict.NONE:
             return "none: the replay gap is at the noise level; no dynamic effect is missing"
-        if self.verdict == "effect":
+        if self.verdict == Verdict.EFFECT:
             fits = self.named_fits
             score = fits[0].heldout_score
             left = ("to the noise level" if score < NOISE_SCORE else
                     f"to {score:.3g} times the noise level's square: more than noise remains")
             what = " and ".join(f"{f.effect} ({f.parameter.key} = {f.value:.4g})" for f in fits)
             return f"effect: {what}; held-out score {self.score_before[1]:.3g} -> {score:.3g}, {left}"
-        if self.verdict == "ambiguous":
+        if self.verdict == Verdict.AMBIGUOUS:
             return f"ambiguous: {' and '.join(self.tied)} explain the held-out experiments equally well"
-        best = self.fits[0] if self.fits else None
         where = ", ".join(f"{g} {self.before.group_rms(g):.3g}" for g in GROUPS)
+        if not self.fits:
+            return f"unexplained: the library has no dynamic candidate to try; held-out RMS gaps {where}"
+        best = self.fits[0]
         return (f"unexplained: no candidate explains the held-out gap (best {best.effect}: score "
                 f"{self.score_before[1]:.3g} -> {best.heldout_score:.3g}, above {NOISE_SCORE:g} and a gain under "
                 f"{MIN_GAIN:g}); "
@@ -282,7 +288,7 @@ class _Trial:
     def best(self) -> tuple[float, float]:
         """(x, mean training score) of the best replay so far."""
         scores = {x: self.train.score(c) for x, c in self.replays.items()}
-        x = min(scores, key=scores.get)
+        x = min(scores, key=scores.__getitem__)
         return x, scores[x]
 
 
@@ -362,10 +368,10 @@ def calibrate(measured: list[Series], params: Params, base_rotation, *, training
     before_test = test.comparison(nominal)
     score_before = (train.score(train.comparison(nominal)), test.score(before_test))
     noise_out = {s.experiment.name: n for s, n in zip(measured, noise)}
-    common = dict(training=train.names, heldout=test.names, before=before_test, score_before=score_before,
+    common: dict[str, Any] = dict(training=train.names, heldout=test.names, before=before_test, score_before=score_before,
                   noise=noise_out)
     if max(score_before) < NOISE_SCORE:
-        return DynamicResult("none", None, [], [], after=None, params_after=None,
+        return DynamicResult(Verdict.NONE, None, [], [], after=None, params_after=None,
                              wall_s=time.perf_counter() - start, **common)
     candidates = effects.dynamic_candidates(params)
     with tqdm(total=len(candidates) + REFINED, desc="dynamic candidates", unit="fit", disable=not progress,
@@ -395,22 +401,22 @@ def calibrate(measured: list[Series], params: Params, base_rotation, *, training
             close = [" + ".join(f.effect for f in p) for p in pairs
                      if p[0].heldout_score < TIE_FACTOR * pairs[0][0].heldout_score]
             if len(close) > 1:
-                return DynamicResult("ambiguous", None, close, fits, after=None, params_after=None,
+                return DynamicResult(Verdict.AMBIGUOUS, None, close, fits, after=None, params_after=None,
                                      wall_s=time.perf_counter() - start, **common)
             pair = pairs[0]
             fitted = params.replace({f.parameter.key: f.value for f in pair},
                                     source=f"fitted: twin dynamics calibrate on {', '.join(common['training'])}")
-            return DynamicResult("effect", pair[0].effect, [], fits, after=test.comparison_of(fitted, base_rotation),
+            return DynamicResult(Verdict.EFFECT, pair[0].effect, [], fits, after=test.comparison_of(fitted, base_rotation),
                                  params_after=fitted, wall_s=time.perf_counter() - start, pair=list(pair), **common)
     if not explains:
-        return DynamicResult("unexplained", None, [], fits, after=None, params_after=None,
+        return DynamicResult(Verdict.UNEXPLAINED, None, [], fits, after=None, params_after=None,
                              wall_s=time.perf_counter() - start, **common)
     tied = [f.effect for f in fits if f.heldout_score < TIE_FACTOR * best.heldout_score]
     if len(tied) > 1:
-        return DynamicResult("ambiguous", None, tied, fits, after=None, params_after=None,
+        return DynamicResult(Verdict.AMBIGUOUS, None, tied, fits, after=None, params_after=None,
                              wall_s=time.perf_counter() - start, **common)
     fitted = params.replace({best.parameter.key: best.value},
                             source=f"fitted: twin dynamics calibrate on {', '.join(common['training'])}")
     after = test.comparison_of(fitted, base_rotation)
-    return DynamicResult("effect", best.effect, [], fits, after=after, params_after=fitted,
+    return DynamicResult(Verdict.EFFECT, best.effect, [], fits, after=after, params_after=fitted,
                          wall_s=time.perf_counter() - start, **common)

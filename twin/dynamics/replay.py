@@ -37,7 +37,7 @@ TRIM = 0.03
 def replay_params(params: Params, base_rotation, *, noiseless: bool = True) -> Params:
     """``params`` as the replay's twin runs it: in the recorded pose, with noiseless sensors
     unless ``noiseless`` is False."""
-    changes = {"rig.base_quat": [float(q) for q in matrix_to_quat(np.asarray(base_rotation))]}
+    changes: dict[str, object] = {"rig.base_quat": [float(q) for q in matrix_to_quat(np.asarray(base_rotation))]}
     if noiseless:
         changes.update({"sensors.loadcell_noise_n": 0.0, "sensors.tracker_noise_m": 0.0,
                         "sensors.tracker_noise_rad": 0.0})

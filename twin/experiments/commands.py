@@ -117,9 +117,9 @@ def _calibration(args, params, device) -> dict:
     if args.calibration:
         from twin.calibration import load_calibration
 
-        cal = load_calibration(args.calibration)
-        device.set_calibration(cal)
-        return {**cal.to_dict(), "file": str(args.calibration)}
+        loaded = load_calibration(args.calibration)
+        device.set_calibration(loaded)
+        return {**loaded.to_dict(), "file": str(args.calibration)}
     cal = nominal_calibration(params)
     apply_calibration(device, cal)
     return cal

@@ -6,6 +6,18 @@ Example:
     >>> # est = estimate_tip_wrench(load_params(), tensions_n, tip_position_m, tip_rotation)
 """
 
-from twin.force.estimator import WrenchEstimate, estimate_tip_wrench, rotation_vector
+from typing import TYPE_CHECKING
+
+from twin.lazy import lazy_exports
+
+if TYPE_CHECKING:
+    from twin.force.estimator import WrenchEstimate, estimate_tip_wrench, rotation_vector
+
+# name → the module that defines it, imported when the name is first used
+_EXPORTS = {
+    "WrenchEstimate": "twin.force.estimator", "estimate_tip_wrench": "twin.force.estimator",
+    "rotation_vector": "twin.force.estimator",
+}
+__getattr__, __dir__ = lazy_exports(__name__, _EXPORTS)
 
 __all__ = ["WrenchEstimate", "estimate_tip_wrench", "rotation_vector"]

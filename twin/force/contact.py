@@ -71,8 +71,8 @@ class ContactDetector:
 
     def reset(self) -> None:
         """Forget the baseline and the flag: the next estimate is the new unloaded tip."""
-        self.baseline = None
-        self.baseline_cov = None
+        self.baseline: np.ndarray | None = None
+        self.baseline_cov: np.ndarray | None = None
         self.cusum = 0.0
         self.contact = False
 

@@ -286,9 +286,10 @@ def estimate_tip_wrench(params: Params, tensions_n, tip_position_m, tip_rotation
 
     converged = False
     iterations = 0
-    jac = weight = None
+    jac: np.ndarray | None = None
+    weight: np.ndarray | None = None
     chi2 = float("nan")
-    if warm:
+    if warm and previous is not None and previous.unknowns is not None:
         # Near the answer already: Gauss-Newton steps, damped only if one fails to decrease the cost.
         damping = 1e-9
         theta = previous.unknowns.copy()
@@ -304,7 +305,7 @@ def estimate_tip_wrench(params: Params, tensions_n, tip_position_m, tip_rotation
             break
         # Nearby loads start from this shape and its shooting Jacobian (Broyden updates of it).
         guess = sol
-        if warm and iterations == 1:
+        if warm and iterations == 1 and previous is not None:
             # The load moves little between two estimates at 40 Hz: the last Jacobian takes the
             # first step. Later steps linearise afresh: repeated steps with a stale Jacobian
             # contract slowly where the pose is noisy (single tracker frames), and their fixed
@@ -313,6 +314,7 @@ def estimate_tip_wrench(params: Params, tensions_n, tip_position_m, tip_rotation
         elif linearised is not sol:
             jac, weight = linearise(sol)
             linearised = sol
+        assert jac is not None and weight is not None, "linearised on the first iteration"
         chi2 = float(residual @ weight @ residual)
         info = jac.T @ weight @ jac
         gradient = jac.T @ weight @ residual - prior * theta
@@ -350,6 +352,7 @@ def estimate_tip_wrench(params: Params, tensions_n, tip_position_m, tip_rotation
     if solved:
         if linearised is not sol:
             jac, weight = linearise(sol)
+        assert jac is not None and weight is not None, "linearised on the first iteration"
         chi2 = float(residual @ weight @ residual)
     nan3 = np.full(3, np.nan)
     if not solved or jac is None:

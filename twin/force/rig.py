@@ -8,6 +8,8 @@ fused frames, as it would on a rig.
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 from scipy.stats import chi2
 
@@ -115,7 +117,7 @@ def contact_run(device, params, *, clean_s: float = 20.0, loads_n=(), load_hold_
     zero = pretension_straight(device, params, mode="lengths")
     settle_s = device.fixture.settle_s
     device.fixture.settle_s = 0.0  # a load appears at once, as a contact does
-    state = {"previous": None, "times": []}
+    state: dict[str, Any] = {"previous": None, "times": []}
     sliding = SlidingState(device.info.tendon_m_per_count)
     sliding.follow(device.drain())
     start = device.time_s

@@ -13,7 +13,15 @@ Example:
     True
 """
 
-import importlib
+from typing import TYPE_CHECKING
+
+from twin.lazy import lazy_exports
+
+if TYPE_CHECKING:
+    from twin.rod.jacobian import TipJacobian, solve_with_jacobian, tip_jacobian
+    from twin.rod.model import RodModel, TendonRoute
+    from twin.rod.solver import (ConvergenceError, LoadCase, NewtonIteration, Predictor, RodSolution, SolverStatus,
+                                 solve, solve_batch)
 
 # name → the module that defines it
 _EXPORTS = {
@@ -23,18 +31,6 @@ _EXPORTS = {
     "Predictor": "twin.rod.solver", "RodSolution": "twin.rod.solver", "SolverStatus": "twin.rod.solver",
     "solve": "twin.rod.solver", "solve_batch": "twin.rod.solver",
 }
+__getattr__, __dir__ = lazy_exports(__name__, _EXPORTS)
 
 __all__ = sorted(_EXPORTS)
-
-
-def __getattr__(name: str):
-    module = _EXPORTS.get(name)
-    if module is None:
-        raise AttributeError(f"module 'twin.rod' has no attribute {name!r}")
-    value = getattr(importlib.import_module(module), name)
-    globals()[name] = value
-    return value
-
-
-def __dir__() -> list[str]:
-    return sorted(set(globals()) | _EXPORTS.keys())

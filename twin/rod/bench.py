@@ -125,6 +125,8 @@ def _batch_and_loop(model: RodModel, tensions: np.ndarray, forces: np.ndarray, p
             best_batch = batch
         if best_loop is None or loop.cpu_s < best_loop.cpu_s:
             best_loop = loop
+    if best_batch is None or best_loop is None:
+        raise ValueError(f"rounds = {rounds!r}: must be >= 1")
     return best_batch, best_loop
 
 
@@ -154,6 +156,8 @@ def integration_s(model: RodModel, solution, *, count: int = 2000, rounds: int =
             _integrate_repeatedly(m0, rod, states, strains, count)
         if best is None or watch.cpu_s < best.cpu_s:
             best = watch
+    if best is None:
+        raise ValueError(f"rounds = {rounds!r}: must be >= 1")
     return best.cpu_s / count, best.wall_s / count
 
 

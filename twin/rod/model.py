@@ -148,14 +148,14 @@ class RodModel:
     def arrays(self) -> dict[str, np.ndarray]:
         """Compiled-kernel inputs that do not depend on the load case."""
         L = self.length_m
-        events = {0.0, L}
+        event_set = {0.0, L}
         for t in self.tendons:
             if t.end_m is not None and t.end_m < L:
-                events.add(float(t.end_m))
+                event_set.add(float(t.end_m))
         for s, _ in self.point_masses:
             if s < L:
-                events.add(float(s))
-        events = sorted(events)
+                event_set.add(float(s))
+        events = sorted(event_set)
         h = L / self.steps
         nodes = [0.0]
         mids = []

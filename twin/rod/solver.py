@@ -9,11 +9,11 @@ from __future__ import annotations
 
 import dataclasses
 import functools
-import math
 import time
 
 import numpy as np
 
+from twin.checks import finite_vector
 from twin.rod import kernel
 from twin.rod.kernel import RodInputs, SolverStatus
 from twin.rod.model import RodModel
@@ -97,7 +97,7 @@ class LoadCase:
         # Checked in plain Python floats: a load is a handful of numbers, and numpy's per-call
         # overhead on them would cost more than the rod's integration.
         nt = model.tendon_count
-        tensions = _vector(tensions_n, nt, "tensions_n")
+        tensions = finite_vector("tensions_n", tensions_n, nt)
         if any(t < 0 for t in tensions.tolist()):
             raise ValueError(f"tensions_n = {tensions.tolist()}: tendons only pull; tensions must be >= 0")
         if base_rotation is None:
@@ -109,13 +109,13 @@ class LoadCase:
         if friction_direction is None:
             direction = np.ones(nt)
         else:
-            direction = np.clip(_vector(friction_direction, nt, "friction_direction"), -1.0, 1.0)
+            direction = np.clip(finite_vector("friction_direction", friction_direction, nt), -1.0, 1.0)
         return cls(
             tensions_n=tensions,
-            tip_force_n=np.zeros(3) if tip_force_n is None else _vector(tip_force_n, 3, "tip_force_n"),
-            tip_moment_nm=np.zeros(3) if tip_moment_nm is None else _vector(tip_moment_nm, 3, "tip_moment_nm"),
+            tip_force_n=np.zeros(3) if tip_force_n is None else finite_vector("tip_force_n", tip_force_n, 3),
+            tip_moment_nm=np.zeros(3) if tip_moment_nm is None else finite_vector("tip_moment_nm", tip_moment_nm, 3),
             base_rotation=rot,
-            base_position_m=np.zeros(3) if base_position_m is None else _vector(base_position_m, 3, "base_position_m"),
+            base_position_m=np.zeros(3) if base_position_m is None else finite_vector("base_position_m", base_position_m, 3),
             friction_direction=direction,
         )
 
@@ -124,13 +124,6 @@ class LoadCase:
         return dataclasses.replace(self, tensions_n=self.tensions_n * factor,
                                    tip_force_n=self.tip_force_n * factor,
                                    tip_moment_nm=self.tip_moment_nm * factor)
-
-
-def _vector(value, n, name) -> np.ndarray:
-    arr = np.asarray(value, dtype=float).reshape(-1)
-    if arr.size != n or not all(map(math.isfinite, arr.tolist())):
-        raise ValueError(f"{name} = {np.asarray(value).tolist()!r}: expected {n} finite numbers")
-    return arr
 
 
 # The bytes of base rotations already found proper (a stream passes the same one every time);
@@ -337,7 +330,7 @@ def _solve_load(model, load, guess_nm, continuation, raise_on_failure, guess_jac
     strains = np.empty((k, 6))
     strains[0] = np.nan  # no base strains to start from (kernel.integrate)
     m0 = (_initial_guess(model, load) if guess_nm is None else np.array(guess_nm, dtype=float)).copy()
-    log = []
+    log: list[tuple[float, np.ndarray]] = []
     rod = rod_inputs(model, load)
     code, res, iters, calls, jac = _run(model, rod, m0, states, strains, log, guess_jacobian)
     steps_taken = 0

@@ -36,6 +36,7 @@ the fewest to the most elements over the growth of ``factor_s``, at most 1.
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import mujoco
 import numpy as np
@@ -88,7 +89,7 @@ def bench_sim(params: Params | None = None, *, duration_s: float = 2.0, elements
         settle = plant.settle()
     # The same bend held by tension sources: every tendon taut, so every step is a full one.
     taut, _ = _best_realtime_factor(plant, duration_s)
-    figures = {
+    figures: dict[str, Any] = {
         "steps_per_s": best / plant.timestep_s,
         "realtime_factor": best,
         "realtime_factor_wall": best_wall,

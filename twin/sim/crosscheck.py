@@ -27,7 +27,7 @@ import functools
 import math
 import time
 from pathlib import Path
-from typing import Sequence
+from typing import Any, Sequence
 
 import numpy as np
 
@@ -61,7 +61,7 @@ QUICK_GRID = [row for row in validation_grid() if row[0] < 2 or row[3] == max(GR
 # One thing changed against the defaults per study: (name, parameter overrides — "tendon_sites"
 # is the plant's routing override —, whether the predictor sees the change too, settling
 # tolerance m, why it matters).
-CAUSES = (
+CAUSES: tuple[tuple[str, dict[str, Any], bool, float, str], ...] = (
     ("N = 20 elements", {"sim.elements": 20}, False, 1e-6,
      "element count: the ends of the chain are straight half-elements and a tip load is lumped by "
      "the midpoint rule, both errors falling as 1/N²; N = 20 runs at a quarter of the speed."),

@@ -331,10 +331,11 @@ class TendonLength:
         gradient = np.zeros((count, len(joints)))
         hessian = np.zeros((count, len(joints), len(joints)))
         e_idx, a_idx = np.nonzero(present)
-        np.add.at(gradient, (slice(None), slot[e_idx, a_idx]), grad[:, e_idx, a_idx])
+        # numpy's stubs give ufunc.at integer indices only; a tuple of index arrays is what it takes at run time.
+        np.add.at(gradient, (slice(None), slot[e_idx, a_idx]), grad[:, e_idx, a_idx])  # type: ignore[arg-type]
         pairs = [(e, a, b) for e, a in zip(e_idx, a_idx) for b in np.nonzero(present[e])[0]]
         pe, pa, pb = (np.array(x) for x in zip(*pairs))
-        np.add.at(hessian, (slice(None), slot[pe, pa], slot[pe, pb]), hess[:, pe, pa, pb])
+        np.add.at(hessian, (slice(None), slot[pe, pa], slot[pe, pb]), hess[:, pe, pa, pb])  # type: ignore[arg-type]
         return cls(tuple(joints), gradient, hessian)
 
     def geometric_stiffness(self, model: mujoco.MjModel, *, rtol: float = 1e-12) -> GeometricStiffness:

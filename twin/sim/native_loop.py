@@ -20,6 +20,7 @@ import importlib.metadata
 import importlib.util
 import subprocess
 from pathlib import Path
+from typing import Any
 
 from twin.resources import NativeBuildError, build_cached, resource_path
 from twin.sim.sensors import NoiseStream
@@ -31,7 +32,10 @@ LIB_NAME = "libtwinloop.so"
 ABI_VERSION = 10
 # Where the mujoco wheel lives (headers, libmujoco), found without importing it: MuJoCo picks its
 # GL backend on first import, which the twin package arranges for (headless EGL).
-_MUJOCO_DIR = Path(importlib.util.find_spec("mujoco").submodule_search_locations[0])
+_MUJOCO_SPEC = importlib.util.find_spec("mujoco")
+if _MUJOCO_SPEC is None or not _MUJOCO_SPEC.submodule_search_locations:
+    raise ImportError("twin.sim needs the mujoco package (a dependency of twin: pip install mujoco)")
+_MUJOCO_DIR = Path(_MUJOCO_SPEC.submodule_search_locations[0])
 
 
 class NativeLoopError(NativeBuildError):
@@ -50,7 +54,7 @@ class Reason(enum.IntEnum):
 
 
 class Mode(enum.IntEnum):
-    """The spools' drive (``enum bl_mode``); :data:`twin.sim.plant.MODES` names them in this order."""
+    """The spools' drive (``enum bl_mode``); :class:`twin.sim.plant.DriveMode` names them."""
 
     PWM = 0
     COAST = 1
@@ -125,10 +129,11 @@ def load() -> "_Library":
     count = ctypes.c_uint32()
     table = lib.bl_state_fields(ctypes.byref(count))
     fields = [table[i] for i in range(count.value)]
-    LoopState._fields_ = [(f.name.decode(), _KINDS[f.kind.decode()] * f.count if f.count > 1 else _KINDS[f.kind.decode()])
-                          for f in fields]
+    layout: list[Any] = [(f.name.decode(), _KINDS[f.kind.decode()] * f.count if f.count > 1 else _KINDS[f.kind.decode()])
+                         for f in fields]
+    LoopState._fields_ = layout
     offsets = {f.name.decode(): f.offset for f in fields}
-    misplaced = [name for name, _ in LoopState._fields_ if getattr(LoopState, name).offset != offsets[name]]
+    misplaced = [name for name, *_ in LoopState._fields_ if getattr(LoopState, name).offset != offsets[name]]
     if misplaced or ctypes.sizeof(LoopState) != lib.bl_state_size():
         raise NativeLoopError(f"{path}: ctypes lays out bl_state differently from g++ ({misplaced})")
     state = ctypes.POINTER(LoopState)
@@ -141,8 +146,12 @@ def load() -> "_Library":
     lib.bl_set_drive.restype = None
     lib.bl_encoder_counts.argtypes = [p, state, ctypes.POINTER(ctypes.c_int32)]
     lib.bl_encoder_counts.restype = None
-    mujoco_fns = {name: ctypes.cast(getattr(mujoco_lib, name), ctypes.c_void_p).value
-                  for name in ("mj_step", "mj_forward")}
+    mujoco_fns = {}
+    for name in ("mj_step", "mj_forward"):
+        address = ctypes.cast(getattr(mujoco_lib, name), ctypes.c_void_p).value
+        if address is None:
+            raise NativeLoopError(f"{mujoco_lib}: {name} resolves to a null address")
+        mujoco_fns[name] = address
     return _Library(lib, int(lib.bl_max_channels()), mujoco_fns)
 
 
@@ -180,14 +189,18 @@ class PlantLoop:
         s.step_fn = library.mujoco_fns["mj_step"]
         s.forward_fn = library.mujoco_fns["mj_forward"]
         self._noise: NoiseStream | None = None
-        self._hook = None
+        self._hook: object | None = None  # the ctypes callback, kept alive while the loop may call it
         self._values = (ctypes.c_double * library.max_channels)()
         self._counts = (ctypes.c_int32 * library.max_channels)()
 
     def set_hook(self, hook) -> None:
         """Call ``hook()`` before every physics step (None: no hook)."""
-        self._hook = None if hook is None else _HOOK(hook)
-        self.state.hook_fn = None if hook is None else ctypes.cast(self._hook, ctypes.c_void_p).value
+        if hook is None:
+            self._hook = self.state.hook_fn = None
+            return
+        callback = _HOOK(hook)
+        self._hook = callback
+        self.state.hook_fn = ctypes.cast(callback, ctypes.c_void_p).value
 
     def set_noise(self, noise: NoiseStream) -> None:
         """Draw the sensors' noise from ``noise`` (a new stream with each reset)."""
@@ -235,4 +248,6 @@ class PlantLoop:
             self._refill()
 
     def _refill(self) -> None:
+        if self._noise is None:
+            raise NativeLoopError("the plant loop asked for sensor noise before set_noise() gave it a stream")
         self.state.noise_cursor = self._noise.refill(self.state.noise_cursor)

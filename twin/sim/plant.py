@@ -21,6 +21,7 @@ seeded at construction, so a run is reproducible from its seed.
 from __future__ import annotations
 
 import dataclasses
+import enum
 import math
 import time
 
@@ -28,6 +29,7 @@ import mujoco
 import numpy as np
 
 from twin import effects
+from twin.checks import finite_vector
 from twin.effects.tendon_friction import TendonFriction
 from twin.params import Params, load_params
 from twin.sim.model import (ACTUATOR_GROUPS, SPOOL_TRAVEL_M, Layout, TendonLength, build_model,
@@ -36,9 +38,21 @@ from twin.sim.motor import MotorConstants
 from twin.sim.native_loop import Mode, PlantLoop, Reason
 from twin.sim.sensors import HX711_RANGE_COUNTS, LoadCellSample, NoiseStream, TrackerSample, probe_layout
 
-__all__ = ["ENGAGE_MAX_STEP_S", "MODES", "Plant", "SettleResult", "SimulationError"]
+__all__ = ["DriveMode", "ENGAGE_MAX_STEP_S", "Plant", "SettleResult", "SimulationError"]
 
-MODES = tuple(mode.name.lower() for mode in Mode)
+
+class DriveMode(enum.StrEnum):
+    """How the spools are driven (:attr:`Plant.mode`): the loop's :class:`twin.sim.native_loop.Mode`
+    by name, valued as the reports spell it."""
+
+    PWM = "pwm"
+    COAST = "coast"
+    TENSION = "tension"
+    LENGTH = "length"
+
+
+# The loop's mode numbers → DriveMode; a KeyError here when the two enums part ways.
+_DRIVE_MODES = tuple(DriveMode[mode.name] for mode in Mode)
 
 
 # Taking up a slack tendon: the discrete integrator linearises the tendon's dead-band spring where
@@ -196,7 +210,8 @@ class Plant:
         self.data.eq_active[self._holder] = False
         self.loop.reset()
         self.clear_peak_tensions()
-        self._loadcell = self._tracker_frame = None
+        self._loadcell: LoadCellSample | None = None
+        self._tracker_frame: TrackerSample | None = None
         self._warnings_seen = self.data.warning.number.copy()
 
     @property
@@ -210,9 +225,9 @@ class Plant:
         return float(self._dt)
 
     @property
-    def mode(self) -> str:
-        """The drive mode: one of :data:`MODES`."""
-        return MODES[self.loop.state.mode]
+    def mode(self) -> DriveMode:
+        """How the spools are driven now."""
+        return _DRIVE_MODES[self.loop.state.mode]
 
     @property
     def short_steps(self) -> int:
@@ -262,10 +277,7 @@ class Plant:
         """Apply a force (N) and a moment (N·m), both in the world frame, at the tip, where a
         hung mass hangs: a sideways push, a contact, a probe's cable. Zeros remove it; it adds
         to a hung mass's weight."""
-        wrench = np.concatenate([np.asarray(force_n, dtype=float).reshape(-1),
-                                 np.asarray(moment_nm, dtype=float).reshape(-1)])
-        if wrench.shape != (6,) or not np.isfinite(wrench).all():
-            raise ValueError(f"force_n = {force_n!r}, moment_nm = {moment_nm!r}: expected 3 finite numbers each")
+        wrench = np.concatenate([finite_vector("force_n", force_n, 3), finite_vector("moment_nm", moment_nm, 3)])
         self.loop.state.jump = 1
         self.data.xfrc_applied[self._tip_load] = wrench
 
@@ -439,10 +451,7 @@ class Plant:
 
     # ----------------------------------------------------------------------------- internals
     def _vector(self, name: str, value) -> np.ndarray:
-        v = np.asarray(value, dtype=float).reshape(-1)
-        if v.shape != (self.tendon_count,) or not np.isfinite(v).all():
-            raise ValueError(f"{name} = {value!r}: expected {self.tendon_count} finite numbers")
-        return v
+        return finite_vector(name, value, self.tendon_count)
 
     def _set_dynamics(self, dynamics: effects.PlantDynamics, spool_joints) -> None:
         """The rig's dynamic imperfections (:class:`twin.effects.PlantDynamics`): the loop's in its
