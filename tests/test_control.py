@@ -162,6 +162,16 @@ def test_compensation_reaches_the_goal_under_a_tendon_friction_the_model_does_no
 STIFF = load_robot("stiff-long")
 
 
+def test_other_motors_get_gains_asking_the_same_pull_per_newton():
+    # Twice the stall torque: a duty pulls twice as hard, so the gains halve and the clamp too
+    # (the clamped pull stays 0.9 of the limit).
+    strong = PARAMS.replace({"rig.motor_stall_torque_nm": 2 * PARAMS.rig.motor_stall_torque_nm})
+    mine, theirs = tension_gains_for(PARAMS), tension_gains_for(strong)
+    for key in ("kp", "ki", "output_limit"):
+        assert theirs[key] == pytest.approx(mine[key] / 2), key
+    assert mine == pytest.approx(TUNED_TENSION_GAINS)
+
+
 def test_a_stiff_robot_gets_a_grid_and_a_ceiling_its_tensions_can_hold():
     gains = tension_gains_for(STIFF)
     ceiling = tension_ceiling_n(STIFF, gains)

@@ -99,7 +99,7 @@ void Controller::step(const Measurements& now, float dt_s, const float* lowest, 
       const float least_m = -clamp_range(kMaxLengthLeadM + lead_m, 0.0f, ramp_m);
       const float move_m = clamp_range(targets_[i] - reference, least_m, most_m);
       reference += move_m;
-      feedforward = move_m / dt_s / kNoLoadSpeedMPerS;
+      feedforward = move_m / dt_s / no_load_speed_m_per_s_;
     }
     // In tension mode the loop runs on −tension: paying out (positive duty) lowers tension.
     const float sign = mode_ == Mode::kTension ? -1.0f : 1.0f;

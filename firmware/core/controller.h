@@ -46,6 +46,9 @@ class Controller {
   float length_rate() const { return length_rate_m_s_; }
   void set_length_rate(float length_rate_m_s) { length_rate_m_s_ = length_rate_m_s; }
   // Fastest the tension references move (N/s).
+  // Tendon speed of an unloaded motor at full duty (m/s): a ramp's speed is fed forward as the
+  // duty it takes.
+  void set_no_load_speed(float no_load_speed_m_per_s) { no_load_speed_m_per_s_ = no_load_speed_m_per_s; }
   float tension_rate() const { return tension_rate_n_per_s_; }
   void set_tension_rate(float tension_rate_n_per_s) { tension_rate_n_per_s_ = tension_rate_n_per_s; }
 
@@ -94,6 +97,7 @@ class Controller {
   float references_[kMaxChannels] = {};
   float length_rate_m_s_ = kMaxLengthRateMPerS;
   float tension_rate_n_per_s_ = kTensionRatePerS * kDefaultTensionLimitN;
+  float no_load_speed_m_per_s_ = kDefaultNoLoadSpeedMPerS;
   float last_duty_[kMaxChannels] = {};  // duty of the last step; 0 after restart()
 };
 

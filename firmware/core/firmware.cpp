@@ -117,6 +117,14 @@ void Firmware::set_rated_gain(float counts_per_n) {
   calibrated_ = false;
 }
 
+// The motors the guard and the feedforward derive from; the speed limits follow.
+void Firmware::set_motors(const msg::SetMotors& m) {
+  motors_ = m;
+  guard_.set_motors(m.stall_force_n, m.no_load_speed_m_per_s, m.reflected_mass_kg);
+  controller_.set_no_load_speed(m.no_load_speed_m_per_s);
+  set_tension_limit(safety_.tension_limit_n());
+}
+
 void Firmware::set_tension_limit(float tension_limit_n) {
   guard_.set_tension_limit(tension_limit_n);
   const float rate = guard_.winding_speed_limit();

@@ -70,6 +70,7 @@ class Firmware {
   uint8_t on_set_gains(const msg::SetGains& m);
   uint8_t on_set_calibration(const msg::SetCalibration& m);
   uint8_t on_set_limits(const msg::SetLimits& m);
+  uint8_t on_set_motors(const msg::SetMotors& m);
 
   template <class T>
   void send(const T& message);
@@ -85,6 +86,7 @@ class Firmware {
   void set_outputs(bool may_move);
   void set_tension_limit(float tension_limit_n);
   void set_rated_gain(float counts_per_n);
+  void set_motors(const msg::SetMotors& m);
   void end_session();
 
   size_t channels_;
@@ -117,6 +119,7 @@ class Firmware {
   float offset_counts_[kMaxChannels] = {};
   bool calibrated_ = false;
   float rated_counts_per_n_ = 0.0f;
+  msg::SetMotors motors_{kDefaultStallForceN, kDefaultNoLoadSpeedMPerS, kDefaultReflectedMassKg};
 
   bool handshake_ok_ = false;
   bool motion_held_ = true;

@@ -1,5 +1,7 @@
 #include "guard.h"
 
+#include <cmath>
+
 #include "pid.h"
 
 namespace twinfw {
@@ -13,10 +15,22 @@ Guard::Guard(size_t channels) : channels_(channels < 1 ? 1 : (channels > kMaxCha
 }
 
 void Guard::set_tension_limit(float tension_limit_n) {
+  tension_limit_n_ = tension_limit_n;
   cap_n_ = kPullForceFraction * tension_limit_n;
   // The blow a spool winding in at w deals when its tendon snaps taut lands on the tendons
   // already taut, at most at the cap: the speed that keeps them under the bound.
-  speed_limit_m_s_ = (kBlowBoundFraction - kPullForceFraction) * tension_limit_n / kBlowImpedanceNsPerM;
+  speed_limit_m_s_ = (kBlowBoundFraction - kPullForceFraction) * tension_limit_n / blow_impedance_ns_per_m_;
+}
+
+void Guard::set_motors(float stall_force_n, float no_load_speed_m_per_s, float reflected_mass_kg) {
+  stall_force_n_ = stall_force_n;
+  damping_ns_per_m_ = stall_force_n / no_load_speed_m_per_s;
+  // The blow's impedance √(k m) scales with the root of the rotor's mass at the tendon.
+  blow_impedance_ns_per_m_ = kBlowImpedanceNsPerM * std::sqrt(reflected_mass_kg / kDefaultReflectedMassKg);
+  // Twice the brake's time constant (reflected mass over back-EMF damping), at least kStillUs.
+  const float settle_us = 2.0f * reflected_mass_kg / damping_ns_per_m_ * 1e6f;
+  still_us_ = settle_us > static_cast<float>(kStillUs) ? static_cast<uint32_t>(settle_us) : kStillUs;
+  set_tension_limit(tension_limit_n_);
 }
 
 void Guard::observe(uint64_t now_us, const int32_t* counts, const float* tensions_n, ChannelMask stale_mask) {
@@ -36,7 +50,7 @@ void Guard::observe(uint64_t now_us, const int32_t* counts, const float* tension
   for (size_t i = 0; i < channels_; ++i) {
     if (braked_[i] && still(winding_speed_m_s_[i], kStillSpeedMPerS)) still_braked = static_cast<ChannelMask>(still_braked | (1u << i));
   }
-  still_in_brake_ = braked_still_.update(now_us, still_braked, kStillUs);
+  still_in_brake_ = braked_still_.update(now_us, still_braked, still_us_);
 }
 
 // A tendon that reads taut has no slack to be taken up with a blow: its spool may wind faster.
@@ -55,9 +69,9 @@ float Guard::winding_speed_limit(size_t i) const {
 float Guard::lowest_duty(size_t i) const {
   const float w = winding_speed_m_s_[i];
   const float limit = winding_speed_limit(i);
-  const float pull_n = clamp_range(cap_n_ * (1.0f - w / limit) + kMotorDampingNsPerM * limit, 0.0f, cap_n_);
-  const float back_emf_n = w < 0.0f ? -kMotorDampingNsPerM * w : 0.0f;
-  const float lowest = (back_emf_n - pull_n) / kStallForceN;
+  const float pull_n = clamp_range(cap_n_ * (1.0f - w / limit) + damping_ns_per_m_ * limit, 0.0f, cap_n_);
+  const float back_emf_n = w < 0.0f ? -damping_ns_per_m_ * w : 0.0f;
+  const float lowest = (back_emf_n - pull_n) / stall_force_n_;
   return lowest < 1.0f ? lowest : 1.0f;
 }
 
@@ -67,7 +81,7 @@ float Guard::lowest_duty(size_t i) const {
 // the at-cap margin).
 float Guard::pull_n(size_t i, float duty) const {
   const float w = driven_speed_m_s_[i];
-  return -duty * kStallForceN - (w < 0.0f ? kMotorDampingNsPerM * w : 0.0f);
+  return -duty * stall_force_n_ - (w < 0.0f ? damping_ns_per_m_ * w : 0.0f);
 }
 
 void Guard::drive(const float* command, float* duty, Drive* drive) {

@@ -253,7 +253,7 @@ def tension_ceiling_n(params: Params, gains: dict, *, margin_n: float = 0.5, hea
         margin_n: distance kept from the board's tension limit (N).
         headroom: fraction of the clamped stall force that may be asked for.
     """
-    stall_n = params.rig.motor_stall_torque_nm / params.rig.spool_radius_m
+    stall_n = params.rig.motor_stall_force_n
     return min(params.rig.tension_limit_n - margin_n, headroom * gains["output_limit"] * stall_n)
 
 

@@ -27,6 +27,7 @@ import math
 import urllib.parse
 from typing import Callable
 
+from twin.device import codec
 from twin.device.device import Device
 from twin.device.fixture import OperatorFixture, RemoteFixture, SimFixture
 from twin.device.igtl_source import URL_KEYS as IGTL_KEYS
@@ -98,7 +99,9 @@ def open_device(
                        tension_limit_n=params.rig.tension_limit_n, base_rotation=_pose(url, options, params),
                        tendons=params.tendons.count, robot=robot,
                        loadcell_gain_counts_per_n=params.sensors.loadcell_gain_counts_per_n,
-                       tendon_m_per_count=params.rig.tendon_m_per_count)
+                       tendon_m_per_count=params.rig.tendon_m_per_count,
+                       motors=codec.SetMotors(params.rig.motor_stall_force_n, params.rig.motor_no_load_speed_m_per_s,
+                                              params.rig.motor_reflected_mass_kg))
 
     if parts.scheme == "sim":
         if parts.netloc or parts.path not in ("", "/"):
