@@ -350,7 +350,7 @@ def _solve_load(model, load, guess_nm, continuation, raise_on_failure, guess_jac
     strains[0] = np.nan  # no base strains to start from (kernel.integrate)
     # Both are fresh arrays, which the solve updates in place.
     m0 = _initial_guess(model, load) if guess_nm is None else np.array(guess_nm, dtype=float)
-    log = []
+    log: list[tuple[float, np.ndarray]] = []
     rod = rod_inputs(model, load)
     code, res, iters, calls, jac = _run(model, rod, m0, states, strains, log, guess_jacobian)
     steps_taken = 0
