@@ -330,6 +330,29 @@ def test_a_robot_with_other_motors_is_bounded_by_its_own_motors():
     assert peak_n <= BOUND * limit_n
 
 
+def test_a_rig_with_another_spool_gearbox_and_encoder_runs_on_its_emulated_board():
+    # The emulated board counts its plant's encoders as that rig's (1.23 µm a count here, not the
+    # thesis's 0.94): the host accepts it, and the lengths the board reports are the spools' travel.
+    from twin.control.pretension import pretension_straight
+
+    params = PARAMS.replace({"rig.spool_radius_m": 0.004, "rig.gear_ratio": 5.0, "rig.encoder_counts_per_rev": 2048})
+    count_m = params.rig.tendon_m_per_count
+    with open_device("sim://?seed=0", params=params) as device:
+        assert device.info.tendon_m_per_count == pytest.approx(count_m, rel=1e-6)
+        plant = device.twin._board.plant
+        zero = pretension_straight(device, params, mode="lengths")
+        spools = plant.spool_positions_m()
+        target = zero.copy()
+        target[0] -= 0.0003
+        device.set_lengths(target)
+        device.wait(2.0)
+        moved = plant.spool_positions_m() - spools
+        sample = device.latest()
+    assert sample.state is c.State.ENABLED
+    assert moved[0] < -0.0002
+    assert np.allclose(sample.tendon_lengths_m - zero, moved, atol=2 * count_m)
+
+
 def test_motors_the_firmware_cannot_bound_are_refused_on_the_host():
     from twin.params import ParameterError
 

@@ -94,7 +94,7 @@ uint8_t Firmware::on_hello(const msg::Hello& m) {
                        static_cast<uint8_t>(channels_),
                        kControlPeriodUs,
                        kTelemetryPeriodUs,
-                       kTendonMPerCount});
+                       tendon_m_per_count_});
   return kReplied;
 }
 

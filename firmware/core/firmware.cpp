@@ -4,11 +4,12 @@
 
 namespace twinfw {
 
-Firmware::Firmware(size_t channels)
+Firmware::Firmware(size_t channels, float tendon_m_per_count)
     : channels_(channels < 1 ? 1 : (channels > kMaxChannels ? kMaxChannels : channels)),
+      tendon_m_per_count_(tendon_m_per_count),
       controller_(channels_),
       safety_(channels_),
-      guard_(channels_) {
+      guard_(channels_, tendon_m_per_count) {
   set_rated_gain(1.0f / kDefaultGainNPerCount);
   set_tension_limit(kDefaultTensionLimitN);
 }
@@ -144,7 +145,7 @@ void Firmware::end_session() {
 Measurements Firmware::measure() const {
   Measurements m{};
   for (size_t i = 0; i < channels_; ++i) {
-    m.lengths_m[i] = counts_to_length_m(counts_[i], origin_counts_[i]);
+    m.lengths_m[i] = counts_to_length_m(counts_[i], origin_counts_[i], tendon_m_per_count_);
     m.tensions_n[i] = raw_to_tension_n(raw_counts_[i], gain_n_per_count_[i], offset_counts_[i]);
   }
   return m;

@@ -37,7 +37,7 @@ class Firmware {
   // A board of `channels` motors and load cells (1..kMaxChannels; clamped into that range),
   // as after power-up. HELLO_REPLY reports the count, and every message sized by it must
   // carry it.
-  explicit Firmware(size_t channels = kDefaultChannels);
+  explicit Firmware(size_t channels = kDefaultChannels, float tendon_m_per_count = kTendonMPerCount);
 
   size_t channels() const { return channels_; }
 
@@ -90,6 +90,7 @@ class Firmware {
   void end_session();
 
   size_t channels_;
+  float tendon_m_per_count_;  // the encoders' tendon per count, as HELLO_REPLY says
   FrameDecoder rx_;
   TxQueue<kTxQueueBytes> tx_;
   Controller controller_;

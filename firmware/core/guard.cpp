@@ -10,7 +10,9 @@ namespace {
 bool still(float speed_m_s, float threshold_m_s) { return speed_m_s <= threshold_m_s && speed_m_s >= -threshold_m_s; }
 }  // namespace
 
-Guard::Guard(size_t channels) : channels_(channels < 1 ? 1 : (channels > kMaxChannels ? kMaxChannels : channels)) {
+Guard::Guard(size_t channels, float tendon_m_per_count)
+    : channels_(channels < 1 ? 1 : (channels > kMaxChannels ? kMaxChannels : channels)),
+      tendon_m_per_count_(tendon_m_per_count) {
   set_tension_limit(kDefaultTensionLimitN);
 }
 
@@ -40,7 +42,7 @@ void Guard::observe(uint64_t now_us, const int32_t* counts, const float* tension
   const float window_s = static_cast<float>(now_us - window_start_us_) * 1e-6f;
   for (size_t i = 0; i < channels_; ++i) {
     // Positive counts pay out: winding in counts down.
-    const float moved_m = static_cast<float>(static_cast<int64_t>(window_counts_[i]) - counts[i]) * kTendonMPerCount;
+    const float moved_m = static_cast<float>(static_cast<int64_t>(window_counts_[i]) - counts[i]) * tendon_m_per_count_;
     winding_speed_m_s_[i] = measured_ ? moved_m / window_s : 0.0f;
     window_counts_[i] = counts[i];
   }

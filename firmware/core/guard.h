@@ -36,8 +36,9 @@ class Lasting {
 
 class Guard {
  public:
-  // The guard of `channels` motors (1..kMaxChannels).
-  explicit Guard(size_t channels = kDefaultChannels);
+  // The guard of `channels` motors (1..kMaxChannels) whose encoders count `tendon_m_per_count`
+  // of tendon each.
+  explicit Guard(size_t channels = kDefaultChannels, float tendon_m_per_count = kTendonMPerCount);
 
   // The tension limit (N) the pull and speed limits derive from.
   void set_tension_limit(float tension_limit_n);
@@ -92,6 +93,7 @@ class Guard {
   void brake(size_t channel, float* duty, Drive* drive);
 
   size_t channels_;
+  float tendon_m_per_count_;
   float tension_limit_n_ = kDefaultTensionLimitN;
   float stall_force_n_ = kDefaultStallForceN;
   float damping_ns_per_m_ = kDefaultMotorDampingNsPerM;
