@@ -151,7 +151,13 @@ uint32_t Guard::faults(uint64_t now_us, const float* duty, const Drive* drive) {
     const ChannelMask bit = static_cast<ChannelMask>(1u << i);
     const float pull = pull_n(i, duty[i]);
     const bool fresh = !(stale_mask_ & bit);
-    if (fresh && pull >= kPlausibleMinForceN && tensions_n_[i] < kPlausibleFraction * pull - kPlausibleMarginN) {
+    // A spool winding in, even too slowly to count as moving, loses damping × speed of its pull
+    // to back-EMF: a slack tendon taken up at 0.9 mm/s by a motor of 1200 N·s/m pulls 1 N less
+    // than its duty says, and its cell rightly reads nothing. The tension limit's at-cap check
+    // keeps the gross pull, which errs towards tripping.
+    const float w = driven_speed_m_s_[i];
+    const float net = w > 0.0f ? pull - damping_ns_per_m_ * w : pull;
+    if (fresh && net >= kPlausibleMinForceN && tensions_n_[i] < kPlausibleFraction * net - kPlausibleMarginN) {
       low = static_cast<ChannelMask>(low | bit);
     }
     if (pull >= kAtCapFraction * cap_n_) at_cap = static_cast<ChannelMask>(at_cap | bit);

@@ -284,6 +284,35 @@ void the_bounds_follow_the_motors_the_host_gives() {
   CHECK(thesis.faults(5000 + kImplausibleUs, duty, drive) == 0);
 }
 
+// A slack tendon taken up slowly by a strongly damped motor: its spool counts as still, and its
+// duty's stall pull (1.2 N) is what back-EMF mostly takes; the cell reading nothing is plausible.
+// The same pull on a spool that does not turn is not.
+void a_slack_tendon_wound_in_slowly_is_not_implausible() {
+  const float stall_n = 4.0f * kDefaultStallForceN;
+  const float damping = stall_n / kDefaultNoLoadSpeedMPerS;  // 1200 N·s/m
+  const float w = 0.0009f;                                    // winding in, under kStillSpeedMPerS
+  const float slack[kDefaultChannels] = {0.0f, 0.0f, 0.0f, 0.0f};
+  const float duty[kDefaultChannels] = {-(damping * w + 0.1f) / stall_n, 0.0f, 0.0f, 0.0f};
+  const Drive drive[kDefaultChannels] = {Drive::kDrive, Drive::kBrake, Drive::kBrake, Drive::kBrake};
+  for (const bool turning : {true, false}) {
+    Guard g;
+    g.set_tension_limit(kLimitN);
+    g.set_motors(stall_n, kDefaultNoLoadSpeedMPerS, kDefaultReflectedMassKg);
+    int32_t counts[kDefaultChannels] = {};
+    g.observe(0, counts, slack, 0);
+    uint32_t flags = 0;
+    for (uint64_t t = 5000; t <= 5000 + kImplausibleUs + 20000; t += 5000) {
+      if (turning) counts[0] -= static_cast<int32_t>(std::lround(w * 0.005 / kTendonMPerCount));
+      g.observe(t, counts, slack, 0);
+      float out[kDefaultChannels];
+      Drive d[kDefaultChannels];
+      g.drive(duty, out, d);
+      flags |= g.faults(t, duty, drive);
+    }
+    CHECK(flags == (turning ? 0u : (fault::kLoadcellImplausible | fault::implausible_channel(0))));
+  }
+}
+
 void lasting_counts_unbroken_spans() {
   Lasting l;
   CHECK(l.update(0, 0b0011, 100) == 0);
@@ -305,5 +334,6 @@ void test_guard() {
   a_motor_at_its_cap_against_a_spool_creeping_out_trips_too();
   a_cell_reading_far_under_its_stalled_motors_pull_is_implausible();
   the_bounds_follow_the_motors_the_host_gives();
+  a_slack_tendon_wound_in_slowly_is_not_implausible();
   lasting_counts_unbroken_spans();
 }
