@@ -41,6 +41,11 @@ class Controller {
   Mode mode() const { return mode_; }
   const PidGains& gains(Mode mode) const { return gains_[static_cast<size_t>(mode)]; }
   void set_gains(Mode mode, const PidGains& gains) { gains_[static_cast<size_t>(mode)] = gains; }
+  // Every mode back to its default gains, made for motors of `stall_force_n` (N at the tendon):
+  // the defaults are the thesis motor's (154 N), in duty per m or per N, so another motor gets
+  // them scaled by 154 N over its own stall force (and the tension clamp likewise, up to full
+  // duty): the same pull per unit of error, the same bound on a runaway's pull.
+  void use_default_gains(float stall_force_n);
 
   // Fastest the length references move (m/s).
   float length_rate() const { return length_rate_m_s_; }

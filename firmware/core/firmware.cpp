@@ -123,6 +123,7 @@ void Firmware::set_motors(const msg::SetMotors& m) {
   motors_ = m;
   guard_.set_motors(m.stall_force_n, m.no_load_speed_m_per_s, m.reflected_mass_kg);
   controller_.set_no_load_speed(m.no_load_speed_m_per_s);
+  controller_.use_default_gains(m.stall_force_n);
   set_tension_limit(safety_.tension_limit_n());
 }
 

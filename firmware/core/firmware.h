@@ -52,6 +52,7 @@ class Firmware {
   size_t tx_pending() const { return tx_.size(); }
 
   State state() const { return safety_.state(); }
+  const Controller& controller() const { return controller_; }
   uint32_t faults() const { return safety_.faults(); }
   uint32_t rx_bad_frames() const { return rx_.bad_frames(); }
 

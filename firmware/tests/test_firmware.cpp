@@ -284,10 +284,14 @@ void the_motors_the_host_sends_bound_the_duty() {
   b.send(msg::SetMotors{100.0f, 0.5f, kMinReflectedMassKg * 0.99f});
   b.send(msg::SetMotors{100.0f, 0.5f, NAN});
   CHECK(b.replies.nacks == nacks + 6 && b.replies.last_nack_error == static_cast<uint8_t>(NackError::kBadValue));
-  // A motor of half the thesis's stall force may wind in with twice the duty.
+  // A motor of half the thesis's stall force may wind in with twice the duty, and its default
+  // gains ask twice the duty per unit of error (the same pull).
   const int acks = b.replies.acks;
   b.send(msg::SetMotors{0.5f * kDefaultStallForceN, kDefaultNoLoadSpeedMPerS, kDefaultReflectedMassKg});
   CHECK(b.replies.acks == acks + 1);
+  CHECK_NEAR(b.fw.controller().gains(Mode::kLengths).kp, 120.0, 1e-3);
+  CHECK_NEAR(b.fw.controller().gains(Mode::kTension).ki, 0.6, 1e-6);
+  CHECK_NEAR(b.fw.controller().gains(Mode::kTension).output_limit, 0.4, 1e-6);
   b.send(msg::SetGains{0, 1.0e4f, 0.0f, 0.0f, 1.0f});
   b.send(msg::Enable{});
   b.send(msg::SetSetpoints{4, 0, {-0.01f, 0.0f, 0.0f, 0.0f}});
