@@ -162,6 +162,16 @@ def test_compensation_reaches_the_goal_under_a_tendon_friction_the_model_does_no
 STIFF = load_robot("stiff-long")
 
 
+def test_other_motors_get_gains_asking_the_same_pull_per_newton():
+    # Twice the stall torque: a duty pulls twice as hard, so the gains halve and the clamp too
+    # (the clamped pull stays 0.9 of the limit).
+    strong = PARAMS.replace({"rig.motor_stall_torque_nm": 2 * PARAMS.rig.motor_stall_torque_nm})
+    mine, theirs = tension_gains_for(PARAMS), tension_gains_for(strong)
+    for key in ("kp", "ki", "output_limit"):
+        assert theirs[key] == pytest.approx(mine[key] / 2), key
+    assert mine == pytest.approx(TUNED_TENSION_GAINS)
+
+
 def test_a_stiff_robot_gets_a_grid_and_a_ceiling_its_tensions_can_hold():
     gains = tension_gains_for(STIFF)
     ceiling = tension_ceiling_n(STIFF, gains)
@@ -287,3 +297,27 @@ def test_the_tracking_stage_retunes_the_tension_integral_the_step_rollout_starve
     assert set(result.after) == {"gain", "velocity_gain_s", "tension_ki"}
     assert result.after["tension_ki"] > slow["ki"]
     assert result.cost_after < 0.5 * result.cost_before
+
+
+@pytest.mark.parametrize("friction", [0.0, 0.3])
+def test_the_target_and_sags_of_one_batch_are_the_separate_solves(friction):
+    from twin.control.compensation import unloaded_tips
+    from twin.rod.grid import GRAVITY_TIP_FORCE_N, pcc_tensions_n
+
+    model = RodModel.from_params(PARAMS.replace({"effects.tendon_friction_coeff": friction}))
+    tensions = pcc_tensions_n(13.0, 60.0, PARAMS)
+    loads = [GRAVITY_TIP_FORCE_N(m, 9.81) for m in (0.005, 0.010)]
+    sigma = np.array([1.0, -1.0, 0.5, 1.0]) if friction else None
+    target, sags = unloaded_tips(model, tensions, loads, base_rotation=HORIZONTAL, unloaded_friction_direction=sigma)
+    alone = solve(model, tensions, base_rotation=HORIZONTAL, friction_direction=sigma).tip_position_m
+    free = solve(model, tensions, base_rotation=HORIZONTAL).tip_position_m
+    assert np.allclose(target, alone, atol=1e-9)
+    for load, sag in zip(loads, sags):
+        loaded = solve(model, tensions, tip_force_n=load, base_rotation=HORIZONTAL).tip_position_m
+        assert sag == pytest.approx(np.linalg.norm(loaded - free), abs=1e-9)
+    assert 0 < sags[0] < sags[1]
+    # The plan aimed at the batch's target is the plan that solves its own.
+    own = hold_tensions(model, tensions, loads[1], base_rotation=HORIZONTAL, unloaded_friction_direction=sigma)
+    given = hold_tensions(model, tensions, loads[1], base_rotation=HORIZONTAL, unloaded_friction_direction=sigma,
+                          target_m=target)
+    assert np.allclose(own.tensions_n, given.tensions_n, atol=1e-6)

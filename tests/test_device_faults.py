@@ -84,8 +84,8 @@ class HandPlayedBoard:
         self.decoder = c.FrameDecoder()
 
     def answer_hello(self, reply: c.HelloReply, *, then: bytes = b"") -> threading.Thread:
-        """Answer the HELLO with ``reply``, the DISABLE and SET_LIMITS that a host sends next
-        with an ACK each, then send ``then``; the messages received meanwhile go to :attr:`received`."""
+        """Answer the HELLO with ``reply``, the DISABLE, SET_MOTORS and SET_LIMITS that a host
+        sends next with an ACK each, then send ``then``; the messages received meanwhile go to :attr:`received`."""
         self.received = []
 
         def run():
@@ -96,6 +96,8 @@ class HandPlayedBoard:
                         os.write(self.master, c.encode_frame(reply, seq=0))
                     elif isinstance(frame.message, c.Disable):
                         os.write(self.master, c.encode_frame(c.Ack(frame.seq, c.MsgType.DISABLE), seq=1))
+                    elif isinstance(frame.message, c.SetMotors):
+                        os.write(self.master, c.encode_frame(c.Ack(frame.seq, c.MsgType.SET_MOTORS), seq=1))
                     elif isinstance(frame.message, c.SetLimits):
                         os.write(self.master, c.encode_frame(c.Ack(frame.seq, c.MsgType.SET_LIMITS), seq=2) + then)
                         return

@@ -47,6 +47,7 @@ def constant(name: str) -> float:
     ("kDefaultChannels", PARAMS.tendons.count),
     ("kMotorStallTorqueNm", PARAMS.rig.motor_stall_torque_nm),
     ("kMotorNoLoadSpeedRpm", PARAMS.rig.motor_no_load_speed_rpm),
+    ("kMotorRotorInertiaKgm2", PARAMS.rig.motor_rotor_inertia_kgm2),
 ])
 def test_a_compiled_default_is_the_parameter_sets_value(name, expected):
     assert constant(name) == pytest.approx(expected, rel=1e-12)
@@ -71,6 +72,23 @@ def test_the_driver_refuses_what_the_firmware_refuses():
     assert device.MAX_OFFSET_COUNTS == constant("kMaxOffsetCounts")
     assert device.MAX_TENSION_LIMIT_N == constant("kMaxTensionLimitN")
     assert device.MAX_LENGTH_SETPOINT_M == pytest.approx(constant("kMaxLengthSetpointM"), rel=1e-7)
+
+
+def test_the_motors_bounds_and_defaults_are_the_firmwares():
+    from twin.board_limits import MOTOR_BOUNDS
+    from twin.driver.codec import SetMotors
+
+    firmware_names = {"stall_force_n": "StallForceN", "no_load_speed_m_per_s": "NoLoadSpeedMPerS",
+                      "reflected_mass_kg": "ReflectedMassKg"}
+    for name, (_, low, high) in MOTOR_BOUNDS.items():
+        assert (low, high) == pytest.approx((constant(f"kMin{firmware_names[name]}"),
+                                             constant(f"kMax{firmware_names[name]}")), rel=1e-7), name
+    # The board's defaults until the host sends its motors are the thesis rig's, as the host
+    # derives them from the parameter set.
+    default = SetMotors()
+    assert default.stall_force_n == pytest.approx(PARAMS.rig.motor_stall_force_n, rel=1e-12)
+    assert default.no_load_speed_m_per_s == pytest.approx(PARAMS.rig.motor_no_load_speed_m_per_s, rel=1e-12)
+    assert default.reflected_mass_kg == pytest.approx(PARAMS.rig.motor_reflected_mass_kg, rel=1e-12)
 
 
 PINS = FIRMWARE_DIR / "teensy" / "twin_rig" / "pins.h"

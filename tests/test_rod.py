@@ -323,3 +323,28 @@ def test_the_step_count_follows_the_robots_length():
     assert endoscope.predictor_steps() == endoscope.solver.steps == 12
     # 150 mm at no more than 5 mm a step.
     assert stiff.predictor_steps() == 30 and RodModel.from_params(stiff).steps == 30
+
+
+def test_solutions_built_without_their_init_are_whole_and_match_a_stream_of_cold_solves():
+    # The hot path builds LoadCase and RodSolution without the dataclass __init__: every field
+    # must be there (a missing one would surface only where it is read), and none may need a
+    # __post_init__. A warm stream must give what cold solves give.
+    import dataclasses
+
+    from twin.rod import Predictor
+    from twin.rod.solver import LoadCase, RodSolution
+
+    predictor = Predictor(MODEL)
+    pose = PARAMS.rig.base_rotation
+    for kappa in (5.0, 6.0, 7.0):
+        tensions = pcc_tensions_n(kappa, 30.0, PARAMS)
+        force = GRAVITY_TIP_FORCE_N(0.005, PARAMS.environment.gravity_m_s2)
+        warm = predictor.solve(tensions, tip_force_n=force, base_rotation=pose)
+        cold = solve(MODEL, tensions, tip_force_n=force, base_rotation=pose)
+        assert warm.converged and np.allclose(warm.positions_m, cold.positions_m, atol=1e-9)
+        for obj, cls in ((warm, RodSolution), (warm.load, LoadCase)):
+            assert set(vars(obj)) >= {f.name for f in dataclasses.fields(cls)}
+            assert not hasattr(cls, "__post_init__")
+        assert not warm.tendon_tensions_n.flags.writeable
+        assert np.array_equal(warm.tendon_tensions_n, np.broadcast_to(tensions, warm.tendon_tensions_n.shape))
+        assert np.allclose(warm.internal_force_n[-1], force)

@@ -302,6 +302,86 @@ def test_a_board_that_restarted_drives_with_the_configured_limit_again():
     assert sample.state is c.State.FAULT and sample.fault_flags & c.Fault.TENSION_LIMIT
 
 
+def test_a_robot_with_other_motors_is_bounded_by_its_own_motors():
+    # The stiff, long robot (30 N limit, 5 kg cells) on motors of four times the thesis's stall
+    # torque (2 N·m: 615 N at the tendon) and a heavier rotor. The host sends them (SET_MOTORS);
+    # a board bounding the duty by the thesis's 154 N would let the plant's motor pull 4 × 0.9 of
+    # the limit (108 N). A step out of reach pulls at the cap of these motors: 0.9 of the limit.
+    from twin.control.pretension import pretension_straight
+    from twin.robots import load_robot
+
+    params = load_robot("stiff-long").replace({"rig.motor_stall_torque_nm": 2.0, "rig.motor_rotor_inertia_kgm2": 4e-6})
+    limit_n = params.rig.tension_limit_n
+    stall_n = params.rig.motor_stall_force_n
+    assert stall_n == pytest.approx(4 * PARAMS.rig.motor_stall_force_n)
+    with open_device("sim://?seed=0", params=params) as device:
+        # The thesis motor's length gains, 4x the pull per metre that the board's defaults for
+        # these motors ask: the loop saturates within the wait, and the cap is what holds it.
+        device.set_gains("lengths", kp=60.0, ki=100.0, kd=0.0)
+        zero = pretension_straight(device, params, mode="lengths")
+        device.twin.clear_peak_tensions()
+        target = zero.copy()
+        target[0] -= 0.02
+        device.drain()
+        device.set_lengths(target)
+        device.wait(3.0)
+        peak_n = device.twin.peak_tensions_n().max()
+        duty = min(s.motor_commands[0] for s in device.drain())
+        true_n = device.twin.true_tensions_n()[0]
+    assert duty == pytest.approx(-0.9 * limit_n / stall_n, rel=0.02)
+    assert true_n == pytest.approx(0.9 * limit_n, rel=0.05)
+    assert peak_n <= BOUND * limit_n
+
+
+def test_weaker_motors_settle_a_bend_with_the_boards_default_gains():
+    # 0.15 N·m on the stiff robot: 46 N at the tendon, 1.5x its 30 N limit. The board's default
+    # length gains (duty per m) were made for the thesis's 154 N; with SET_MOTORS they are scaled to
+    # ask the same pull of these motors. Unscaled, the bent robot did not come to rest in 6 s.
+    from twin.control.pretension import pretension_straight
+    from twin.experiments.protocols import wait_for_rest
+    from twin.pcc import tendon_length_changes_m
+    from twin.robots import load_robot
+
+    params = load_robot("stiff-long").replace({"rig.motor_stall_torque_nm": 0.15})
+    with open_device("sim://?seed=0", params=params) as device:
+        zero = pretension_straight(device, params, mode="lengths")
+        device.set_lengths(zero + tendon_length_changes_m(7.0, 180.0, params))
+        wait_for_rest(device, tension_tolerance_n=np.inf, timeout_s=6.0)
+        assert device.latest().state is c.State.ENABLED
+
+
+def test_a_rig_with_another_spool_gearbox_and_encoder_runs_on_its_emulated_board():
+    # The emulated board counts its plant's encoders as that rig's (1.23 µm a count here, not the
+    # thesis's 0.94): the host accepts it, and the lengths the board reports are the spools' travel.
+    from twin.control.pretension import pretension_straight
+
+    params = PARAMS.replace({"rig.spool_radius_m": 0.004, "rig.gear_ratio": 5.0, "rig.encoder_counts_per_rev": 2048})
+    count_m = params.rig.tendon_m_per_count
+    with open_device("sim://?seed=0", params=params) as device:
+        assert device.info.tendon_m_per_count == pytest.approx(count_m, rel=1e-6)
+        plant = device.twin._board.plant
+        zero = pretension_straight(device, params, mode="lengths")
+        spools = plant.spool_positions_m()
+        target = zero.copy()
+        target[0] -= 0.0003
+        device.set_lengths(target)
+        device.wait(2.0)
+        moved = plant.spool_positions_m() - spools
+        sample = device.latest()
+    assert sample.state is c.State.ENABLED
+    assert moved[0] < -0.0002
+    assert np.allclose(sample.tendon_lengths_m - zero, moved, atol=2 * count_m)
+
+
+def test_motors_the_firmware_cannot_bound_are_refused_on_the_host():
+    from twin.params import ParameterError
+
+    with pytest.raises(ParameterError, match=r"stall_force_n = 0\.3\d*: must be in 1\.\.10000 N.*rig\.motor_stall_torque_nm"):
+        PARAMS.replace({"rig.motor_stall_torque_nm": 0.001})
+    with pytest.raises(ValueError, match=r"motors: reflected_mass_kg = 0\.0: must be in 0\.01\.\.1000 kg"):
+        Device(None, motors=c.SetMotors(reflected_mass_kg=0.0))  # type: ignore[arg-type]
+
+
 def main(argv: list[str]) -> int:
     count = int(argv[0]) if argv else 1000
     seed = int(argv[1]) if len(argv) > 1 else 0

@@ -22,7 +22,7 @@ from typing import TYPE_CHECKING, Any, Iterable, Mapping
 
 import numpy as np
 
-from twin.board_limits import MAX_TENSION_LIMIT_N, RATED_GAIN_COUNTS_PER_N
+from twin.board_limits import MAX_TENSION_LIMIT_N, RATED_GAIN_COUNTS_PER_N, motor_problems
 from twin.effects import PER_TENDON, Key, parameter_keys
 from twin.pose import HORIZONTAL_QUAT, rotation_of_quat
 from twin.resources import resource_path
@@ -195,6 +195,21 @@ class Rig:
     def base_rotation(self) -> np.ndarray:
         """The clamp's orientation, 3×3 (body → world), from :attr:`base_quat`."""
         return rotation_of_quat(self.base_quat)
+
+    @property
+    def motor_stall_force_n(self) -> float:
+        """A stalled motor's pull on its tendon at full supply, stall torque over spool radius (N)."""
+        return self.motor_stall_torque_nm / self.spool_radius_m
+
+    @property
+    def motor_no_load_speed_m_per_s(self) -> float:
+        """An unloaded motor's tendon speed at full supply, no-load speed times spool radius (m/s)."""
+        return self.motor_no_load_speed_rpm * 2.0 * math.pi / 60.0 * self.spool_radius_m
+
+    @property
+    def motor_reflected_mass_kg(self) -> float:
+        """The rotor's inertia seen at the tendon, J_rotor G² / r² (kg): 2.66 kg on the thesis rig."""
+        return self.motor_rotor_inertia_kgm2 * self.gear_ratio**2 / self.spool_radius_m**2
 
     @property
     def tendon_m_per_count(self) -> float:
@@ -640,7 +655,7 @@ def _consistency_problems(p: Params) -> list[str]:
 
 
 def _rig_problems(p: Params) -> list[str]:
-    """The load cells and the tension limit must be ones the board can hold (firmware/PROTOCOL.md)."""
+    """The load cells, the tension limit and the motors must be ones the board can hold (firmware/PROTOCOL.md)."""
     problems = []
     limit, capacity, gain = p.rig.tension_limit_n, p.sensors.loadcell_capacity_n, p.sensors.loadcell_gain_counts_per_n
     if limit > min(capacity, MAX_TENSION_LIMIT_N):
@@ -650,6 +665,11 @@ def _rig_problems(p: Params) -> list[str]:
     if not low <= gain <= high:
         problems.append(f"sensors.loadcell_gain_counts_per_n = {gain!r}: must be in {low:g}..{high:.0f} counts/N "
                         "(the HX711's 24-bit range holds the largest limit; a count is at most 10 mN)")
+    rig = p.rig
+    motors = {"stall_force_n": rig.motor_stall_force_n, "no_load_speed_m_per_s": rig.motor_no_load_speed_m_per_s,
+              "reflected_mass_kg": rig.motor_reflected_mass_kg}
+    problems += [f"the motors' {line} (from rig.motor_stall_torque_nm, rig.motor_no_load_speed_rpm, "
+                 "rig.motor_rotor_inertia_kgm2, rig.gear_ratio, rig.spool_radius_m)" for line in motor_problems(motors)]
     return problems
 
 

@@ -62,6 +62,7 @@ void Firmware::handle(const RawFrame& frame) {
     case MsgType::kSetGains: result = dispatch(frame, &Firmware::on_set_gains); break;
     case MsgType::kSetCalibration: result = dispatch(frame, &Firmware::on_set_calibration); break;
     case MsgType::kSetLimits: result = dispatch(frame, &Firmware::on_set_limits); break;
+    case MsgType::kSetMotors: result = dispatch(frame, &Firmware::on_set_motors); break;
     default: result = nack(NackError::kUnknownType); break;
   }
   if (result == kReplied) return;
@@ -93,7 +94,7 @@ uint8_t Firmware::on_hello(const msg::Hello& m) {
                        static_cast<uint8_t>(channels_),
                        kControlPeriodUs,
                        kTelemetryPeriodUs,
-                       kTendonMPerCount});
+                       tendon_m_per_count_});
   return kReplied;
 }
 
@@ -205,6 +206,22 @@ uint8_t Firmware::on_set_limits(const msg::SetLimits& m) {
   }
   safety_.set_limits(m.tension_limit_n, m.watchdog_timeout_ms);
   set_tension_limit(m.tension_limit_n);
+  return kAck;
+}
+
+// Other motors (firmware/PROTOCOL.md, SET_MOTORS): within the bounds of config.h, and not while
+// driving, where the bounds on the motors' pull and speed would change under the loop.
+uint8_t Firmware::on_set_motors(const msg::SetMotors& m) {
+  if (!within(m.stall_force_n, kMinStallForceN, kMaxStallForceN) ||
+      !within(m.no_load_speed_m_per_s, kMinNoLoadSpeedMPerS, kMaxNoLoadSpeedMPerS) ||
+      !within(m.reflected_mass_kg, kMinReflectedMassKg, kMaxReflectedMassKg)) {
+    return nack(NackError::kBadValue);
+  }
+  const bool same = m.stall_force_n == motors_.stall_force_n && m.no_load_speed_m_per_s == motors_.no_load_speed_m_per_s &&
+                    m.reflected_mass_kg == motors_.reflected_mass_kg;
+  if (same) return kAck;
+  if (safety_.state() == State::kEnabled) return nack(NackError::kNotWhileEnabled);
+  set_motors(m);
   return kAck;
 }
 

@@ -20,9 +20,9 @@ using ChannelMask = uint16_t;
 static_assert(kMaxChannels <= 8 * sizeof(ChannelMask), "a ChannelMask holds a bit per channel");
 
 // Protocol version: bumped on any change of a byte layout in firmware/PROTOCOL.md.
-constexpr uint16_t kProtocolVersion = 4;
+constexpr uint16_t kProtocolVersion = 5;
 constexpr uint8_t kFirmwareVersionMajor = 0;
-constexpr uint8_t kFirmwareVersionMinor = 3;
+constexpr uint8_t kFirmwareVersionMinor = 4;
 constexpr uint8_t kFirmwareVersionPatch = 0;
 
 // Encoder → tendon: 4 × 1024 quadrature counts per motor revolution, 5.3:1 gearbox, spool
@@ -63,23 +63,34 @@ constexpr uint16_t kMaxWatchdogMs = 10000;
 // must not unwind the spools.
 constexpr float kMaxLengthSetpointM = 0.05f;
 
-// The motor at the tendon (thesis §4; rig.motor_stall_torque_nm, rig.motor_no_load_speed_rpm):
-// at full duty a stalled spool pulls the tendon with 0.5 N·m / 3.25 mm = 154 N and an unloaded
-// one winds 1500 rpm × 2π × 3.25 mm = 0.51 m/s. A stalled motor's pull is its duty times the
-// stall force: the bound on tension below rests on that.
+// The motors at the tendons, as the host gives them (SET_MOTORS, from the parameter set's
+// rig.motor_stall_torque_nm, rig.motor_no_load_speed_rpm, rig.motor_rotor_inertia_kgm2,
+// rig.gear_ratio and rig.spool_radius_m), until then the thesis rig's (thesis §4): at full duty a
+// stalled spool pulls the tendon with 0.5 N·m / 3.25 mm = 154 N, an unloaded one winds
+// 1500 rpm × 2π × 3.25 mm = 0.51 m/s, and its rotor (1e-6 kg·m² behind the 5.3:1 gearbox) weighs
+// 1e-6 × 5.3² / 3.25 mm² = 2.66 kg at the tendon. A stalled motor's pull is its duty times the
+// stall force: the bound on tension below rests on that. Its back-EMF damping at the tendon is
+// stall force over no-load speed (300 N·s/m).
 constexpr float kMotorStallTorqueNm = 0.5f;
 constexpr float kMotorNoLoadSpeedRpm = 1500.0f;
-constexpr float kStallForceN = static_cast<float>(kMotorStallTorqueNm / kSpoolRadiusM);
-constexpr float kNoLoadSpeedMPerS = static_cast<float>(kMotorNoLoadSpeedRpm * 2.0 * kPi / 60.0 * kSpoolRadiusM);
+constexpr double kMotorRotorInertiaKgm2 = 1e-6;
+constexpr float kDefaultStallForceN = static_cast<float>(kMotorStallTorqueNm / kSpoolRadiusM);
+constexpr float kDefaultNoLoadSpeedMPerS =
+    static_cast<float>(kMotorNoLoadSpeedRpm * 2.0 * kPi / 60.0 * kSpoolRadiusM);
+constexpr float kDefaultReflectedMassKg =
+    static_cast<float>(kMotorRotorInertiaKgm2 * kGearRatio * kGearRatio / (kSpoolRadiusM * kSpoolRadiusM));
+constexpr float kDefaultMotorDampingNsPerM = kDefaultStallForceN / kDefaultNoLoadSpeedMPerS;
+// Motors SET_MOTORS accepts, at the tendon. Stall force 1…10,000 N: under 1 N a motor cannot hold
+// a tendon taut against the loop's noise, and the cap's duty (0.9 × limit / stall force) must
+// stay resolvable in a float. No-load speed 1 mm/s…10 m/s. Reflected mass 0.01…1000 kg: the
+// blow bound below scales with its square root, and the brake's settling time with it.
+constexpr float kMinStallForceN = 1.0f;
+constexpr float kMaxStallForceN = 1.0e4f;
+constexpr float kMinNoLoadSpeedMPerS = 1.0e-3f;
+constexpr float kMaxNoLoadSpeedMPerS = 10.0f;
+constexpr float kMinReflectedMassKg = 0.01f;
+constexpr float kMaxReflectedMassKg = 1000.0f;
 
-// Tension bounded by construction (firmware/PROTOCOL.md, "Tension bound"). A motor may wind in
-// with at most kPullForceFraction of the tension limit as stall force, so no duty the PID asks
-// for can hold a tendon above the limit. And it may wind in only so fast that the blow of a
-// tendon snapping taut keeps every tendon under kBlowBoundFraction of the limit: a slack tendon
-// taken up at speed w stops its spool (2.7 kg of reflected rotor) against the rod and the other
-// spools through ~1e5 N/m of tendon, a blow of about w · kBlowImpedanceNsPerM on the tendons
-// already taut, which carry the cap at most. So no spool winds in faster than
-// (kBlowBoundFraction − kPullForceFraction) · limit / kBlowImpedanceNsPerM: 4.6 mm/s at 6 N.
 constexpr float kPullForceFraction = 0.9f;
 constexpr float kBlowBoundFraction = 1.2f;
 constexpr float kBlowImpedanceNsPerM = 390.0f;
@@ -88,8 +99,6 @@ constexpr float kBlowImpedanceNsPerM = 390.0f;
 // (its tension then rises with the rod's stiffness, where the load cell sees it).
 constexpr float kTautFraction = 0.1f;
 constexpr float kTautSpeedFactor = 2.0f;
-// Back-EMF damping of a motor at the tendon (N·s/m): stall force over no-load speed.
-constexpr float kMotorDampingNsPerM = kStallForceN / kNoLoadSpeedMPerS;
 // Length references ramp towards their targets at the winding speed limit, paying out as well
 // (a tendon paid out faster than its antagonist winds in goes slack), and never faster than
 // this (m/s, for large limits): a step becomes a ramp the PID tracks.
@@ -124,7 +133,8 @@ constexpr float kStillSpeedMPerS = 0.001f;
 // ... in every window for this long (µs), twice the brake's time constant (2.7 kg of reflected
 // rotor over 300 N·s/m: 9 ms): a spool the brake turns round, from winding in to a tendon
 // pulling it out, is still for a few ms on the way, but not for this long unless the tendon
-// pulls it with less than 0.35 N.
+// pulls it with less than 0.35 N. A heavier rotor or a weaker brake takes longer: the board
+// waits max(kStillUs, twice the time constant of the motors it is given).
 constexpr uint32_t kStillUs = 20000;
 
 // A motor that has pulled with kAtCapFraction of its cap or more against a still spool for

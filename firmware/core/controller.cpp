@@ -22,6 +22,18 @@ Controller::Controller(size_t channels)
     : channels_(channels < 1 ? 1 : (channels > kMaxChannels ? kMaxChannels : channels)),
       gains_{kDefaultLengthGains, kDefaultLengthGains, kDefaultTensionGains} {}
 
+void Controller::use_default_gains(float stall_force_n) {
+  const float s = kDefaultStallForceN / stall_force_n;
+  const PidGains length{kDefaultLengthGains.kp * s, kDefaultLengthGains.ki * s, kDefaultLengthGains.kd * s,
+                        kDefaultLengthGains.output_limit};
+  const float clamp = kDefaultTensionGains.output_limit * s;
+  const PidGains tension{kDefaultTensionGains.kp * s, kDefaultTensionGains.ki * s, kDefaultTensionGains.kd * s,
+                         clamp < 1.0f ? clamp : 1.0f};
+  gains_[static_cast<size_t>(Mode::kLengths)] = length;
+  gains_[static_cast<size_t>(Mode::kPairs)] = length;
+  gains_[static_cast<size_t>(Mode::kTension)] = tension;
+}
+
 void Controller::set_mode(Mode mode, const Measurements& now, float tension_limit_n) {
   float duty[kMaxChannels];
   for (size_t i = 0; i < channels_; ++i) duty[i] = last_duty_[i];
@@ -99,7 +111,7 @@ void Controller::step(const Measurements& now, float dt_s, const float* lowest, 
       const float least_m = -clamp_range(kMaxLengthLeadM + lead_m, 0.0f, ramp_m);
       const float move_m = clamp_range(targets_[i] - reference, least_m, most_m);
       reference += move_m;
-      feedforward = move_m / dt_s / kNoLoadSpeedMPerS;
+      feedforward = move_m / dt_s / no_load_speed_m_per_s_;
     }
     // In tension mode the loop runs on −tension: paying out (positive duty) lowers tension.
     const float sign = mode_ == Mode::kTension ? -1.0f : 1.0f;

@@ -41,11 +41,19 @@ class Controller {
   Mode mode() const { return mode_; }
   const PidGains& gains(Mode mode) const { return gains_[static_cast<size_t>(mode)]; }
   void set_gains(Mode mode, const PidGains& gains) { gains_[static_cast<size_t>(mode)] = gains; }
+  // Every mode back to its default gains, made for motors of `stall_force_n` (N at the tendon):
+  // the defaults are the thesis motor's (154 N), in duty per m or per N, so another motor gets
+  // them scaled by 154 N over its own stall force (and the tension clamp likewise, up to full
+  // duty): the same pull per unit of error, the same bound on a runaway's pull.
+  void use_default_gains(float stall_force_n);
 
   // Fastest the length references move (m/s).
   float length_rate() const { return length_rate_m_s_; }
   void set_length_rate(float length_rate_m_s) { length_rate_m_s_ = length_rate_m_s; }
   // Fastest the tension references move (N/s).
+  // Tendon speed of an unloaded motor at full duty (m/s): a ramp's speed is fed forward as the
+  // duty it takes.
+  void set_no_load_speed(float no_load_speed_m_per_s) { no_load_speed_m_per_s_ = no_load_speed_m_per_s; }
   float tension_rate() const { return tension_rate_n_per_s_; }
   void set_tension_rate(float tension_rate_n_per_s) { tension_rate_n_per_s_ = tension_rate_n_per_s; }
 
@@ -94,6 +102,7 @@ class Controller {
   float references_[kMaxChannels] = {};
   float length_rate_m_s_ = kMaxLengthRateMPerS;
   float tension_rate_n_per_s_ = kTensionRatePerS * kDefaultTensionLimitN;
+  float no_load_speed_m_per_s_ = kDefaultNoLoadSpeedMPerS;
   float last_duty_[kMaxChannels] = {};  // duty of the last step; 0 after restart()
 };
 

@@ -4,11 +4,12 @@
 
 namespace twinfw {
 
-Firmware::Firmware(size_t channels)
+Firmware::Firmware(size_t channels, float tendon_m_per_count)
     : channels_(channels < 1 ? 1 : (channels > kMaxChannels ? kMaxChannels : channels)),
+      tendon_m_per_count_(tendon_m_per_count),
       controller_(channels_),
       safety_(channels_),
-      guard_(channels_) {
+      guard_(channels_, tendon_m_per_count) {
   set_rated_gain(1.0f / kDefaultGainNPerCount);
   set_tension_limit(kDefaultTensionLimitN);
 }
@@ -117,6 +118,15 @@ void Firmware::set_rated_gain(float counts_per_n) {
   calibrated_ = false;
 }
 
+// The motors the guard and the feedforward derive from; the speed limits follow.
+void Firmware::set_motors(const msg::SetMotors& m) {
+  motors_ = m;
+  guard_.set_motors(m.stall_force_n, m.no_load_speed_m_per_s, m.reflected_mass_kg);
+  controller_.set_no_load_speed(m.no_load_speed_m_per_s);
+  controller_.use_default_gains(m.stall_force_n);
+  set_tension_limit(safety_.tension_limit_n());
+}
+
 void Firmware::set_tension_limit(float tension_limit_n) {
   guard_.set_tension_limit(tension_limit_n);
   const float rate = guard_.winding_speed_limit();
@@ -136,7 +146,7 @@ void Firmware::end_session() {
 Measurements Firmware::measure() const {
   Measurements m{};
   for (size_t i = 0; i < channels_; ++i) {
-    m.lengths_m[i] = counts_to_length_m(counts_[i], origin_counts_[i]);
+    m.lengths_m[i] = counts_to_length_m(counts_[i], origin_counts_[i], tendon_m_per_count_);
     m.tensions_n[i] = raw_to_tension_n(raw_counts_[i], gain_n_per_count_[i], offset_counts_[i]);
   }
   return m;

@@ -37,7 +37,7 @@ class Firmware {
   // A board of `channels` motors and load cells (1..kMaxChannels; clamped into that range),
   // as after power-up. HELLO_REPLY reports the count, and every message sized by it must
   // carry it.
-  explicit Firmware(size_t channels = kDefaultChannels);
+  explicit Firmware(size_t channels = kDefaultChannels, float tendon_m_per_count = kTendonMPerCount);
 
   size_t channels() const { return channels_; }
 
@@ -52,6 +52,7 @@ class Firmware {
   size_t tx_pending() const { return tx_.size(); }
 
   State state() const { return safety_.state(); }
+  const Controller& controller() const { return controller_; }
   uint32_t faults() const { return safety_.faults(); }
   uint32_t rx_bad_frames() const { return rx_.bad_frames(); }
 
@@ -70,6 +71,7 @@ class Firmware {
   uint8_t on_set_gains(const msg::SetGains& m);
   uint8_t on_set_calibration(const msg::SetCalibration& m);
   uint8_t on_set_limits(const msg::SetLimits& m);
+  uint8_t on_set_motors(const msg::SetMotors& m);
 
   template <class T>
   void send(const T& message);
@@ -85,9 +87,11 @@ class Firmware {
   void set_outputs(bool may_move);
   void set_tension_limit(float tension_limit_n);
   void set_rated_gain(float counts_per_n);
+  void set_motors(const msg::SetMotors& m);
   void end_session();
 
   size_t channels_;
+  float tendon_m_per_count_;  // the encoders' tendon per count, as HELLO_REPLY says
   FrameDecoder rx_;
   TxQueue<kTxQueueBytes> tx_;
   Controller controller_;
@@ -117,6 +121,7 @@ class Firmware {
   float offset_counts_[kMaxChannels] = {};
   bool calibrated_ = false;
   float rated_counts_per_n_ = 0.0f;
+  msg::SetMotors motors_{kDefaultStallForceN, kDefaultNoLoadSpeedMPerS, kDefaultReflectedMassKg};
 
   bool handshake_ok_ = false;
   bool motion_held_ = true;

@@ -1,5 +1,7 @@
 #include "guard.h"
 
+#include <cmath>
+
 #include "pid.h"
 
 namespace twinfw {
@@ -8,15 +10,29 @@ namespace {
 bool still(float speed_m_s, float threshold_m_s) { return speed_m_s <= threshold_m_s && speed_m_s >= -threshold_m_s; }
 }  // namespace
 
-Guard::Guard(size_t channels) : channels_(channels < 1 ? 1 : (channels > kMaxChannels ? kMaxChannels : channels)) {
+Guard::Guard(size_t channels, float tendon_m_per_count)
+    : channels_(channels < 1 ? 1 : (channels > kMaxChannels ? kMaxChannels : channels)),
+      tendon_m_per_count_(tendon_m_per_count) {
   set_tension_limit(kDefaultTensionLimitN);
 }
 
 void Guard::set_tension_limit(float tension_limit_n) {
+  tension_limit_n_ = tension_limit_n;
   cap_n_ = kPullForceFraction * tension_limit_n;
   // The blow a spool winding in at w deals when its tendon snaps taut lands on the tendons
   // already taut, at most at the cap: the speed that keeps them under the bound.
-  speed_limit_m_s_ = (kBlowBoundFraction - kPullForceFraction) * tension_limit_n / kBlowImpedanceNsPerM;
+  speed_limit_m_s_ = (kBlowBoundFraction - kPullForceFraction) * tension_limit_n / blow_impedance_ns_per_m_;
+}
+
+void Guard::set_motors(float stall_force_n, float no_load_speed_m_per_s, float reflected_mass_kg) {
+  stall_force_n_ = stall_force_n;
+  damping_ns_per_m_ = stall_force_n / no_load_speed_m_per_s;
+  // The blow's impedance √(k m) scales with the root of the rotor's mass at the tendon.
+  blow_impedance_ns_per_m_ = kBlowImpedanceNsPerM * std::sqrt(reflected_mass_kg / kDefaultReflectedMassKg);
+  // Twice the brake's time constant (reflected mass over back-EMF damping), at least kStillUs.
+  const float settle_us = 2.0f * reflected_mass_kg / damping_ns_per_m_ * 1e6f;
+  still_us_ = settle_us > static_cast<float>(kStillUs) ? static_cast<uint32_t>(settle_us) : kStillUs;
+  set_tension_limit(tension_limit_n_);
 }
 
 void Guard::observe(uint64_t now_us, const int32_t* counts, const float* tensions_n, ChannelMask stale_mask) {
@@ -26,7 +42,7 @@ void Guard::observe(uint64_t now_us, const int32_t* counts, const float* tension
   const float window_s = static_cast<float>(now_us - window_start_us_) * 1e-6f;
   for (size_t i = 0; i < channels_; ++i) {
     // Positive counts pay out: winding in counts down.
-    const float moved_m = static_cast<float>(static_cast<int64_t>(window_counts_[i]) - counts[i]) * kTendonMPerCount;
+    const float moved_m = static_cast<float>(static_cast<int64_t>(window_counts_[i]) - counts[i]) * tendon_m_per_count_;
     winding_speed_m_s_[i] = measured_ ? moved_m / window_s : 0.0f;
     window_counts_[i] = counts[i];
   }
@@ -36,7 +52,7 @@ void Guard::observe(uint64_t now_us, const int32_t* counts, const float* tension
   for (size_t i = 0; i < channels_; ++i) {
     if (braked_[i] && still(winding_speed_m_s_[i], kStillSpeedMPerS)) still_braked = static_cast<ChannelMask>(still_braked | (1u << i));
   }
-  still_in_brake_ = braked_still_.update(now_us, still_braked, kStillUs);
+  still_in_brake_ = braked_still_.update(now_us, still_braked, still_us_);
 }
 
 // A tendon that reads taut has no slack to be taken up with a blow: its spool may wind faster.
@@ -55,9 +71,9 @@ float Guard::winding_speed_limit(size_t i) const {
 float Guard::lowest_duty(size_t i) const {
   const float w = winding_speed_m_s_[i];
   const float limit = winding_speed_limit(i);
-  const float pull_n = clamp_range(cap_n_ * (1.0f - w / limit) + kMotorDampingNsPerM * limit, 0.0f, cap_n_);
-  const float back_emf_n = w < 0.0f ? -kMotorDampingNsPerM * w : 0.0f;
-  const float lowest = (back_emf_n - pull_n) / kStallForceN;
+  const float pull_n = clamp_range(cap_n_ * (1.0f - w / limit) + damping_ns_per_m_ * limit, 0.0f, cap_n_);
+  const float back_emf_n = w < 0.0f ? -damping_ns_per_m_ * w : 0.0f;
+  const float lowest = (back_emf_n - pull_n) / stall_force_n_;
   return lowest < 1.0f ? lowest : 1.0f;
 }
 
@@ -67,7 +83,7 @@ float Guard::lowest_duty(size_t i) const {
 // the at-cap margin).
 float Guard::pull_n(size_t i, float duty) const {
   const float w = driven_speed_m_s_[i];
-  return -duty * kStallForceN - (w < 0.0f ? kMotorDampingNsPerM * w : 0.0f);
+  return -duty * stall_force_n_ - (w < 0.0f ? damping_ns_per_m_ * w : 0.0f);
 }
 
 void Guard::drive(const float* command, float* duty, Drive* drive) {
@@ -135,7 +151,13 @@ uint32_t Guard::faults(uint64_t now_us, const float* duty, const Drive* drive) {
     const ChannelMask bit = static_cast<ChannelMask>(1u << i);
     const float pull = pull_n(i, duty[i]);
     const bool fresh = !(stale_mask_ & bit);
-    if (fresh && pull >= kPlausibleMinForceN && tensions_n_[i] < kPlausibleFraction * pull - kPlausibleMarginN) {
+    // A spool winding in, even too slowly to count as moving, loses damping × speed of its pull
+    // to back-EMF: a slack tendon taken up at 0.9 mm/s by a motor of 1200 N·s/m pulls 1 N less
+    // than its duty says, and its cell rightly reads nothing. The tension limit's at-cap check
+    // keeps the gross pull, which errs towards tripping.
+    const float w = driven_speed_m_s_[i];
+    const float net = w > 0.0f ? pull - damping_ns_per_m_ * w : pull;
+    if (fresh && net >= kPlausibleMinForceN && tensions_n_[i] < kPlausibleFraction * net - kPlausibleMarginN) {
       low = static_cast<ChannelMask>(low | bit);
     }
     if (pull >= kAtCapFraction * cap_n_) at_cap = static_cast<ChannelMask>(at_cap | bit);

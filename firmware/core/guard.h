@@ -36,13 +36,23 @@ class Lasting {
 
 class Guard {
  public:
-  // The guard of `channels` motors (1..kMaxChannels).
-  explicit Guard(size_t channels = kDefaultChannels);
+  // The guard of `channels` motors (1..kMaxChannels) whose encoders count `tendon_m_per_count`
+  // of tendon each.
+  explicit Guard(size_t channels = kDefaultChannels, float tendon_m_per_count = kTendonMPerCount);
 
   // The tension limit (N) the pull and speed limits derive from.
   void set_tension_limit(float tension_limit_n);
+  // The motors at the tendons (SET_MOTORS): stall force (N), no-load speed (m/s) and reflected
+  // rotor mass (kg), which the duty of a pull, the back-EMF damping, the blow of a tendon
+  // snapping taut and the brake's settling time derive from.
+  void set_motors(float stall_force_n, float no_load_speed_m_per_s, float reflected_mass_kg);
+  float stall_force_n() const { return stall_force_n_; }
+  // Back-EMF damping of a motor at the tendon (N·s/m): stall force over no-load speed.
+  float damping_ns_per_m() const { return damping_ns_per_m_; }
+  // How long a braked spool must stay still before its motor coasts (µs).
+  uint32_t still_us() const { return still_us_; }
   // Largest duty a motor may wind in with, at rest (a positive number).
-  float pull_limit() const { return cap_n_ / kStallForceN; }
+  float pull_limit() const { return cap_n_ / stall_force_n_; }
   // Fastest a spool may wind in its tendon from slack (m/s).
   float winding_speed_limit() const { return speed_limit_m_s_; }
   // Fastest spool `channel` may wind in now (m/s): kTautSpeedFactor times more while its tendon
@@ -83,6 +93,12 @@ class Guard {
   void brake(size_t channel, float* duty, Drive* drive);
 
   size_t channels_;
+  float tendon_m_per_count_;
+  float tension_limit_n_ = kDefaultTensionLimitN;
+  float stall_force_n_ = kDefaultStallForceN;
+  float damping_ns_per_m_ = kDefaultMotorDampingNsPerM;
+  float blow_impedance_ns_per_m_ = kBlowImpedanceNsPerM;
+  uint32_t still_us_ = kStillUs;
   float cap_n_ = 0.0f;           // largest pull of a motor on its tendon (N)
   float speed_limit_m_s_ = 0.0f;
   bool measured_ = false;

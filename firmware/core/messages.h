@@ -25,6 +25,7 @@ enum class MsgType : uint8_t {
   kSetGains = 0x08,
   kSetCalibration = 0x09,
   kSetLimits = 0x0A,
+  kSetMotors = 0x0B,
   kHelloReply = 0x81,
   kAck = 0x82,
   kNack = 0x83,
@@ -114,6 +115,13 @@ struct SetLimits {
   uint16_t watchdog_timeout_ms;
   float loadcell_gain_counts_per_n;  // the load cells' rated sensitivity
 };
+// The motors at the tendons, all alike: what the tension bound derives from.
+struct SetMotors {
+  static constexpr MsgType kType = MsgType::kSetMotors;
+  float stall_force_n;          // pull at full duty on a stalled spool (N)
+  float no_load_speed_m_per_s;  // tendon speed at full duty and no load (m/s)
+  float reflected_mass_kg;      // rotor inertia seen at the tendon (kg)
+};
 
 // Board → host.
 struct HelloReply {
@@ -193,6 +201,11 @@ template <class V> void visit_fields(V& v, msg::SetLimits& m) {
   v(m.tension_limit_n);
   v(m.watchdog_timeout_ms);
   v(m.loadcell_gain_counts_per_n);
+}
+template <class V> void visit_fields(V& v, msg::SetMotors& m) {
+  v(m.stall_force_n);
+  v(m.no_load_speed_m_per_s);
+  v(m.reflected_mass_kg);
 }
 template <class V> void visit_fields(V& v, msg::HelloReply& m) {
   v(m.protocol_version);

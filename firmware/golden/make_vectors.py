@@ -35,6 +35,7 @@ VALID: list[tuple[str, int, c.Message]] = [
     ("set_calibration", 11, c.SetCalibration((2.0**-15, 2.0**-15, -(2.0**-16), 2.0**-14), (8200.0, -5100.0, 3300.0, -900.0),
                                              channels=4)),
     ("set_limits", 12, c.SetLimits(tension_limit_n=6.0, watchdog_timeout_ms=250, loadcell_gain_counts_per_n=45000.0)),
+    ("set_motors", 0x0B0B, c.SetMotors(stall_force_n=153.75, no_load_speed_m_per_s=0.5, reflected_mass_kg=2.6875)),
     ("hello_reply", 0, c.HelloReply(c.PROTOCOL_VERSION, (0, 3, 0), 4, 10000, 25000, 2.0**-20)),
     ("ack", 13, c.Ack(acked_seq=0x1234, acked_type=c.MsgType.ENABLE)),
     ("nack", 14, c.Nack(acked_seq=0xFF00, acked_type=c.MsgType.SET_SETPOINTS, error=c.NackError.WRONG_MODE)),

@@ -31,6 +31,12 @@ TWINFW_EXPORT twinfw_board* twinfw_create(uint32_t channels) {
   return new (std::nothrow) twinfw_board{twinfw::Firmware(channels)};
 }
 
+TWINFW_EXPORT twinfw_board* twinfw_create_rig(uint32_t channels, float tendon_m_per_count) {
+  if (channels < 1 || channels > twinfw::kMaxChannels) return nullptr;
+  if (!(tendon_m_per_count > 0.0f && tendon_m_per_count < 1.0f)) return nullptr;  // NaN fails too
+  return new (std::nothrow) twinfw_board{twinfw::Firmware(channels, tendon_m_per_count)};
+}
+
 TWINFW_EXPORT uint32_t twinfw_channels(const twinfw_board* fw) {
   return static_cast<uint32_t>(fw->firmware.channels());
 }

@@ -12,7 +12,7 @@
 extern "C" {
 #endif
 
-#define TWINFW_ABI_VERSION 3
+#define TWINFW_ABI_VERSION 4
 #define TWINFW_MAX_CHANNELS 12
 
 typedef struct twinfw_board twinfw_board;
@@ -29,6 +29,10 @@ uint32_t twinfw_max_channels(void);
 /* A fresh board of `channels` motors and load cells as after power-up; NULL if out of memory
  * or channels is outside 1..TWINFW_MAX_CHANNELS. */
 twinfw_board* twinfw_create(uint32_t channels);
+/* The same for a rig whose encoders count tendon_m_per_count metres of tendon each (its spool,
+ * gearbox and encoder: the emulated board of another robot); NULL also if that is not finite
+ * and positive. twinfw_create takes the thesis rig's (firmware/core/config.h). */
+twinfw_board* twinfw_create_rig(uint32_t channels, float tendon_m_per_count);
 /* The channel count the board was created with. */
 uint32_t twinfw_channels(const twinfw_board* fw);
 void twinfw_destroy(twinfw_board* fw);

@@ -110,7 +110,7 @@ void tension_hold_clamps_to_limit() {
 }
 
 // A motor holding tension on a tendon that friction in the disc holes holds (presliding): the
-// stalled motor pulls with duty × kStallForceN through 2.7 kg of reflected rotor and 300 N·s/m
+// stalled motor pulls with duty × kDefaultStallForceN through 2.7 kg of reflected rotor and 300 N·s/m
 // of back-EMF against a 60 kN/m load (the twin's at μ = 0.1: 2 N over 30 µm of spool travel),
 // its load cell sampled at 80 Hz, the loop stepped at 100 Hz with the tuned gains of
 // twin/control/gains.py. `duty_of(tension_n)` is the loop; returns the peak-to-peak tension (N)
@@ -130,7 +130,7 @@ float stiff_load_ripple(Loop duty_of, float setpoint_n, float* offset_n) {
     const double tension_n = setpoint_n - kStiffnessNPerM * x_m;
     if (k % 125 == 0) sampled_n = static_cast<float>(tension_n);  // HX711 at 80 Hz
     if (k % 100 == 0) duty = duty_of(sampled_n);                   // control at 100 Hz
-    const double force_n = tension_n + duty * kStallForceN - kMotorDampingNsPerM * v_m_s;
+    const double force_n = tension_n + duty * kDefaultStallForceN - kDefaultMotorDampingNsPerM * v_m_s;
     v_m_s += force_n / kMassKg * kSubstepS;
     x_m += v_m_s * kSubstepS;
     if (t_s >= 3.0) {

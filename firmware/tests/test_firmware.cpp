@@ -1,3 +1,4 @@
+#include <algorithm>
 #include <cmath>
 #include <cstring>
 
@@ -270,6 +271,43 @@ void the_rated_sensitivity_the_host_sends_bounds_the_calibrations() {
   CHECK(b.replies.nacks == nacks + 4 && b.replies.last_nack_error == static_cast<uint8_t>(NackError::kNotWhileEnabled));
 }
 
+// The motors the host sends bound what the board drives: the pull limit of the duty, and the
+// bounds of config.h on the values themselves; other motors are not taken while driving.
+void the_motors_the_host_sends_bound_the_duty() {
+  Bench b;
+  b.send(msg::Hello{kProtocolVersion});
+  const int nacks = b.replies.nacks;
+  b.send(msg::SetMotors{kMinStallForceN * 0.99f, 0.5f, 2.0f});
+  b.send(msg::SetMotors{kMaxStallForceN * 1.01f, 0.5f, 2.0f});
+  b.send(msg::SetMotors{100.0f, kMaxNoLoadSpeedMPerS * 1.01f, 2.0f});
+  b.send(msg::SetMotors{100.0f, kMinNoLoadSpeedMPerS * 0.99f, 2.0f});
+  b.send(msg::SetMotors{100.0f, 0.5f, kMinReflectedMassKg * 0.99f});
+  b.send(msg::SetMotors{100.0f, 0.5f, NAN});
+  CHECK(b.replies.nacks == nacks + 6 && b.replies.last_nack_error == static_cast<uint8_t>(NackError::kBadValue));
+  // A motor of half the thesis's stall force may wind in with twice the duty, and its default
+  // gains ask twice the duty per unit of error (the same pull).
+  const int acks = b.replies.acks;
+  b.send(msg::SetMotors{0.5f * kDefaultStallForceN, kDefaultNoLoadSpeedMPerS, kDefaultReflectedMassKg});
+  CHECK(b.replies.acks == acks + 1);
+  CHECK_NEAR(b.fw.controller().gains(Mode::kLengths).kp, 120.0, 1e-3);
+  CHECK_NEAR(b.fw.controller().gains(Mode::kTension).ki, 0.6, 1e-6);
+  CHECK_NEAR(b.fw.controller().gains(Mode::kTension).output_limit, 0.4, 1e-6);
+  b.send(msg::SetGains{0, 1.0e4f, 0.0f, 0.0f, 1.0f});
+  b.send(msg::Enable{});
+  b.send(msg::SetSetpoints{4, 0, {-0.01f, 0.0f, 0.0f, 0.0f}});
+  float lowest = 0.0f;
+  for (int i = 0; i < 20; ++i) {
+    b.run(0.005);
+    lowest = std::min(lowest, b.out.duty[0]);
+  }
+  CHECK_NEAR(lowest, -0.9 * 6.0 / (0.5 * kDefaultStallForceN), 1e-4);
+  // The same motors again are acknowledged while driving; others are refused.
+  b.send(msg::SetMotors{0.5f * kDefaultStallForceN, kDefaultNoLoadSpeedMPerS, kDefaultReflectedMassKg});
+  CHECK(b.replies.acks == acks + 5);
+  b.send(msg::SetMotors{kDefaultStallForceN, kDefaultNoLoadSpeedMPerS, kDefaultReflectedMassKg});
+  CHECK(b.replies.nacks == nacks + 7 && b.replies.last_nack_error == static_cast<uint8_t>(NackError::kNotWhileEnabled));
+}
+
 void gains_beyond_their_bounds_are_refused() {
   Bench b;
   b.send(msg::Hello{kProtocolVersion});
@@ -361,6 +399,7 @@ void test_firmware() {
   tare_sets_origins();
   calibrations_outside_physical_bounds_are_refused();
   the_rated_sensitivity_the_host_sends_bounds_the_calibrations();
+  the_motors_the_host_sends_bound_the_duty();
   gains_beyond_their_bounds_are_refused();
   hello_leaves_the_board_disabled();
   a_tare_outside_the_offset_bound_is_refused();

@@ -1,4 +1,5 @@
 #include <cmath>
+#include <initializer_list>
 
 #include "check.h"
 #include "guard.h"
@@ -32,7 +33,7 @@ void a_motor_winds_in_with_at_most_the_cap_and_nan_gives_zero() {
   Drive drive[kDefaultChannels];
   g.drive(command, duty, drive);
   // 0.9 of the 6 N limit over the 154 N stall force; paying out is not bounded.
-  CHECK_NEAR(duty[0], -0.9 * 6.0 / kStallForceN, 1e-6);
+  CHECK_NEAR(duty[0], -0.9 * 6.0 / kDefaultStallForceN, 1e-6);
   CHECK_NEAR(duty[1], 1.0, 0.0);
   CHECK(duty[2] == 0.0f);
   CHECK_NEAR(duty[3], -0.01, 1e-7);
@@ -40,7 +41,7 @@ void a_motor_winds_in_with_at_most_the_cap_and_nan_gives_zero() {
   // A lower limit lowers the cap with it.
   g.set_tension_limit(2.0f);
   g.drive(command, duty, drive);
-  CHECK_NEAR(duty[0], -0.9 * 2.0 / kStallForceN, 1e-6);
+  CHECK_NEAR(duty[0], -0.9 * 2.0 / kDefaultStallForceN, 1e-6);
 }
 
 void the_winding_speed_limit_takes_the_pull_away() {
@@ -57,12 +58,12 @@ void the_winding_speed_limit_takes_the_pull_away() {
   float duty[kDefaultChannels];
   Drive drive[kDefaultChannels];
   g.drive(command, duty, drive);
-  const double cap = 0.9 * 6.0 / kStallForceN;
+  const double cap = 0.9 * 6.0 / kDefaultStallForceN;
   CHECK_NEAR(duty[0], -cap, 1e-6);
   CHECK(duty[1] > -cap && duty[1] < 0.0f);
   // At the limit only what balances the back-EMF damping: the spool cannot speed up (to within
   // the speed's encoder quantum, 0.19 mm/s, worth 0.2 N of pull).
-  CHECK_NEAR(duty[2], -kMotorDampingNsPerM * limit / kStallForceN, 1.5e-3);
+  CHECK_NEAR(duty[2], -kDefaultMotorDampingNsPerM * limit / kDefaultStallForceN, 1.5e-3);
   CHECK(duty[3] == 0.0f);  // beyond it, nothing
   // Paying out is never held back.
   const float out[kDefaultChannels] = {1.0f, 1.0f, 1.0f, 1.0f};
@@ -161,22 +162,22 @@ void no_brake_resists_a_spool_flying_out_with_more_than_the_cap() {
   const float speeds[kDefaultChannels] = {-0.05f, -0.01f, 0.0f, 0.0f};
   Guard g = moving(speeds);
   const double cap_n = 0.9 * kLimitN;
-  const double back_emf_n = kMotorDampingNsPerM * 0.05;
+  const double back_emf_n = kDefaultMotorDampingNsPerM * 0.05;
   float duty[kDefaultChannels];
   Drive drive[kDefaultChannels];
   g.hold(duty, drive);
   CHECK(drive[0] == Drive::kDrive);
   // To the encoder quantum of the speed (0.19 mm/s: 0.06 N).
-  CHECK_NEAR(duty[0] * kStallForceN, back_emf_n - cap_n, 0.1);
+  CHECK_NEAR(duty[0] * kDefaultStallForceN, back_emf_n - cap_n, 0.1);
   CHECK(drive[1] == Drive::kBrake && duty[1] == 0.0f);
   CHECK(drive[2] == Drive::kBrake && drive[3] == Drive::kBrake);
   g.release(duty, drive);
   CHECK(drive[0] == Drive::kDrive && duty[0] > 0.0f && drive[1] == Drive::kBrake);
   const float pull[kDefaultChannels] = {-1.0f, -1.0f, -1.0f, NAN};
   g.drive(pull, duty, drive);
-  CHECK_NEAR(duty[0] * kStallForceN, back_emf_n - cap_n, 0.1);
-  CHECK_NEAR(duty[1] * kStallForceN, kMotorDampingNsPerM * 0.01 - cap_n, 0.1);
-  CHECK_NEAR(duty[2] * kStallForceN, -cap_n, 1e-4);
+  CHECK_NEAR(duty[0] * kDefaultStallForceN, back_emf_n - cap_n, 0.1);
+  CHECK_NEAR(duty[1] * kDefaultStallForceN, kDefaultMotorDampingNsPerM * 0.01 - cap_n, 0.1);
+  CHECK_NEAR(duty[2] * kDefaultStallForceN, -cap_n, 1e-4);
   CHECK(duty[3] == 0.0f);
   // NaN on spool 0 gives the duty that leaves the cap, not the full brake of 0.
   const float nan[kDefaultChannels] = {NAN, NAN, NAN, NAN};
@@ -188,7 +189,7 @@ void a_motor_at_its_cap_against_a_still_spool_trips_the_tension_limit() {
   const float still[kDefaultChannels] = {};
   const float tensions[kDefaultChannels] = {5.4f, 1.0f, 1.0f, 1.0f};
   Guard g = moving(still, tensions);
-  const float cap = -0.9f * 6.0f / kStallForceN;
+  const float cap = -0.9f * 6.0f / kDefaultStallForceN;
   const float duty[kDefaultChannels] = {cap, -0.005f, 0.0f, 0.01f};
   const Drive drive[kDefaultChannels] = {Drive::kDrive, Drive::kDrive, Drive::kDrive, Drive::kDrive};
   CHECK(g.faults(10000, duty, drive) == 0);
@@ -207,7 +208,7 @@ void a_motor_at_its_cap_against_a_spool_creeping_out_trips_too() {
   float duty[kDefaultChannels];
   Drive drive[kDefaultChannels];
   g.drive(pull, duty, drive);
-  CHECK(duty[0] > -0.9f * kLimitN / kStallForceN);
+  CHECK(duty[0] > -0.9f * kLimitN / kDefaultStallForceN);
   int32_t counts[kDefaultChannels] = {};
   counts[0] = static_cast<int32_t>(std::lround(0.0004 * 0.005 / kTendonMPerCount));
   uint32_t now_us = 5000;
@@ -226,8 +227,8 @@ void a_cell_reading_far_under_its_stalled_motors_pull_is_implausible() {
   // Channel 1 reads a tenth of what its motor pulls at stall (3 N); channel 2 half of it.
   const float tensions[kDefaultChannels] = {1.0f, 0.3f, 1.5f, 0.0f};
   Guard g = moving(still, tensions);
-  const float pull = -3.0f / kStallForceN;
-  const float duty[kDefaultChannels] = {-0.5f / kStallForceN, pull, pull, 0.0f};
+  const float pull = -3.0f / kDefaultStallForceN;
+  const float duty[kDefaultChannels] = {-0.5f / kDefaultStallForceN, pull, pull, 0.0f};
   const Drive drive[kDefaultChannels] = {Drive::kDrive, Drive::kDrive, Drive::kDrive, Drive::kBrake};
   CHECK(g.faults(10000, duty, drive) == 0);
   const uint32_t flags = g.faults(10000 + kImplausibleUs, duty, drive);
@@ -239,6 +240,77 @@ void a_cell_reading_far_under_its_stalled_motors_pull_is_implausible() {
   CHECK(g.faults(20000 + kImplausibleUs, duty, drive) == 0);
   g.observe(30000 + kImplausibleUs, counts, tensions, 0);
   CHECK(g.faults(30000 + kImplausibleUs, duty, drive) == 0);
+}
+
+// Other motors: a stronger, faster one with a heavier rotor. The cap stays 0.9 of the limit as
+// force, so its duty falls with the stall force; the blow bound slows winding by √(mass ratio);
+// the implausibility check compares the cell with this motor's pull.
+void the_bounds_follow_the_motors_the_host_gives() {
+  Guard g;
+  g.set_tension_limit(kLimitN);
+  const float stall_n = 2.0f * kDefaultStallForceN;
+  const float speed_m_s = 3.0f * kDefaultNoLoadSpeedMPerS;
+  const float mass_kg = 4.0f * kDefaultReflectedMassKg;
+  g.set_motors(stall_n, speed_m_s, mass_kg);
+  CHECK_NEAR(g.pull_limit(), 0.9 * 6.0 / stall_n, 1e-7);
+  CHECK_NEAR(g.damping_ns_per_m(), stall_n / speed_m_s, 1e-3);
+  CHECK_NEAR(g.winding_speed_limit(), 0.3 * 6.0 / (390.0 * 2.0), 1e-7);
+  // The brake settles over twice its time constant: 4 × 2.66 kg over 200 N·s/m, 106 ms.
+  CHECK(g.still_us() == static_cast<uint32_t>(2.0f * mass_kg / g.damping_ns_per_m() * 1e6f));
+  // A limit set later keeps the motors.
+  g.set_tension_limit(2.0f);
+  CHECK_NEAR(g.pull_limit(), 0.9 * 2.0 / stall_n, 1e-7);
+  CHECK_NEAR(g.winding_speed_limit(), 0.3 * 2.0 / (390.0 * 2.0), 1e-7);
+  // A light rotor keeps the thesis's 20 ms of stillness.
+  g.set_motors(kDefaultStallForceN, kDefaultNoLoadSpeedMPerS, 0.1f);
+  CHECK(g.still_us() == kStillUs);
+  // 3 N of this motor's pull against a cell reading 0.35 N is implausible; with the thesis's
+  // motor the same duty pulls 1.5 N, which 0.35 N is not implausibly far from.
+  Guard strong;
+  strong.set_tension_limit(kLimitN);
+  strong.set_motors(stall_n, speed_m_s, mass_kg);
+  Guard thesis;
+  thesis.set_tension_limit(kLimitN);
+  const float tensions[kDefaultChannels] = {0.35f, 0.35f, 0.35f, 0.35f};
+  const int32_t counts[kDefaultChannels] = {};
+  const float duty[kDefaultChannels] = {-3.0f / stall_n, 0.0f, 0.0f, 0.0f};
+  const Drive drive[kDefaultChannels] = {Drive::kDrive, Drive::kBrake, Drive::kBrake, Drive::kBrake};
+  for (Guard* guard : {&strong, &thesis}) {
+    guard->observe(0, counts, tensions, 0);
+    guard->observe(5000, counts, tensions, 0);
+    guard->faults(5000, duty, drive);
+  }
+  CHECK(strong.faults(5000 + kImplausibleUs, duty, drive) == (fault::kLoadcellImplausible | fault::implausible_channel(0)));
+  CHECK(thesis.faults(5000 + kImplausibleUs, duty, drive) == 0);
+}
+
+// A slack tendon taken up slowly by a strongly damped motor: its spool counts as still, and its
+// duty's stall pull (1.2 N) is what back-EMF mostly takes; the cell reading nothing is plausible.
+// The same pull on a spool that does not turn is not.
+void a_slack_tendon_wound_in_slowly_is_not_implausible() {
+  const float stall_n = 4.0f * kDefaultStallForceN;
+  const float damping = stall_n / kDefaultNoLoadSpeedMPerS;  // 1200 N·s/m
+  const float w = 0.0009f;                                    // winding in, under kStillSpeedMPerS
+  const float slack[kDefaultChannels] = {0.0f, 0.0f, 0.0f, 0.0f};
+  const float duty[kDefaultChannels] = {-(damping * w + 0.1f) / stall_n, 0.0f, 0.0f, 0.0f};
+  const Drive drive[kDefaultChannels] = {Drive::kDrive, Drive::kBrake, Drive::kBrake, Drive::kBrake};
+  for (const bool turning : {true, false}) {
+    Guard g;
+    g.set_tension_limit(kLimitN);
+    g.set_motors(stall_n, kDefaultNoLoadSpeedMPerS, kDefaultReflectedMassKg);
+    int32_t counts[kDefaultChannels] = {};
+    g.observe(0, counts, slack, 0);
+    uint32_t flags = 0;
+    for (uint64_t t = 5000; t <= 5000 + kImplausibleUs + 20000; t += 5000) {
+      if (turning) counts[0] -= static_cast<int32_t>(std::lround(w * 0.005 / kTendonMPerCount));
+      g.observe(t, counts, slack, 0);
+      float out[kDefaultChannels];
+      Drive d[kDefaultChannels];
+      g.drive(duty, out, d);
+      flags |= g.faults(t, duty, drive);
+    }
+    CHECK(flags == (turning ? 0u : (fault::kLoadcellImplausible | fault::implausible_channel(0))));
+  }
 }
 
 void lasting_counts_unbroken_spans() {
@@ -261,5 +333,7 @@ void test_guard() {
   a_motor_at_its_cap_against_a_still_spool_trips_the_tension_limit();
   a_motor_at_its_cap_against_a_spool_creeping_out_trips_too();
   a_cell_reading_far_under_its_stalled_motors_pull_is_implausible();
+  the_bounds_follow_the_motors_the_host_gives();
+  a_slack_tendon_wound_in_slowly_is_not_implausible();
   lasting_counts_unbroken_spans();
 }

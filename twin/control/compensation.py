@@ -29,9 +29,9 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from twin.checks import finite_vector
-from twin.rod import RodModel, solve, tip_jacobian
+from twin.rod import RodModel, solve, solve_batch, tip_jacobian
 
-__all__ = ["Compensation", "compensate_tensions", "correct_tensions", "hold_tensions"]
+__all__ = ["Compensation", "compensate_tensions", "correct_tensions", "hold_tensions", "unloaded_tips"]
 
 # Position residuals are scaled to mm so that they and the tension pull (per N) are of one size.
 _POSITION_SCALE_M = 1e-3
@@ -98,11 +98,13 @@ def compensate_tensions(model: RodModel, target_m, *, tip_force_n=None, tip_mome
         "reference_tensions_n", reference_tensions_n, nt)
     loads = dict(tip_force_n=tip_force_n, tip_moment_nm=tip_moment_nm, base_rotation=base_rotation,
                  friction_direction=friction_direction)
-    guess: list[np.ndarray | None] = [None]  # the last converged base moment: every solve after the first starts warm
+    # The last converged base moment and shooting Jacobian: every solve after the first starts
+    # warm, with Broyden updates of that Jacobian instead of finite differences.
+    guess: list[np.ndarray | None] = [None, None]
 
     def shape(tensions):
-        sol = solve(model, tensions, guess_nm=guess[0], **loads)
-        guess[0] = sol.base_moment_nm
+        sol = solve(model, tensions, guess_nm=guess[0], guess_jacobian=guess[1], **loads)
+        guess[:] = [sol.base_moment_nm, sol.shooting_jacobian]
         return sol
 
     cache: dict[bytes, tuple] = {}
@@ -140,7 +142,7 @@ def compensate_tensions(model: RodModel, target_m, *, tip_force_n=None, tip_mome
 
 
 def hold_tensions(model: RodModel, unloaded_tensions_n, tip_force_n, *, tip_moment_nm=None, base_rotation=None,
-                  floor_n: float = 0.3, limit_n: float = 5.0, unloaded_friction_direction=None,
+                  floor_n: float = 0.3, limit_n: float = 5.0, unloaded_friction_direction=None, target_m=None,
                   **options) -> Compensation:
     """Tensions within the bounds that keep the tip where ``unloaded_tensions_n`` held it, under a tip load.
 
@@ -158,15 +160,57 @@ def hold_tensions(model: RodModel, unloaded_tensions_n, tip_force_n, *, tip_mome
         floor_n, limit_n: tension bounds (N).
         unloaded_friction_direction: (nt,) the sliding state σ the unloaded tensions were
             measured in (a friction model's static shape depends on how it was reached); default +1.
+        target_m: (3,) that unloaded tip (world frame, m), if the caller has solved it already
+            (:func:`unloaded_tips`: one batch for the target and the sags of several loads);
+            None solves it here.
         **options: passed to :func:`compensate_tensions` (``regularisation``, ``tolerance_m``,
             ``friction_direction``: the state the tensions will be held in).
     """
     unloaded = np.asarray(unloaded_tensions_n, dtype=float)
-    target = solve(model, np.maximum(unloaded, 0.0), base_rotation=base_rotation,
-                   friction_direction=unloaded_friction_direction).tip_position_m
+    if target_m is None:
+        target = solve(model, np.maximum(unloaded, 0.0), base_rotation=base_rotation,
+                       friction_direction=unloaded_friction_direction).tip_position_m
+    else:
+        target = np.asarray(target_m, dtype=float)
     return compensate_tensions(model, target, tip_force_n=tip_force_n, tip_moment_nm=tip_moment_nm,
                                base_rotation=base_rotation, reference_tensions_n=np.clip(unloaded, floor_n, limit_n),
                                floor_n=floor_n, limit_n=limit_n, **options)
+
+
+def unloaded_tips(model: RodModel, unloaded_tensions_n, tip_forces_n, *, base_rotation=None,
+                  unloaded_friction_direction=None) -> tuple[np.ndarray, np.ndarray]:
+    """The target :func:`hold_tensions` aims at, and how far each load moves the tip at the
+    unloaded tensions (every tendon pulled): independent solves of one rod, in one
+    :func:`twin.rod.solve_batch`.
+
+    Args:
+        model: the predictor's rod.
+        unloaded_tensions_n: (nt,) tensions (N) that held the tip on target without a load.
+        tip_forces_n: (k, 3) the loads (N, world frame).
+        base_rotation: clamp orientation (3×3, body → world).
+        unloaded_friction_direction: (nt,) the sliding state the unloaded tensions were measured
+            in (the target's); default +1.
+
+    Returns:
+        (target (3,) m, sags (k,) m: |loaded tip − unloaded tip| at the unloaded tensions).
+
+    Raises:
+        ConvergenceError: a case has no solution.
+    """
+    tensions = np.maximum(np.asarray(unloaded_tensions_n, dtype=float), 0.0)
+    forces = np.asarray(tip_forces_n, dtype=float).reshape(-1, 3)
+    nt = model.tendon_count
+    # The target's own case only where its sliding state is not the sags' (+1).
+    own = unloaded_friction_direction is not None
+    sigma = np.ones((len(forces) + 1 + own, nt))
+    if own:
+        sigma[0] = unloaded_friction_direction
+    cases = np.vstack([np.zeros((1 + own, 3)), forces])
+    sols = solve_batch(model, np.broadcast_to(tensions, (len(cases), nt)), tip_force_n=cases,
+                       base_rotation=base_rotation, friction_direction=sigma)
+    free = sols[own].tip_position_m
+    sags = np.array([np.linalg.norm(sol.tip_position_m - free) for sol in sols[1 + own:]])
+    return sols[0].tip_position_m, sags
 
 
 def correct_tensions(model: RodModel, applied: Compensation, goal_m, measured_miss_m, *, tip_force_n=None,

@@ -39,7 +39,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from twin.control.compensation import correct_tensions, hold_tensions
+from twin.control.compensation import correct_tensions, hold_tensions, unloaded_tips
 from twin.control.pretension import pretension_straight
 from twin.control.gains import tension_gains_for
 from twin.driver import CommandRejected
@@ -48,7 +48,7 @@ from twin.experiments.protocols import ProtocolError, measure, wait_for_rest
 from twin.experiments.report import markdown_table
 from twin.params import Params
 from twin.pcc import GRID_KAPPA_PER_M, GRID_PHI_DEG, tendon_length_changes_m, validation_grid
-from twin.rod import RodModel, solve
+from twin.rod import RodModel
 from twin.rod.grid import GRAVITY_TIP_FORCE_N, pcc_realisable, pcc_tensions_n
 
 __all__ = ["CompensationTrial", "run_compensation_trial", "tension_ceiling_n", "compensation_grid", "within_reach",
@@ -253,7 +253,7 @@ def tension_ceiling_n(params: Params, gains: dict, *, margin_n: float = 0.5, hea
         margin_n: distance kept from the board's tension limit (N).
         headroom: fraction of the clamped stall force that may be asked for.
     """
-    stall_n = params.rig.motor_stall_torque_nm / params.rig.spool_radius_m
+    stall_n = params.rig.motor_stall_force_n
     return min(params.rig.tension_limit_n - margin_n, headroom * gains["output_limit"] * stall_n)
 
 
@@ -398,11 +398,14 @@ def run_compensation_trial(device, params: Params, *, configs: Sequence[tuple[fl
             fault = f"no target: {str(exc).split(';')[0]}"
             unloaded = None
         first_row = len(rows)
-        for mass in masses_kg:
-            load = GRAVITY_TIP_FORCE_N(mass, g)
-            plan = sliding.plan(model, unloaded.tensions_n, unloaded_sigma, load, bounds) if unloaded is not None else None
-            sag = (_predicted_sag_m(model, unloaded.tensions_n, load, bounds["base_rotation"])
-                   if plan is not None and unloaded is not None else 0.0)
+        loads = [GRAVITY_TIP_FORCE_N(mass, g) for mass in masses_kg]
+        if unloaded is not None:
+            # The target and every mass's sag: independent solves, one batch.
+            target_m, sags = unloaded_tips(model, unloaded.tensions_n, loads, base_rotation=bounds["base_rotation"],
+                                           unloaded_friction_direction=unloaded_sigma)
+        for mass, load, sag in zip(masses_kg, loads, sags if unloaded is not None else [0.0] * len(loads)):
+            plan = sliding.plan(model, unloaded.tensions_n, unloaded_sigma, load, bounds, target_m) \
+                if unloaded is not None else None
             if plan is not None and plan.residual_m > _REACH_SHARE * sag:
                 # At best the row would end above half its uncompensated error: out of reach, not run.
                 left_out.append({"kappa_per_m": kappa, "phi_deg": phi, "mass_g": round(mass * 1e3, 3),
@@ -444,14 +447,6 @@ def run_compensation_trial(device, params: Params, *, configs: Sequence[tuple[fl
                              timing_s=timing, left_out=left_out)
 
 
-def _predicted_sag_m(model: RodModel, tensions_n, load, base_rotation) -> float:
-    """How far (m) the predictor's tip moves when ``load`` is hung at fixed ``tensions_n``."""
-    tensions = np.maximum(tensions_n, 0.0)
-    free = solve(model, tensions, base_rotation=base_rotation).tip_position_m
-    return float(np.linalg.norm(solve(model, tensions, tip_force_n=load, base_rotation=base_rotation).tip_position_m
-                                - free))
-
-
 class _Sliding:
     """The trial's record of each tendon's friction sliding state (:class:`twin.effects.SlidingState`),
     followed from the encoders. Without friction in the model σ changes no prediction: nothing is followed."""
@@ -468,7 +463,7 @@ class _Sliding:
         sigma = self.state.follow(self.device.drain())
         return None if sigma is None else friction_direction(np.zeros_like(sigma), self.sense, sigma)
 
-    def plan(self, model: RodModel, unloaded_n, unloaded_sigma, load, bounds: dict):
+    def plan(self, model: RodModel, unloaded_n, unloaded_sigma, load, bounds: dict, target_m=None):
         """:func:`hold_tensions` of the unloaded tensions, its target predicted in the state
         they were measured in (``unloaded_sigma``). The loaded tensions are planned, and
         corrected, with every tendon pulled (the predictor's default): planning them in the state
@@ -478,7 +473,8 @@ class _Sliding:
         presliding travel), and re-aiming each correction in the state measured at the miss
         gave 79.7 %. With the target alone in the measured state: 92.8 % (one run each on
         ``sim://?seed=0``, the quick grid)."""
-        return hold_tensions(model, unloaded_n, load, unloaded_friction_direction=unloaded_sigma, **bounds)
+        return hold_tensions(model, unloaded_n, load, unloaded_friction_direction=unloaded_sigma, target_m=target_m,
+                             **bounds)
 
 
 def _run_mass(device, row: dict, model: RodModel, plan, target, mass: float, load, pcc_lengths, bounds: dict, *,

@@ -21,11 +21,15 @@ _TUNED_LIMIT_N = 6.0
 
 
 def tension_gains_for(params: Params) -> dict:
-    """The tuned gains for the rig of ``params``: kp and ki (duty per newton of error) as tuned,
-    the duty clamp scaled so the clamped stall pull is the same share of this rig's
-    ``rig.tension_limit_n`` as the tuned clamp's is of the endoscope's 6 N (0.90). The
-    endoscope's rig gets :data:`TUNED_TENSION_GAINS` itself; a rig with a 30 N limit can pull
-    27 N instead of being held at 5.4 N, far under what a stiff robot needs to bend."""
+    """The tuned gains for the rig of ``params``: kp, ki and kd (duty per newton of error)
+    scaled by the tuned rig's stall pull over this rig's (``rig.motor_stall_force_n``), so that a
+    newton of error asks the same pull of another motor, and the duty clamp scaled so the
+    clamped stall pull is the same share of this rig's ``rig.tension_limit_n`` as the tuned
+    clamp's is of the endoscope's 6 N (0.90). The endoscope's rig gets
+    :data:`TUNED_TENSION_GAINS` itself; a rig with a 30 N limit can pull 27 N instead of being
+    held at 5.4 N, far under what a stiff robot needs to bend."""
     share = TUNED_TENSION_GAINS["output_limit"] * _TUNED_STALL_N / _TUNED_LIMIT_N
-    stall_n = params.rig.motor_stall_torque_nm / params.rig.spool_radius_m
-    return {**TUNED_TENSION_GAINS, "output_limit": min(1.0, share * params.rig.tension_limit_n / stall_n)}
+    stall_n = params.rig.motor_stall_force_n
+    scale = _TUNED_STALL_N / stall_n
+    return {**TUNED_TENSION_GAINS, **{k: TUNED_TENSION_GAINS[k] * scale for k in ("kp", "ki", "kd")},
+            "output_limit": min(1.0, share * params.rig.tension_limit_n / stall_n)}

@@ -150,7 +150,8 @@ class EmulatedBoard:
         return self.plant.tendon_count
 
     def _power_up(self) -> None:
-        self.firmware = FirmwareLib(self.plant.tendon_count)
+        # The plant's encoders count its rig's spool, gearbox and encoder: so does its board.
+        self.firmware = FirmwareLib(self.plant.tendon_count, self.plant.params.rig.tendon_m_per_count)
         s = self._loop.state
         s.firmware = self.firmware.handle
         s.power_up_s = self.plant.time_s

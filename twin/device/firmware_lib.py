@@ -42,7 +42,7 @@ __all__ = [
 
 FIRMWARE_DIR = resource_path("firmware")
 LIB_NAME = "libtwinfw.so"
-ABI_VERSION = 3
+ABI_VERSION = 4
 
 
 class FirmwareBuildError(NativeBuildError):
@@ -96,6 +96,7 @@ def load_library() -> ctypes.CDLL:
         "twinfw_protocol_version": ([], ctypes.c_uint32),
         "twinfw_max_channels": ([], ctypes.c_uint32),
         "twinfw_create": ([ctypes.c_uint32], p),
+        "twinfw_create_rig": ([ctypes.c_uint32, ctypes.c_float], p),
         "twinfw_channels": ([p], ctypes.c_uint32),
         "twinfw_destroy": ([p], None),
         "twinfw_receive": ([p, ctypes.c_char_p, ctypes.c_size_t], None),
@@ -163,19 +164,25 @@ class FirmwareLib:
     Args:
         channels: motors and load cells of the board (1..:data:`codec.MAX_CHANNELS`), what its
             HELLO_REPLY reports; default the thesis endoscope's four.
+        tendon_m_per_count: tendon per encoder count of the rig it drives (m), what its
+            HELLO_REPLY reports and its lengths and spool speeds are counted in (a robot's
+            ``rig.tendon_m_per_count``); None: the thesis rig's, as the Teensy is built.
 
     Attributes:
         channels: that count.
 
     Raises:
-        ValueError: ``channels`` outside 1..MAX_CHANNELS.
+        ValueError: ``channels`` outside 1..MAX_CHANNELS, or ``tendon_m_per_count`` not in (0, 1) m.
     """
 
-    def __init__(self, channels: int = codec.DEFAULT_CHANNELS) -> None:
+    def __init__(self, channels: int = codec.DEFAULT_CHANNELS, tendon_m_per_count: float | None = None) -> None:
         if not (isinstance(channels, (int, np.integer)) and 1 <= channels <= codec.MAX_CHANNELS):
             raise ValueError(f"channels = {channels!r}: the firmware drives 1..{codec.MAX_CHANNELS} motors")
+        if tendon_m_per_count is not None and not 0.0 < tendon_m_per_count < 1.0:
+            raise ValueError(f"tendon_m_per_count = {tendon_m_per_count!r}: must be in (0, 1) m, or None")
         self._lib = load_library()
-        self._fw = self._lib.twinfw_create(int(channels))
+        self._fw = self._lib.twinfw_create(int(channels)) if tendon_m_per_count is None else \
+            self._lib.twinfw_create_rig(int(channels), float(tendon_m_per_count))
         if not self._fw:
             raise MemoryError("twinfw_create returned NULL")
         self.channels = int(self._lib.twinfw_channels(self._fw))

@@ -30,7 +30,7 @@ from twin.data.dataset import Dataset, write_dataset
 from twin.params import Params
 from twin.pcc import tendon_length_changes_m, validation_grid
 from twin.pose import HORIZONTAL
-from twin.rod import Predictor, RodModel
+from twin.rod import RodModel, solve_batch
 from twin.rod.grid import pcc_tensions_n
 
 __all__ = ["PRETENSION_RANGE_N", "synthetic_validation_dataset"]
@@ -78,7 +78,6 @@ def synthetic_validation_dataset(folder: str | Path, nominal: Params, truth: Par
     model = RodModel.from_params(truth)
     if precurvature_per_m is not None:
         model = model.replace(precurvature_per_m=tuple(float(u) for u in precurvature_per_m))
-    predictor = Predictor(model)
     registration = np.eye(3) if tracker_rotation_deg is None else \
         Rotation.from_rotvec(np.radians(np.asarray(tracker_rotation_deg, dtype=float))).as_matrix()
     clamp = effects.clamp_rotation(truth, base_rotation)
@@ -86,33 +85,41 @@ def synthetic_validation_dataset(folder: str | Path, nominal: Params, truth: Par
     count_m = truth.rig.tendon_m_per_count
     cases = list(validation_grid() if grid is None else grid)
     stride = max(int(c[0]) for c in cases) + 1  # repeats get their own configuration numbers
+    nt = truth.tendons.count
     rows = []
     for repeat in range(repeats):
-        for config, kappa, phi, mass in cases:
-            pretension = rng.uniform(*PRETENSION_RANGE_N, size=truth.tendons.count)
-            tensions = pcc_tensions_n(kappa, phi, nominal, pretension_n=0.0) + pretension
+        # Each case's random draws first, in the order a case-by-case loop makes them (pretension,
+        # tracker noise, load-cell noise), then all of the repeat's cases in one batch solve.
+        tensions, lengths, tracker, loadcell = [], [], [], []
+        for _, kappa, phi, _ in cases:
+            pretension = rng.uniform(*PRETENSION_RANGE_N, size=nt)
+            tensions.append(pcc_tensions_n(kappa, phi, nominal, pretension_n=0.0) + pretension)
             # Encoders count whole steps, which also settles the sign of the tendons that do
             # not move (cos(φ − α) = 0 up to rounding): they stay as the holder pulled them.
-            lengths = np.round(tendon_length_changes_m(kappa, phi, nominal) / count_m) * count_m + 0.0
-            sol = predictor.solve(tensions, tip_force_n=effects.tip_force_n(truth, mass), base_rotation=clamp,
-                                  tip_moment_nm=tip_moment_nm,
-                                  friction_direction=effects.friction_direction(
-                                      lengths, truth.effects.tendon_friction_direction), raise_on_failure=False)
+            lengths.append(np.round(tendon_length_changes_m(kappa, phi, nominal) / count_m) * count_m + 0.0)
+            tracker.append(rng.normal(0.0, tracker_sigma, (frames, 3)))
+            loadcell.append(rng.normal(0.0, loadcell_sigma, (frames, nt)).mean(axis=0))
+        solutions = solve_batch(
+            model, np.array(tensions), tip_force_n=np.array([effects.tip_force_n(truth, c[3]) for c in cases]),
+            base_rotation=clamp, tip_moment_nm=tip_moment_nm,
+            friction_direction=np.array([effects.friction_direction(x, truth.effects.tendon_friction_direction)
+                                         for x in lengths]), raise_on_failure=False)
+        for (config, kappa, phi, mass), sol, t, x, noise, cell_noise in zip(cases, solutions, tensions, lengths, tracker,
+                                                                             loadcell):
             if not sol.converged:
-                predictor.reset()
                 continue
             tip = registration @ effects.tracked_point_m(truth, sol.tip_position_m, sol.tip_rotation)
-            seen = tip + rng.normal(0.0, tracker_sigma, (frames, 3))
+            seen = tip + noise
             tip = seen.mean(axis=0)
-            reported = gain * tensions + offset + rng.normal(0.0, loadcell_sigma, (frames, tensions.size)).mean(axis=0)
+            reported = gain * t + offset + cell_noise
             row = {"config": repeat * stride + config, "repeat": repeat, "kappa_cmd_per_m": kappa,
                    "phi_cmd_deg": phi, "tip_mass_kg": mass, "tip_x_m": tip[0], "tip_y_m": tip[1], "tip_z_m": tip[2]}
             if frames > 1:
                 sem = seen.std(axis=0, ddof=1) / np.sqrt(frames)
                 row.update({"tip_frames": frames, "tip_sem_x_m": sem[0], "tip_sem_y_m": sem[1], "tip_sem_z_m": sem[2]})
-            for i in range(tensions.size):
+            for i in range(t.size):
                 row[f"tension_{i + 1}_n"] = reported[i]
-                row[f"length_{i + 1}_m"] = lengths[i]
+                row[f"length_{i + 1}_m"] = x[i]
             rows.append(row)
     return write_dataset(folder, rows, experiment="validation", device="synthetic://predictor", params=nominal,
                          base_rotation=base_rotation,

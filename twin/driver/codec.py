@@ -55,6 +55,7 @@ __all__ = [
     "SetGains",
     "SetCalibration",
     "SetLimits",
+    "SetMotors",
     "HelloReply",
     "Ack",
     "Nack",
@@ -74,7 +75,7 @@ __all__ = [
     "decode_frame",
 ]
 
-PROTOCOL_VERSION = 4
+PROTOCOL_VERSION = 5
 # Most channels a board may have: the firmware's kMaxChannels (firmware/core/config.h), which
 # the TELEMETRY fault flags have a tension and an implausible bit each for.
 MAX_CHANNELS = 12
@@ -105,6 +106,7 @@ class MsgType(enum.IntEnum):
     SET_GAINS = 0x08
     SET_CALIBRATION = 0x09
     SET_LIMITS = 0x0A
+    SET_MOTORS = 0x0B
     HELLO_REPLY = 0x81
     ACK = 0x82
     NACK = 0x83
@@ -332,6 +334,20 @@ class SetLimits(Message):
     loadcell_gain_counts_per_n: float = 45000.0
 
 
+@dataclasses.dataclass(frozen=True)
+class SetMotors(Message):
+    """The motors at the tendons, all alike: stall force (N), no-load speed (m/s) and reflected
+    rotor mass (kg), which the board's tension bound derives from. Defaults: the thesis rig's
+    (0.5 N·m and 1500 rpm on a 3.25 mm spool, 1e-6 kg·m² behind 5.3:1), the board's own until
+    it is sent another. Another one is refused while enabled."""
+
+    TYPE = MsgType.SET_MOTORS
+    LAYOUT = (("stall_force_n", "f"), ("no_load_speed_m_per_s", "f"), ("reflected_mass_kg", "f"))
+    stall_force_n: float = 0.5 / 0.00325
+    no_load_speed_m_per_s: float = 1500.0 * 2.0 * math.pi / 60.0 * 0.00325
+    reflected_mass_kg: float = 1e-6 * 5.3**2 / 0.00325**2
+
+
 # Board → host.
 @dataclasses.dataclass(frozen=True)
 class HelloReply(Message):
@@ -424,7 +440,7 @@ class TelemetryMessage(Message):
 MESSAGE_TYPES: dict[int, type[Message]] = {
     cls.TYPE: cls
     for cls in (Hello, Ping, Enable, Disable, Tare, SetMode, SetSetpoints, SetGains, SetCalibration,
-                SetLimits, HelloReply, Ack, Nack, TelemetryMessage)
+                SetLimits, SetMotors, HelloReply, Ack, Nack, TelemetryMessage)
 }
 
 

@@ -40,6 +40,7 @@ Example::
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import threading
 from typing import TYPE_CHECKING, Any, ContextManager, Iterable, Sequence
@@ -48,7 +49,7 @@ import numpy as np
 import numpy.typing as npt
 
 from twin.checks import finite_vector
-from twin.board_limits import GAIN_TOLERANCE, MAX_OFFSET_COUNTS, MAX_TENSION_LIMIT_N, RATED_GAIN_COUNTS_PER_N
+from twin.board_limits import GAIN_TOLERANCE, MAX_OFFSET_COUNTS, MAX_TENSION_LIMIT_N, RATED_GAIN_COUNTS_PER_N, motor_problems
 from twin.driver import codec
 from twin.driver.errors import (ChannelCountError, CommandRejected, DeviceDisconnected, DeviceError, DeviceTimeout,
                                 ProtocolVersionError)
@@ -172,6 +173,12 @@ class Device:
         tendon_m_per_count: the rig's tendon length per encoder count (m), e.g.
             ``rig.tendon_m_per_count``: :meth:`connect` refuses a board that counts otherwise
             (another spool, gearbox or encoder). None takes the board's as it comes.
+        motors: the motors at the tendons (:class:`twin.driver.codec.SetMotors`: stall force,
+            no-load speed, reflected rotor mass), e.g. from the parameter set's
+            ``rig.motor_stall_force_n``, ``rig.motor_no_load_speed_m_per_s`` and
+            ``rig.motor_reflected_mass_kg``: sent on :meth:`connect` and before every
+            :meth:`enable`, so the board bounds the tension with these motors. None keeps the
+            board's default (the thesis rig's).
 
     Attributes:
         fixture: the :class:`twin.driver.fixture.Fixture` (None if the backend has none).
@@ -194,7 +201,13 @@ class Device:
         robot: str | None = None,
         loadcell_gain_counts_per_n: float | None = None,
         tendon_m_per_count: float | None = None,
+        motors: codec.SetMotors | None = None,
     ):
+        if motors is not None:
+            problems = motor_problems(dataclasses.asdict(motors))
+            if problems:
+                raise ValueError(f"motors: {problems[0]}")
+        self._motors = motors if motors is not None else codec.SetMotors()
         if tendons is not None and not (isinstance(tendons, (int, np.integer)) and tendons >= 1):
             raise ValueError(f"tendons = {tendons!r}: must be a whole number >= 1, or None")
         self._tendons = None if tendons is None else int(tendons)
@@ -385,23 +398,25 @@ class Device:
         """Enter ENABLED (clearing latched faults); the rig holds its current lengths or
         tensions until setpoints arrive.
 
-        The limits this host set last (or was configured with) go to the board just before, so
-        that whatever a power cycle or another host did to them, the board drives with these.
+        The motors and the limits this host set last (or was configured with) go to the board
+        just before, so that whatever a power cycle or another host did to them, the board
+        drives with these.
 
         Raises:
-            CommandRejected: the board refused the limits (then it was sent DISABLE) or ENABLE.
+            CommandRejected: the board refused the motors or the limits (then it was sent DISABLE) or ENABLE.
         """
         self._check_connected()
-        limits = self._limits()
-        # Not awaited on its own: the board answers in order, so its answer is in when ENABLE's is.
-        seq = self._send(limits, expect_answer=True)
+        sent = [self._motors, self._limits()]
+        # Not awaited on their own: the board answers in order, so their answers are in when ENABLE's is.
+        seqs = [self._send(message, expect_answer=True) for message in sent]
         try:
             self._await_answer(codec.Enable())
         finally:
-            reply = self._inbox.take_answer(seq)
-        if isinstance(reply, codec.Nack):
-            self._await_answer(codec.Disable())
-            raise CommandRejected(self.url, limits, seq, reply.error)
+            replies = [self._inbox.take_answer(seq) for seq in seqs]
+        for message, seq, reply in zip(sent, seqs, replies):
+            if isinstance(reply, codec.Nack):
+                self._await_answer(codec.Disable())
+                raise CommandRejected(self.url, message, seq, reply.error)
 
     def disable(self) -> None:
         """Enter DISABLED: each motor brakes until its spool stands still, then coasts. Latched
@@ -649,6 +664,7 @@ class Device:
         # is given this host's limits and load cells, so that it reads tensions in this rig's
         # units from the first sample on.
         self._await_answer(codec.Disable())
+        self._await_answer(self._motors)
         self._await_answer(self._limits())
         # Samples that came before may be stale (old bytes on the line, a state before the
         # DISABLE); wait for one after.

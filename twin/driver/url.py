@@ -45,6 +45,7 @@ import math
 import urllib.parse
 from typing import Any, Callable
 
+from twin.driver import codec
 from twin.driver.device import Device
 from twin.driver.fixture import Fixture, OperatorFixture, RemoteFixture
 from twin.driver.igtl_source import URL_KEYS as IGTL_KEYS
@@ -184,7 +185,9 @@ def open_device(
                        tension_limit_n=params.rig.tension_limit_n, base_rotation=_pose(url, options, params),
                        tendons=params.tendons.count, robot=robot,
                        loadcell_gain_counts_per_n=params.sensors.loadcell_gain_counts_per_n,
-                       tendon_m_per_count=params.rig.tendon_m_per_count)
+                       tendon_m_per_count=params.rig.tendon_m_per_count,
+                       motors=codec.SetMotors(params.rig.motor_stall_force_n, params.rig.motor_no_load_speed_m_per_s,
+                                              params.rig.motor_reflected_mass_kg))
     return scheme.open(DeviceRequest(url, parts, options, params, seed, prompt, device_args,
                                      FusionSettings.from_params(params)))
 
@@ -262,7 +265,7 @@ def _igtl_tracker(url: str, options: dict[str, str], settings: FusionSettings) -
         igtl_settings = settings_from_options(options)
     except ValueError as exc:
         raise ValueError(f"device URL {url!r}: {exc}") from None
-    cap = {}
+    cap: dict[str, Any] = {}
     for key, field in _CAP_KEYS.items():
         if key in options:
             try:

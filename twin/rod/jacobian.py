@@ -11,6 +11,7 @@ about as much as one cold solve.
 from __future__ import annotations
 
 import dataclasses
+import math
 
 import numpy as np
 
@@ -92,8 +93,9 @@ def tip_jacobian(model: RodModel, solution: RodSolution) -> TipJacobian:
     # robots and the thesis grid the Jacobian moves by at most 2.4e-5 of its column's largest
     # entry, for three integrations fewer.
     h_m = 1e-5 * scale
-    h_tau = 1e-6 * max(1.0, float(np.max(load.tensions_n)))
-    h_f = 1e-6 * max(0.1, float(np.max(np.abs(load.tip_force_n))))
+    # Maxima of a few numbers as Python floats: numpy's reductions cost more than they do.
+    h_tau = 1e-6 * max(1.0, *load.tensions_n.tolist())
+    h_f = 1e-6 * max(0.1, *map(abs, load.tip_force_n.tolist()))
     ncol = nt + 6
     dr_dm = np.empty((3, 3))
     dt_dm = np.empty((6, 3))
@@ -101,13 +103,30 @@ def tip_jacobian(model: RodModel, solution: RodSolution) -> TipJacobian:
     dt_dth = np.zeros((6, ncol))
     # The tip moment enters only the boundary residual r = m(L) − M_e (kernel.integrate): at a
     # fixed m0 the shape does not move, so ∂r/∂M_e = −I and ∂T/∂M_e = 0, exactly.
-    dr_dth[:, nt + 3:] = -np.eye(3)
+    dr_dth[:, nt + 3:] = _MINUS_IDENTITY
     # All 4 + nt + 3 integrations in one compiled call.
     if not kernel.tip_sensitivities(np.asarray(m0, dtype=float), h_m, h_tau, h_f, np.asarray(p_ref, dtype=float),
                                     np.asarray(r_ref, dtype=float), rod, states, strains, dr_dm, dt_dm, dr_dth, dt_dth):
         raise ValueError("tip_jacobian: a perturbed integration failed; the solution is on a singular branch")
-    dm0 = -np.linalg.solve(dr_dm, dr_dth)
+    dm0 = -(_inverse_3x3(dr_dm) @ dr_dth)
     return TipJacobian(matrix=dt_dth + dt_dm @ dm0, tendon_count=nt)
+
+
+_MINUS_IDENTITY = -np.eye(3)
+
+
+def _inverse_3x3(a: np.ndarray) -> np.ndarray:
+    """The inverse of a 3×3 matrix by its adjugate, in Python floats: ``np.linalg.solve``'s
+    argument handling costs ~10 µs on a Jacobian of ~300 µs. A singular or non-finite matrix goes
+    to ``np.linalg.inv``, which raises as the solve did."""
+    (a00, a01, a02), (a10, a11, a12), (a20, a21, a22) = a.tolist()
+    c00, c01, c02 = a11 * a22 - a12 * a21, a12 * a20 - a10 * a22, a10 * a21 - a11 * a20
+    det = a00 * c00 + a01 * c01 + a02 * c02
+    if not (math.isfinite(det) and det != 0.0):
+        return np.linalg.inv(a)
+    return np.array([[c00, a02 * a21 - a01 * a22, a01 * a12 - a02 * a11],
+                     [c01, a00 * a22 - a02 * a20, a02 * a10 - a00 * a12],
+                     [c02, a01 * a20 - a00 * a21, a00 * a11 - a01 * a10]]) / det
 
 
 def solve_with_jacobian(model: RodModel, tensions_n, **kwargs) -> tuple[RodSolution, TipJacobian]:

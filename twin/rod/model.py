@@ -176,8 +176,11 @@ class RodModel:
         stations = np.array(nodes)
         midpoints = np.array(mids + mids[-1:])
         distal = self.line_mass_kg_per_m * (L - stations) + (pm[None, :, 1] * (pm[None, :, 0] > midpoints[:, None])).sum(1)
+        grav = np.array([0.0, 0.0, -self.gravity_m_s2])
         return {
             "distal_mass_kg": distal,
+            # The weight distal to each station (N, (K, 3)): the load-free part of n(s).
+            "distal_weight_n": distal[:, None] * grav,
             "nodes": np.array(nodes),
             "intervals": np.array(mids),
             "kse": np.array([self.shear_stiffness_n, self.shear_stiffness_n, self.axial_stiffness_n]),
@@ -186,7 +189,7 @@ class RodModel:
             "tendons": table,
             "pm_s": np.ascontiguousarray(pm[:, 0]),
             "pm_m": np.ascontiguousarray(pm[:, 1]),
-            "grav": np.array([0.0, 0.0, -self.gravity_m_s2]),
+            "grav": grav,
             "ustar": np.array(self.precurvature_per_m, dtype=float).reshape(3),
         }
 

@@ -68,10 +68,10 @@ class MotorConstants:
             torque_constant_nm_per_a=k,
             resistance_ohm=resistance,
             transmission_rad_per_m=1.0 / r,
-            reflected_mass_kg=rig.motor_rotor_inertia_kgm2 * rig.gear_ratio**2 / r**2,
+            reflected_mass_kg=rig.motor_reflected_mass_kg,
             back_emf_damping_n_s_per_m=k * k / (resistance * r * r),
-            stall_force_n=rig.motor_stall_torque_nm / r,
-            no_load_speed_m_per_s=omega0 * r,
+            stall_force_n=rig.motor_stall_force_n,
+            no_load_speed_m_per_s=rig.motor_no_load_speed_m_per_s,
         )
 
 

@@ -49,7 +49,7 @@ enum bl_reason {
 // Drive modes of the spools (twin.sim.plant.MODES, in order).
 enum bl_mode { BL_PWM = 0, BL_COAST = 1, BL_TENSION = 2, BL_LENGTH = 3 };
 
-// The firmware's drive per motor (twin.device.codec.Drive).
+// The firmware's drive per motor (twin.driver.codec.Drive).
 enum { BL_DRIVE_COAST = 0, BL_DRIVE_ON = 1 };
 
 // The state shared with Python, declared once: twin.sim.native_loop builds its ctypes structure
