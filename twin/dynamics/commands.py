@@ -20,11 +20,12 @@ EXIT_STOPPED = 4
 FITTED_PARAMS = "fitted_dynamics.toml"
 
 _CALIBRATE_EPILOG = """verdicts and exit codes:
-  effect       0  one effect of the library explains the held-out experiments' gap (to the
-                  noise level, or most of it)
+  effect       0  one effect of the library, or a pair, replays the held-out experiments to
+                  the noise level (the noise the data show, within its 99 % bound)
   none         0  the replay gap is at the noise level
   ambiguous    3  two or more effects explain the held-out experiments equally (listed)
-  unexplained  3  no effect of the library explains the held-out gap (the gaps shown)
+  unexplained  3  no effect nor pair replays the held-out experiments to the noise level;
+                  what the best of each leaves is shown (a partial explanation is not named)
   bad input    2  a run folder, parameter file or option that cannot be used (one line on stderr)"""
 
 
