@@ -9,7 +9,8 @@ import sys
 import time
 from pathlib import Path
 
-from twin.cliargs import UsageError, add_param_args, count, new_run_folder, params_from_args, robot_name
+from twin.cliargs import (UsageError, add_param_args, count, new_run_folder, nonnegative, params_from_args,
+                          robot_name)
 from twin.params import ParameterError, parse_override
 from twin.device.commands import open_device_arg
 
@@ -33,6 +34,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--twin-set", dest="twin_overrides", action="append", default=[], metavar="KEY=VALUE",
                    help="sim:// only: change the simulated rig but not the model (a hidden effect, e.g. "
                         "effects.tendon_friction_coeff=0.3), repeatable")
+    p.add_argument("--unknown-load", action="store_true",
+                   help="compensate the tip force estimated from the loaded tensions and tracked pose, not the known mass")
+    p.add_argument("--side-force", type=nonnegative, default=0.0, metavar="N",
+                   help="push the tip sideways with this force (N) with every mass, untold (default 0)")
     add_param_args(p)
     p.set_defaults(func=run_compensate)
 
@@ -73,7 +78,8 @@ def run_compensate(args: argparse.Namespace) -> int:
     with open_device_arg(args.device, params=twin, robot=robot_name(args)) as device:
         try:
             trial = run_compensation_trial(device, params, configs=configs, floor_n=args.floor, limit_n=limit_n,
-                                           corrections=args.corrections, tension_gains=gains, progress=print)
+                                           corrections=args.corrections, tension_gains=gains, progress=print,
+                                           unknown_load=args.unknown_load, side_force_n=args.side_force)
         except ValueError as exc:  # nothing within reach: refused before anything ran
             raise UsageError(str(exc)) from None
         except (DeviceError, SimulationError) as exc:
