@@ -276,9 +276,12 @@ class EndoscopeReachEnv(gym.Env):
             self.device.fixture.hang_tip_mass(self._later_mass_kg)
             self._tip_mass_kg = self._later_mass_kg
         sample = self.device.wait_next()
-        self._read_tracker()
+        fresh = self._read_tracker()
         if self.force_stream is not None:
-            self._estimate_force(sample)
+            if fresh:
+                self._estimate_force(sample)
+            else:  # no estimate from a stale pose: the tensions moved on; info keeps the last one
+                self.force_stream.follow(self.device.drain())
         self._previous = action
         error = math.dist(self._pose[0].tolist(), self.target_m.tolist())
         fault = rejected or bool(sample.fault_flags & _FAULTS) or not sample.enabled
@@ -391,11 +394,13 @@ class EndoscopeReachEnv(gym.Env):
         phi = rng.uniform(0.0, 360.0)
         return self.device.base_rotation @ arc_tip_position_m(kappa, phi, self.params.backbone.length_m)
 
-    def _read_tracker(self) -> None:
+    def _read_tracker(self) -> bool:
+        """Read a tracker frame; whether the fusion accepted it (else the last good pose stays)."""
         fused = self.device.tracker.read()
         if fused.ok:
             self._pose = (fused.pose.position_m, fused.pose.quaternion)
             self._fused = fused.pose
+        return bool(fused.ok)
 
     def _estimate_force(self, sample) -> None:
         """One live estimate from ``sample`` and the last good tracker pose (its encoder ticks and
