@@ -36,7 +36,7 @@ from tqdm import tqdm
 from twin import load_params
 from twin.data.dataset import read_dataset
 from twin.data.fitting import current_value, fit_parameters
-from twin.device import open_device
+from twin.driver import open_device
 from twin.discrepancy.candidates import candidate_library
 from twin.discrepancy.naming import split_rows
 from twin.experiments.protocols import nominal_calibration, run_validation

@@ -321,3 +321,23 @@ def test_the_target_and_sags_of_one_batch_are_the_separate_solves(friction):
     given = hold_tensions(model, tensions, loads[1], base_rotation=HORIZONTAL, unloaded_friction_direction=sigma,
                           target_m=target)
     assert np.allclose(own.tensions_n, given.tensions_n, atol=1e-6)
+
+
+def test_an_unknown_load_and_an_untold_sideways_push_are_compensated_from_the_tip_force_estimate():
+    # Nothing is told but which rows to run: the feed-forward plans for the force the estimate
+    # finds in the loaded, uncompensated tip (weight and a 50 mN sideways push), not the mass's weight.
+    with open_device("sim://?seed=4", params=PARAMS) as device:
+        unknown = run_compensation_trial(device, PARAMS, configs=[(13.0, 90.0)], unknown_load=True,
+                                         side_force_n=0.05, corrections=0)
+        told = run_compensation_trial(device, PARAMS, configs=[(13.0, 90.0)], side_force_n=0.05, corrections=0)
+    assert [r["load"] for r in unknown.rows] == ["estimated", "estimated"] and not unknown.left_out
+    for row, known in zip(unknown.rows, told.rows):
+        assert not row["fault"] and not known["fault"]
+        weight = row["mass_g"] * 1e-3 * PARAMS.environment.gravity_m_s2
+        truth = np.array([0.0, 0.0, -weight]) + np.array(row["side_force_n"])
+        assert np.linalg.norm(row["side_force_n"]) == pytest.approx(0.05)
+        # Across the clamp's axis (world y, z with the horizontal clamp) the estimate finds the load.
+        assert np.linalg.norm(np.array(row["estimated_force_n"])[1:] - truth[1:]) < 0.02
+        assert row["feedforward_reduction_pct"] >= GOAL_REDUCTION_PCT
+        # Told only the mass, the feed-forward misses the push it was not told about.
+        assert known["feedforward_mm"] > 3 * row["feedforward_mm"]

@@ -11,7 +11,7 @@ from mcap_ros2.decoder import DecoderFactory
 from twin.cli import main
 from twin.data.dataset import DatasetError, DatasetWriter, read_dataset
 from twin.data.rosbag import (BACKBONE_TOPIC, JOINT_STATE, PATH, POSE_STAMPED, PREDICTED_TIP_TOPIC, TENDONS_TOPIC,
-                              TF_MESSAGE, TF_STATIC_TOPIC, TIP_TOPIC, export_bag)
+                              TF_MESSAGE, TF_STATIC_TOPIC, TIP_TOPIC, WRENCH_STAMPED, WRENCH_TOPIC, export_bag)
 from twin.params import load_params
 from twin.pose import HORIZONTAL
 
@@ -61,7 +61,10 @@ def test_bag_holds_every_row_with_its_values_and_stamps(dataset, tmp_path):
     summary = export_bag(dataset.path, out)
     assert summary.rows == len(dataset) == 3
     messages = _messages(out)
-    assert set(messages) == {TENDONS_TOPIC, TIP_TOPIC, PREDICTED_TIP_TOPIC, BACKBONE_TOPIC, TF_STATIC_TOPIC}
+    # The tip wrench only where the estimate converged (these rows are random, not a robot's shape).
+    assert set(messages) - {WRENCH_TOPIC} == {TENDONS_TOPIC, TIP_TOPIC, PREDICTED_TIP_TOPIC, BACKBONE_TOPIC,
+                                              TF_STATIC_TOPIC}
+    assert len(messages.get(WRENCH_TOPIC, [])) <= len(dataset)
     created = datetime.datetime.fromisoformat(dataset.metadata["created"])
     origin_ns = calendar.timegm(created.utctimetuple()) * 10**9 + created.microsecond * 1000
     # The row without a time follows the last stamped one by 1 s.
@@ -103,10 +106,10 @@ def test_bag_is_a_ros2_profile_file_with_its_metadata(dataset, tmp_path):
     assert header.profile == "ros2"
     assert {c.message_encoding for c in summary.channels.values()} == {"cdr"}
     assert {summary.schemas[c.schema_id].name for c in summary.channels.values()} == {JOINT_STATE, POSE_STAMPED, PATH,
-                                                                                     TF_MESSAGE}
+                                                                                     TF_MESSAGE, WRENCH_STAMPED}
     assert {summary.schemas[c.schema_id].encoding for c in summary.channels.values()} == {"ros2msg"}
-    # 3 rows × (tendons, measured tip, predicted tip, backbone) + one /tf_static.
-    assert summary.statistics.message_count == 13
+    # 3 rows × (tendons, measured tip, predicted tip, backbone) + one /tf_static + the converged wrenches.
+    assert summary.statistics.message_count == 13 + int(metadata["twin_tip_wrench"]["rows"])
     assert metadata["twin_dataset"]["rows"] == "3"
     assert metadata["twin_dataset"]["orientation_unmeasured_rows"] == "1"
     assert metadata["twin_dataset"]["experiment"] == "validation"
@@ -116,7 +119,7 @@ def test_cli_exports_and_refuses_what_is_not_a_dataset(dataset, tmp_path, capsys
     out = tmp_path / "cli.mcap"
     assert main(["export-bag", str(dataset.path), str(out)]) == 0
     assert "3 rows" in capsys.readouterr().out
-    assert len(_decoded(out)) == 13
+    assert len([m for c, m, _ in _decoded(out) if c.topic != WRENCH_TOPIC]) == 13
     (tmp_path / "empty").mkdir()
     assert main(["export-bag", str(tmp_path / "empty"), str(tmp_path / "no.mcap")]) == 2
     assert "dataset error" in capsys.readouterr().err

@@ -1,5 +1,5 @@
-"""A live 3D view of the endoscope in a web browser: measured and predicted backbone, tip, target
-and tensions, while a command or an env runs.
+"""A live 3D view of the endoscope in a web browser: measured and predicted backbone, tip, target,
+tensions and the estimated tip force with its uncertainty, while a command or an env runs.
 
 The view is a viser server (a three.js client bundled in the package, served over HTTP and a
 websocket): the machines the twin runs on often have no display, and any browser on the network
@@ -36,6 +36,7 @@ COLORS = {
     "predicted": (0, 114, 178),
     "tip": (0, 158, 115),
     "target": (204, 121, 167),
+    "force": (230, 159, 0),
 }
 _HEX = {name: "#%02x%02x%02x" % rgb for name, rgb in COLORS.items()}
 
@@ -104,11 +105,15 @@ class LiveView:
         self._layout_scene(rotation)
         self._lock = threading.Lock()
         self._pending: LiveState | None = None
+        self._last_state = LiveState()
         self._wake = threading.Event()
         self._stop = threading.Event()
         self._drawn = threading.Condition()
         self.draws = 0
         self.prediction_time_s = 0.0
+        self._force = None  # the newest twin.force.stream.ForceSample shown
+        # Arrow length per newton (m/N): the contact range's top (0.3 N) half the backbone's length.
+        self.force_m_per_n = self.params.backbone.length_m / 0.6
         self._thread = threading.Thread(target=self._run, name="twin-live", daemon=True)
         self._thread.start()
 
@@ -120,6 +125,18 @@ class LiveView:
         with self._lock:
             self._pending = state
         self._wake.set()
+
+    def show_force(self, sample) -> None:
+        """Draw the tip force of a :class:`twin.force.stream.ForceSample` with the next draws: an
+        arrow from the tracked tip along its observable part (:attr:`force_m_per_n` m per N) and
+        its 95 % uncertainty ellipsoid at the arrow's head; returns at once."""
+        with self._lock:
+            self._force = sample
+        self._wake.set()
+
+    def follow(self, stream) -> None:
+        """Show every sample of a :class:`twin.force.stream.ForceStream`."""
+        stream.subscribe(self.show_force)
 
     def wait_drawn(self, draws: int, timeout_s: float = 10.0) -> bool:
         """Block until :attr:`draws` reaches ``draws`` (True) or ``timeout_s`` passes (False)."""
@@ -161,6 +178,7 @@ class LiveView:
         self._label = gui.add_markdown("waiting for a state")
         self._bars = [gui.add_progress_bar(0.0, color="orange") for _ in range(4)]
         self._text = gui.add_markdown("")
+        self._force_text: Any = None  # made with the first force shown: a page without one stays as it was
         self._handles: dict[str, Any] = {}
 
     def _run(self) -> None:
@@ -172,12 +190,16 @@ class LiveView:
                 break
             with self._lock:
                 state, self._pending = self._pending, None
+                force = self._force
                 self._wake.clear()
-            if state is None:
+            if state is None and force is None:
                 continue
+            state = state if state is not None else self._last_state
             next_s = time.monotonic() + self._period_s
             try:
+                self._last_state = state
                 self._draw(state)
+                self._draw_force(force)
             except Exception as exc:  # a bad state must not end the view; say so once per state
                 print(f"twin live view: could not draw ({exc})", file=sys.stderr)
             with self._drawn:
@@ -216,6 +238,38 @@ class LiveView:
                 bar.value = float(np.clip(100.0 * value / limit_n, 0.0, 100.0))  # type: ignore[misc]
             self._text.content = ("tensions (N; bars: share of the "
                                   f"{limit_n:g} N limit): " + ", ".join(f"T{i + 1} {v:.2f}" for i, v in enumerate(tensions)))
+
+    def _draw_force(self, sample) -> None:
+        from twin.force.stream import uncertainty_ellipsoid
+        from twin.pose import matrix_to_quat
+
+        if sample is None:
+            return
+        scale = self.force_m_per_n
+        tip = np.asarray(sample.tip_position_m, dtype=float)
+        head = tip + scale * np.asarray(sample.force_observable_n, dtype=float)
+        arrow: Any = self._handles.pop("force", None)
+        if arrow is not None:
+            arrow.remove()
+        radius = max(self.params.backbone.radius_m, 0.0008)
+        self._handles["force"] = self._server.scene.add_arrows(
+            "/force", np.array([[tip, head]], dtype=np.float32), COLORS["force"], shaft_radius=radius,
+            head_radius=2.5 * radius, head_length=6.0 * radius)
+        axes, rotation = uncertainty_ellipsoid(sample.force_cov_n2)
+        # A direction without variance (unobservable, or pinned) still gets a sliver to be seen.
+        semi = np.maximum(axes * scale, 0.2 * radius)
+        ellipsoid = self._node("force_uncertainty", sample, lambda: self._server.scene.add_icosphere(
+            "/force_uncertainty", radius=1.0, color=COLORS["force"], subdivisions=2, opacity=0.35))
+        ellipsoid.position = tuple(head)
+        ellipsoid.wxyz = tuple(matrix_to_quat(rotation))
+        ellipsoid.scale = tuple(float(v) for v in semi)
+        norm = float(np.linalg.norm(sample.force_observable_n))
+        std = np.sqrt(np.clip(np.diag(sample.force_cov_n2), 0.0, None))
+        if self._force_text is None:
+            self._force_text = self._server.gui.add_markdown("")
+        self._force_text.content = (
+            f"<span style='color:{_HEX['force']}'>&#9632; estimated tip force (arrow; 95 % ellipsoid at its head)</span>"
+            f"<br>{norm * 1e3:.1f} mN (±{1.96 * std.max() * 1e3:.1f} mN, 95 %)" + (" — **contact**" if sample.contact else ""))
 
     def _node(self, name: str, value, make):
         """The scene node ``name``, made by ``make()`` on first use and shown; hidden (and None

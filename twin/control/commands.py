@@ -9,8 +9,8 @@ import sys
 import time
 from pathlib import Path
 
-from twin.cliargs import (UsageError, add_device_arg, add_param_args, add_twin_set_arg, count, new_run_folder, open_device_arg,
-                          params_from_args, robot_name, twin_params)
+from twin.cliargs import (UsageError, add_device_arg, add_param_args, add_twin_set_arg, count, new_run_folder, nonnegative,
+                          open_device_arg, params_from_args, robot_name, twin_params)
 
 __all__ = ["register"]
 
@@ -30,6 +30,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--corrections", type=count, default=2,
                    help="most closed-loop corrections from the tracker per mass (0: feed-forward only)")
     add_twin_set_arg(p)
+    p.add_argument("--unknown-load", action="store_true",
+                   help="compensate the tip force estimated from the loaded tensions and tracked pose, not the known mass")
+    p.add_argument("--side-force", type=nonnegative, default=0.0, metavar="N",
+                   help="push the tip sideways with this force (N) with every mass, untold (default 0)")
     add_param_args(p)
     p.set_defaults(func=run_compensate)
 
@@ -70,7 +74,8 @@ def run_compensate(args: argparse.Namespace) -> int:
     with open_device_arg(args.device, params=twin, robot=robot_name(args)) as device:
         try:
             trial = run_compensation_trial(device, params, configs=configs, floor_n=args.floor, limit_n=limit_n,
-                                           corrections=args.corrections, tension_gains=gains, progress=print)
+                                           corrections=args.corrections, tension_gains=gains, progress=print,
+                                           unknown_load=args.unknown_load, side_force_n=args.side_force)
         except ValueError as exc:  # nothing within reach: refused before anything ran
             raise UsageError(str(exc)) from None
         except (DeviceError, SimulationError) as exc:

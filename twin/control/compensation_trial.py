@@ -139,6 +139,19 @@ class CompensationTrial:
             out[label] = entry
         return out
 
+    def _load_text(self) -> str:
+        """How the load was known, for the report's method paragraph."""
+        ran = [r for r in self.rows if "load" in r]
+        if not ran:
+            return ""
+        side = max((float(np.linalg.norm(r["side_force_n"])) for r in ran), default=0.0)
+        text = (" **Load not told:** the feed-forward and the corrections use the tip force estimated from the "
+                "loaded, uncompensated measurement's tensions and tracked pose, not the mass."
+                if ran[0]["load"] == "estimated" else " The compensation is told the mass.")
+        if side > 0:
+            text += f" A sideways force of {side * 1e3:.0f} mN pushes the tip with every mass; it is never told."
+        return text
+
     def plot(self, path: str | Path) -> Path:
         """Bar chart of the errors per configuration: uncompensated, feed-forward, corrected."""
         import matplotlib
@@ -213,7 +226,7 @@ class CompensationTrial:
                  f"{t['ramp_s']:g} s; the tip rests {t['rest_s']:g} s after the feed-forward ramp and "
                  f"{t['correction_rest_s']:g} s after a correction's. Errors are tracker distances to the "
                  f"target, means over {t['measure_s']:g} s with the tip at rest ({t['target_measure_s']:g} s "
-                 f"for the target).{ran}", "",
+                 f"for the target).{ran}{self._load_text()}", "",
                  f"**Goal (≥ {GOAL_REDUCTION_PCT:g} % reduction of the tip error under load), median over the "
                  f"{s['configurations']} rows that ran ({s['faulted']} faulted):** feed-forward alone "
                  f"{s['feedforward_median_reduction_pct']:.1f} % "
@@ -324,7 +337,8 @@ def run_compensation_trial(device, params: Params, *, configs: Sequence[tuple[fl
                            limit_n: float | None = None, corrections: int = 2, correction_tolerance_m: float = 5e-5,
                            ramp_s: float = 1.0, rest_s: float = 4.0, correction_rest_s: float = 2.5,
                            measure_s: float = 1.5, target_measure_s: float = 3.0, settle_timeout_s: float = 6.0,
-                           tension_gains: dict | None = None, progress=None) -> CompensationTrial:
+                           tension_gains: dict | None = None, unknown_load: bool = False, side_force_n: float = 0.0,
+                           progress=None) -> CompensationTrial:
     """Run the trial on a connected device with a fixture and a tracker, in the device's pose.
 
     Configurations out of reach (:func:`within_reach`) are left out before running and listed
@@ -361,6 +375,13 @@ def run_compensation_trial(device, params: Params, *, configs: Sequence[tuple[fl
         settle_timeout_s: longest wait for the at-rest check (device s).
         tension_gains: ``{"kp", "ki", "kd", "output_limit"}`` of the board's tension mode;
             default :func:`twin.control.gains.tension_gains_for` the robot.
+        unknown_load: plan and correct with the tip force estimated from the loaded, uncompensated
+            measurement (:func:`twin.force.estimate_tip_wrench`: its tensions and tracked pose)
+            instead of the known mass's weight. Which rows run is still decided beforehand from
+            the masses' weight, so that both modes run the same rows.
+        side_force_n: a sideways force (N) pushed at the tip with every mass, across the clamp's
+            axis and gravity, that the compensation is not told about: with a known mass it is
+            left uncompensated, with ``unknown_load`` the estimate sees it.
         progress: called with a one-line status after each configuration, or None.
 
     Raises:
@@ -378,6 +399,7 @@ def run_compensation_trial(device, params: Params, *, configs: Sequence[tuple[fl
         raise ValueError(f"no configuration is within reach of the compensation (ceiling {limit_n:.2f} N): "
                          f"e.g. κ {first['kappa_per_m']:g} 1/m φ {first['phi_deg']:g}° {first['reason']}")
     steps = max(1, round(ramp_s * params.rig.telemetry_rate_hz))
+    side = side_force_n * _side_direction(device.base_rotation)
     rows: list[dict[str, Any]] = []
     # Each tendon's friction sliding state, followed from the encoders over the whole trial: a
     # model with friction predicts every static shape in the state it was reached in.
@@ -413,6 +435,8 @@ def run_compensation_trial(device, params: Params, *, configs: Sequence[tuple[fl
                                            f"{plan.residual_m * 1e3:.2f} mm against the load's {sag * 1e3:.2f} mm sag"})
                 continue
             row = {"kappa_per_m": kappa, "phi_deg": phi, "mass_g": round(mass * 1e3, 3),
+                   "side_force_n": side.round(6).tolist(), "load": "estimated" if unknown_load else "known",
+                   "estimated_force_n": [],
                    "uncompensated_mm": math.nan, "feedforward_mm": math.nan, "corrected_mm": math.nan,
                    "feedforward_reduction_pct": math.nan, "corrected_reduction_pct": math.nan,
                    "model_residual_mm": plan.residual_m * 1e3 if plan else math.nan,
@@ -422,8 +446,14 @@ def run_compensation_trial(device, params: Params, *, configs: Sequence[tuple[fl
             rows.append(row)
             if fault or unloaded is None:
                 continue
+            replan = None
+            if unknown_load:
+                def replan(loaded, unloaded=unloaded, unloaded_sigma=unloaded_sigma, target_m=target_m):
+                    force = _estimated_load_n(params, model, loaded, device.base_rotation, sliding.direction())
+                    return sliding.plan(model, unloaded.tensions_n, unloaded_sigma, force, bounds, target_m), force
             try:
                 _run_mass(device, row, model, plan, unloaded.tip_position_m, mass, load, pcc_lengths, bounds,
+                          side_force_n=side, replan=replan,
                           steps=steps, corrections=corrections, correction_tolerance_m=correction_tolerance_m,
                           rest_s=rest_s, correction_rest_s=correction_rest_s, measure_s=measure_s,
                           settle_timeout_s=settle_timeout_s)
@@ -445,6 +475,33 @@ def run_compensation_trial(device, params: Params, *, configs: Sequence[tuple[fl
               "target_measure_s": target_measure_s}
     return CompensationTrial(rows=rows, device=device.url, floor_n=floor_n, limit_n=limit_n, corrections=corrections,
                              timing_s=timing, left_out=left_out)
+
+
+def _side_direction(base_rotation) -> np.ndarray:
+    """A unit vector across the clamp's axis and gravity (world −z): the sideways direction."""
+    axis = np.asarray(base_rotation, dtype=float)[:, 2]
+    side = np.cross(axis, [0.0, 0.0, -1.0])
+    if np.linalg.norm(side) < 0.1:  # a vertical clamp: any direction across it is sideways
+        side = np.asarray(base_rotation, dtype=float)[:, 1]
+    return side / np.linalg.norm(side)
+
+
+def _estimated_load_n(params: Params, model: RodModel, loaded, base_rotation, sigma) -> np.ndarray:
+    """The tip force (N, world) estimated from a loaded measurement's mean tensions and tracked
+    pose: its observable part (nothing is compensated along a direction the pose cannot see).
+
+    Raises:
+        ProtocolError: the estimate did not converge (the row is recorded as faulted).
+    """
+    from twin.force.estimator import estimate_tip_wrench
+    from twin.pose import quat_to_matrix
+
+    rotation = quat_to_matrix(loaded.tip_quaternion) if np.isfinite(loaded.tip_quaternion).all() else None
+    est = estimate_tip_wrench(params, loaded.tensions_n, loaded.tip_position_m, rotation, base_rotation=base_rotation,
+                              model=model, friction_direction=sigma)
+    if not est.converged:
+        raise ProtocolError("the tip force estimate of the loaded tip did not converge")
+    return est.force_observable_n
 
 
 class _Sliding:
@@ -478,14 +535,37 @@ class _Sliding:
 
 
 def _run_mass(device, row: dict, model: RodModel, plan, target, mass: float, load, pcc_lengths, bounds: dict, *,
-              steps: int, corrections: int, correction_tolerance_m: float, rest_s: float,
+              side_force_n=None, replan=None, steps: int, corrections: int, correction_tolerance_m: float, rest_s: float,
               correction_rest_s: float, measure_s: float, settle_timeout_s: float) -> None:
-    """One tip mass of a configuration, from length mode at the PCC lengths back to it; fills ``row``."""
+    """One tip mass of a configuration, from length mode at the PCC lengths back to it; fills ``row``.
+
+    ``side_force_n``: a hidden force (N, world) pushed at the tip with the mass; ``replan``: with
+    an unknown load, ``replan(loaded measurement) -> (plan, estimated force)`` replaces the plan
+    and the load of the known mass."""
     device.fixture.hang_tip_mass(mass)
+    if side_force_n is not None and np.any(side_force_n):
+        device.fixture.apply_tip_load(side_force_n)
+    try:
+        _compensate_mass(device, row, model, plan, target, load, pcc_lengths, bounds, replan=replan, steps=steps,
+                         corrections=corrections, correction_tolerance_m=correction_tolerance_m, rest_s=rest_s,
+                         correction_rest_s=correction_rest_s, measure_s=measure_s, settle_timeout_s=settle_timeout_s)
+    finally:
+        if side_force_n is not None and np.any(side_force_n):
+            device.fixture.apply_tip_load((0.0, 0.0, 0.0))
+
+
+def _compensate_mass(device, row: dict, model: RodModel, plan, target, load, pcc_lengths, bounds: dict, *, replan,
+                     steps: int, corrections: int, correction_tolerance_m: float, rest_s: float,
+                     correction_rest_s: float, measure_s: float, settle_timeout_s: float) -> None:
     _wait_for_tip_rest(device, settle_timeout_s)
     loaded = measure(device, duration_s=measure_s)
     uncompensated = float(np.linalg.norm(loaded.tip_position_m - target))
     row["uncompensated_mm"] = uncompensated * 1e3
+    if replan is not None:
+        plan, load = replan(loaded)
+        row["estimated_force_n"] = np.round(load, 5).tolist()
+        row["model_residual_mm"], row["reached"] = plan.residual_m * 1e3, bool(plan.reached)
+        row["feedforward_tensions_n"] = plan.tensions_n.round(4).tolist()
 
     device.set_mode("tensions")
     # A slack tendon reads a few mN either side of zero; the board refuses negative setpoints.

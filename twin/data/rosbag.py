@@ -17,6 +17,12 @@ static measurement each, at its ``time_s``). Each row becomes one message on eac
     failed have none.
 ``/twin/backbone`` (``nav_msgs/msg/Path``)
     the predicted backbone, base to tip, as poses in frame ``world`` (rviz's Path display).
+``/twin/tip_wrench`` (``geometry_msgs/msg/WrenchStamped``)
+    the tip force estimated from the row's tensions and tracked tip pose (``twin force DATASET``,
+    :mod:`twin.force`), frame ``world``, N: the load applied at the tip, its observable part (0
+    along a direction the pose cannot see; the MCAP metadata record ``twin_tip_wrench`` gives each
+    row's standard deviations and unobservable axes). The torque is 0: the estimate is of a
+    point contact. Rows whose estimate did not converge have none.
 ``/tf_static`` (``tf2_msgs/msg/TFMessage``)
     once, at the first stamp: ``world`` → ``base_link`` (REP 105's frame rigidly attached to the
     robot's base; its axes the robot's body axes, z along the unbent backbone), rotated by the base
@@ -46,12 +52,14 @@ import numpy as np
 from twin.data.dataset import read_dataset
 
 __all__ = ["BACKBONE_TOPIC", "JOINT_STATE", "PATH", "POSE_STAMPED", "PREDICTED_TIP_TOPIC", "TENDONS_TOPIC",
-           "TF_MESSAGE", "TF_STATIC_TOPIC", "TIP_TOPIC", "ExportSummary", "export_bag", "register"]
+           "TF_MESSAGE", "TF_STATIC_TOPIC", "TIP_TOPIC", "WRENCH_STAMPED", "WRENCH_TOPIC", "ExportSummary",
+           "export_bag", "register"]
 
 TENDONS_TOPIC = "/twin/tendons"
 TIP_TOPIC = "/twin/tip_pose"
 PREDICTED_TIP_TOPIC = "/twin/predicted_tip_pose"
 BACKBONE_TOPIC = "/twin/backbone"
+WRENCH_TOPIC = "/twin/tip_wrench"
 TF_STATIC_TOPIC = "/tf_static"
 # REP 105 frame names: the fixed frame, and the robot's body frame at its base.
 WORLD_FRAME = "world"
@@ -60,6 +68,7 @@ JOINT_STATE = "sensor_msgs/msg/JointState"
 POSE_STAMPED = "geometry_msgs/msg/PoseStamped"
 PATH = "nav_msgs/msg/Path"
 TF_MESSAGE = "tf2_msgs/msg/TFMessage"
+WRENCH_STAMPED = "geometry_msgs/msg/WrenchStamped"
 
 # Message definitions as rosbag2 stores them: the type's own fields, then each type it uses.
 _SEPARATOR = "=" * 80 + "\n"
@@ -84,6 +93,9 @@ _TF_MESSAGE_DEF = ("geometry_msgs/TransformStamped[] transforms\n" + _SEPARATOR
                    + "MSG: geometry_msgs/Transform\nVector3 translation\nQuaternion rotation\n" + _SEPARATOR
                    + "MSG: geometry_msgs/Vector3\nfloat64 x\nfloat64 y\nfloat64 z\n" + _SEPARATOR
                    + "MSG: geometry_msgs/Quaternion\nfloat64 x 0\nfloat64 y 0\nfloat64 z 0\nfloat64 w 1\n")
+_WRENCH_STAMPED_DEF = ("std_msgs/Header header\ngeometry_msgs/Wrench wrench\n" + _SEPARATOR + _HEADER + _SEPARATOR
+                       + _TIME + _SEPARATOR + "MSG: geometry_msgs/Wrench\nVector3 force\nVector3 torque\n" + _SEPARATOR
+                       + "MSG: geometry_msgs/Vector3\nfloat64 x\nfloat64 y\nfloat64 z\n")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -162,8 +174,11 @@ def export_bag(source: str | Path, out: str | Path) -> ExportSummary:
     # The prediction of each row, kept with its backbone (the solutions land in ``solutions``).
     from twin.data.prediction import predict_dataset
 
+    from twin.force.rows import dataset_estimates
+
     solutions: list = [None] * len(dataset)
     predicted = predict_dataset(dataset, guesses=solutions)
+    wrenches = list(dataset_estimates(dataset, dataset.params))
     tmp = out.with_name(f".{out.name}.tmp")
     try:
         with open(tmp, "wb") as stream:
@@ -172,6 +187,7 @@ def export_bag(source: str | Path, out: str | Path) -> ExportSummary:
             pose_schema = writer.register_msgdef(POSE_STAMPED, _POSE_STAMPED_DEF)
             path_schema = writer.register_msgdef(PATH, _PATH_DEF)
             tf_schema = writer.register_msgdef(TF_MESSAGE, _TF_MESSAGE_DEF)
+            wrench_schema = writer.register_msgdef(WRENCH_STAMPED, _WRENCH_STAMPED_DEF)
             first = stamps[0] if stamps else 0
             writer.write_message(TF_STATIC_TOPIC, tf_schema, {"transforms": [{
                 "header": _header(first, WORLD_FRAME), "child_frame_id": BASE_FRAME,
@@ -194,6 +210,13 @@ def export_bag(source: str | Path, out: str | Path) -> ExportSummary:
                     "pose": {"position": {"x": px, "y": py, "z": pz},
                              "orientation": {"x": x, "y": y, "z": z, "w": w}},
                 }, log_time=stamp, publish_time=stamp, sequence=row)
+                estimate = wrenches[row]
+                if estimate.converged:
+                    fx, fy, fz = (float(v) for v in estimate.force_observable_n)
+                    writer.write_message(WRENCH_TOPIC, wrench_schema, {
+                        "header": _header(stamp, WORLD_FRAME),
+                        "wrench": {"force": {"x": fx, "y": fy, "z": fz}, "torque": {"x": 0.0, "y": 0.0, "z": 0.0}},
+                    }, log_time=stamp, publish_time=stamp, sequence=row)
                 solution = solutions[row]
                 if not predicted.converged[row] or solution is None:
                     continue
@@ -215,12 +238,22 @@ def export_bag(source: str | Path, out: str | Path) -> ExportSummary:
                 "tip_frame": f"{WORLD_FRAME}: origin at the base centre, the twin's world axes (z up)",
                 "predicted_rows": str(predicted_rows),
             })
+            writer.add_metadata("twin_tip_wrench", {
+                "frame": WORLD_FRAME, "unit": "N", "torque": "0: a point contact is estimated",
+                "rows": str(sum(e.converged for e in wrenches)),
+                # Per row: standard deviations (N) per world axis of the observable part, and which
+                # axes are unobservable (their force is 0 in the message, not measured as 0).
+                "force_std_n": ";".join(" ".join(f"{v:.4g}" for v in np.sqrt(np.clip(
+                    np.diag(e.force_observable_cov_n2), 0.0, None))) for e in wrenches),
+                "unobservable_axes": ";".join("".join(a for a, ok in zip("xyz", e.force_observable) if not ok)
+                                              for e in wrenches),
+            })
             writer.finish()
         tmp.replace(out)
     finally:
         tmp.unlink(missing_ok=True)
     return ExportSummary(out, len(dataset), (TENDONS_TOPIC, TIP_TOPIC, PREDICTED_TIP_TOPIC, BACKBONE_TOPIC,
-                                             TF_STATIC_TOPIC))
+                                             WRENCH_TOPIC, TF_STATIC_TOPIC))
 
 
 def register(subparsers) -> None:
@@ -228,7 +261,8 @@ def register(subparsers) -> None:
         "export-bag",
         help="write a dataset (or a run folder's) as a rosbag2 MCAP file for Foxglove or rviz",
         description="Exports each dataset row as sensor_msgs/msg/JointState on /twin/tendons (lengths in m, "
-        "tensions in N) and geometry_msgs/msg/PoseStamped on /twin/tip_pose (frame base, m).",
+        "tensions in N), geometry_msgs/msg/PoseStamped on /twin/tip_pose (frame world, m), the predicted tip "
+        "and backbone, and the estimated tip force as geometry_msgs/msg/WrenchStamped on /twin/tip_wrench (N).",
     )
     p.add_argument("source", metavar="DATASET_OR_RUN", help="a dataset folder or a twin validate run folder")
     p.add_argument("out", metavar="OUT.mcap", help="the MCAP file to write (replaced if it exists)")

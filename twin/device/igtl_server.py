@@ -360,6 +360,9 @@ def register(subparsers) -> None:
     p.add_argument("--probes", default="Probe1ToTracker,Probe2ToTracker", help="device names of probes A and B")
     p.add_argument("--header-version", type=int, choices=(1, 2), default=1,
                    help="OpenIGTLink header version (default 1)")
+    p.add_argument("--tip-force", action="store_true",
+                   help="also stream the tip force estimated from the tensions and the tip pose (TipForce: an arrow "
+                        "and its 95%% ellipsoid as models, the tip and the arrow's head as points)")
     add_pose_args(p)
     add_param_args(p)
     p.set_defaults(func=run_serve)
@@ -385,6 +388,12 @@ def run_serve(args: argparse.Namespace) -> int:
     plant = Plant(params, seed=args.seed)
     predictor = Predictor(RodModel.from_params(params))
     g = params.environment.gravity_m_s2
+    stream = None
+    if args.tip_force:
+        from twin import effects
+        from twin.force.stream import ForceStream, force_messages
+
+        stream = ForceStream(params, tendon_m_per_count=1.0, base_rotation=plant.base_rotation)
     with sigterm_event() as stop, OpenIGTLinkServer(args.host, args.port) as server:
         frame_s = 1.0 / args.rate_hz
         start = None
@@ -403,7 +412,13 @@ def run_serve(args: argparse.Namespace) -> int:
                 except ConvergenceError:
                     sol = None
                 frame = plant.tracker_probes()
-                server.send(twin_messages(
+                extra = []
+                if stream is not None:
+                    tip_m, tip_rotation = plant.tip_pose()
+                    force = stream.estimate(elapsed_s, plant.true_tensions_n(),
+                                            effects.tracked_point_m(params, tip_m, tip_rotation), tip_rotation)
+                    extra = force_messages(force, timestamp_s=time.time(), version=args.header_version)
+                server.send(extra + twin_messages(
                     timestamp_s=time.time(), tip_pose=plant.tip_pose(), backbone_m=plant.backbone_positions_m(),
                     probes=(frame.positions_m, frame.axes),
                     predicted_tip_pose=None if sol is None else (sol.tip_position_m, sol.tip_rotation),

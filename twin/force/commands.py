@@ -99,9 +99,7 @@ def _run_dataset(args) -> int:
 
     from twin import effects
     from twin.data.dataset import read_dataset
-    from twin.force.estimator import estimate_tip_wrench
-    from twin.pose import quat_to_matrix
-    from twin.rod import RodModel
+    from twin.force.rows import dataset_estimates
 
     dataset = read_dataset(args.dataset)
     if args.robot is not None or args.params is not None:
@@ -111,17 +109,10 @@ def _run_dataset(args) -> int:
         if args.overrides:
             params = params.replace(dict(_override(o) for o in args.overrides), source="command line")
     dataset.check_robot(params, robot=args.robot or args.params)
-    model = RodModel.from_params(params)
-    base = dataset.base_rotation
-    tensions, lengths, sliding = dataset.tensions_n, dataset.lengths_m, dataset.sliding_state
-    positions, quats = dataset.tip_positions_m, dataset.tip_quaternions
-    sense = params.effects.tendon_friction_direction
     rows, failures = [], 0
-    for i in tqdm(range(len(dataset)), desc="estimating", unit="row", leave=False, disable=args.json and not sys.stderr.isatty()):
-        rotation = quat_to_matrix(quats[i]) if np.isfinite(quats[i]).all() else None
-        est = estimate_tip_wrench(params, tensions[i], positions[i], rotation, base_rotation=base, model=model,
-                                  friction_direction=effects.friction_direction(lengths[i], sense, sliding[i]),
-                                  **_options(args))
+    estimates = dataset_estimates(dataset, params, **_options(args))
+    for i, est in enumerate(tqdm(estimates, total=len(dataset), desc="estimating", unit="row", leave=False,
+                                 disable=args.json and not sys.stderr.isatty())):
         failures += not est.converged
         rows.append({"row": i, "config": int(dataset["config"][i]),
                      "known_force_n": effects.tip_force_n(params, float(dataset["tip_mass_kg"][i])).tolist(),
