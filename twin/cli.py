@@ -32,6 +32,7 @@ COMMAND_MODULES = [
     "twin.experiments.commands",
     "twin.discrepancy.commands",
     "twin.dynamics.commands",
+    "twin.dynamics.shadow",
     "twin.control.commands",
     "twin.tuning",
     "twin.bench",

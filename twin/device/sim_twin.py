@@ -14,6 +14,8 @@ import numpy as np
 
 if TYPE_CHECKING:
     from twin.device.board import EmulatedBoard
+    from twin.params import Params
+    from twin.sim.events import EventSchedule, HiddenEvent
     from twin.device.fixture import SimFixture
 
 __all__ = ["SimTwin"]
@@ -35,6 +37,21 @@ class SimTwin:
     def __init__(self, board: EmulatedBoard, fixture: SimFixture | None = None):
         self._board = board
         self.fixture = fixture
+        self._changes: EventSchedule | None = None
+
+    @property
+    def params(self) -> Params:
+        """The twin's parameter set now (with the changes :meth:`change` made)."""
+        return self._board.plant.params
+
+    def change(self, event: HiddenEvent) -> None:
+        """Make the change ``event`` describes (:mod:`twin.sim.events`, its time ignored) to the
+        twin now: how a shadow re-calibrates the parameter it found changed."""
+        from twin.sim.events import EventSchedule
+
+        if self._changes is None:
+            self._changes = EventSchedule([])
+        self._changes.apply_now(self._board.plant, event)
 
     def reset(self, seed: int | None = None) -> None:
         """Back to the twin's start (straight, at rest, no tip mass, holder released; sensor

@@ -1,8 +1,9 @@
 """Device URLs → devices: ``sim://`` (the twin) and ``serial://`` (the rig, or an emulated board
 on a pseudo-terminal).
 
-``sim://[?seed=N][&pose=horizontal|up | &base_quat=W,X,Y,Z]``
-    The emulated board (:class:`twin.device.board.EmulatedBoard`) in simulated time.
+``sim://[?seed=N][&pose=horizontal|up | &base_quat=W,X,Y,Z][&events=FILE]``
+    The emulated board (:class:`twin.device.board.EmulatedBoard`) in simulated time; ``events``
+    names a JSON-lines schedule of hidden events applied to its plant (:mod:`twin.sim.events`).
 ``serial://<path>[?igtl=host:port[&igtl_…][&cap_…]][&fixture=host:port][&pose=… | &base_quat=…]``
     A board on a serial port: ``serial:///dev/ttyACM0``, or the pseudo-terminal printed by
     ``twin emulate`` (which prints the whole URL, its tracker and fixture included). ``fixture``
@@ -15,6 +16,10 @@ on a pseudo-terminal).
     ``igtl_timeout_s=5`` (see :func:`twin.device.igtl_source.settings_from_options`), and the cap
     calibration (:class:`twin.tracking.CapCalibration`): ``cap_a_mm=x,y,z`` and
     ``cap_a_axis=x,y,z`` for probe A in the tip frame, ``cap_b_mm``, ``cap_b_axis`` for B.
+
+``shadow=1`` (or ``shadow=PATH``) on either runs the device with a calibrated twin in lockstep
+beside it (:class:`twin.shadow.ShadowDevice`, the same parameters): divergences are named on the
+console (and appended to the JSON-lines file PATH); code written for a device runs unchanged.
 
 ``pose`` / ``base_quat`` give the clamp's orientation (body → world; the twin is built in it, the
 rig is mounted so); default the parameter set's ``rig.base_quat``. It is
@@ -38,12 +43,12 @@ from twin.params import Params, load_params
 from twin.pose import base_rotation_from
 from twin.tracking import CapCalibration, FusionSettings
 
-__all__ = ["SCHEMES", "open_device"]
+__all__ = ["SCHEMES", "open_device", "open_shadow_twin"]
 
 SCHEMES = ("sim", "serial")
 _CAP_KEYS = {"cap_a_mm": "position_a_m", "cap_a_axis": "axis_a", "cap_b_mm": "position_b_m", "cap_b_axis": "axis_b"}
-_QUERY_KEYS = {"sim": ("seed", "pose", "base_quat"),
-               "serial": ("igtl", *IGTL_KEYS, *_CAP_KEYS, "fixture", "pose", "base_quat")}
+_QUERY_KEYS = {"sim": ("seed", "pose", "base_quat", "events", "shadow"),
+               "serial": ("igtl", *IGTL_KEYS, *_CAP_KEYS, "fixture", "pose", "base_quat", "shadow")}
 
 
 def _query(url: str, scheme: str, query: str) -> dict[str, str]:
@@ -107,17 +112,25 @@ def open_device(
         from twin.device.board import EmulatedBoard
         from twin.device.sim_transport import SimTransport
 
+        schedule = None
+        if "events" in options:
+            from twin.sim.events import load_events
+
+            try:
+                schedule = load_events(options["events"], params)
+            except ValueError as exc:
+                raise ValueError(f"device URL {url!r}: {exc}") from None
         board = EmulatedBoard(params, seed=_seed(url, options, seed), base_rotation=device_args["base_rotation"])
         # The fixture settles through the device so the firmware keeps ticking meanwhile.
         fixture = SimFixture(board, settle=lambda duration_s: device.wait(duration_s))
         device = Device(
-            SimTransport(board, url=url),
+            SimTransport(board, url=url, schedule=schedule),
             fixture=fixture,
             tracker=TipTracker(lambda: sim_probe_source(board.plant), settings=settings),
             twin=SimTwin(board, fixture),
             **device_args,
         )
-        return device
+        return _shadowed(device, options, params, url)
 
     path = parts.netloc + parts.path
     if not path:
@@ -137,7 +150,32 @@ def open_device(
     else:
         fixture = OperatorFixture(ask, channels=params.tendons.count)
     device = Device(SerialTransport(path, url=url), fixture=fixture, tracker=tracker, **device_args)
-    return device
+    return _shadowed(device, options, params, url)
+
+
+def open_shadow_twin(params: Params, base_rotation, *, seed: int = 1) -> Device:
+    """The twin a shadow runs beside a device: a ``sim://`` device of ``params`` in the clamp
+    orientation ``base_rotation`` whose fixture acts at once (the device's fixture settles for both)."""
+    from twin.device.board import EmulatedBoard
+    from twin.device.sim_transport import SimTransport
+
+    board = EmulatedBoard(params, seed=seed, base_rotation=base_rotation)
+    fixture = SimFixture(board, settle=lambda duration_s: None, settle_s=0.0)
+    return Device(SimTransport(board, url=f"sim://?seed={seed}"), fixture=fixture, twin=SimTwin(board, fixture),
+                  tension_limit_n=params.rig.tension_limit_n, base_rotation=base_rotation,
+                  tendons=params.tendons.count, loadcell_gain_counts_per_n=params.sensors.loadcell_gain_counts_per_n,
+                  tendon_m_per_count=params.rig.tendon_m_per_count)
+
+
+def _shadowed(device: Device, options: dict[str, str], params: Params, url: str):
+    """``device``, or with ``shadow`` in the URL the device with its twin beside it."""
+    value = options.get("shadow", "0")
+    if value in ("0", ""):
+        return device
+    from twin.shadow import ShadowDevice
+
+    return ShadowDevice(device, open_shadow_twin(params, device.base_rotation), params,
+                        log_path=None if value == "1" else value)
 
 
 def _seed(url: str, options: dict[str, str], seed: int | None) -> int:
