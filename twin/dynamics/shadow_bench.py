@@ -71,6 +71,7 @@ class Trial:
     false_alarms: int
     cpu_per_frame_s: float
     divergences: tuple = ()
+    details: tuple = ()
 
 
 def _shadow(device_url: str, params: Params, *, noise=None, warmup_s: float = 60.0):
@@ -126,7 +127,9 @@ def run_trial(params: Params, noise, kind: str, size: float, *, robot: str, rng:
     first = after[0] if after and after[0].t_s - event_s <= DETECTION_WINDOW_S else None
     return Trial(robot, kind, size, event_s, first is not None, (first.t_s - event_s) if first else math.nan,
                  first.kind if first else "", bool(first and first.kind == expected), len(before),
-                 shadow.cpu_s / max(shadow.compared, 1), tuple(d.line() for d in shadow.divergences))
+                 shadow.cpu_s / max(shadow.compared, 1), tuple(d.line() for d in shadow.divergences),
+                 tuple({k: v for k, v in d.to_dict().items() if k not in ("t_s", "onset_s", "where", "unit")}
+                       for d in shadow.divergences[:2]))
 
 
 _STARTS: dict[str, float] = {}

@@ -93,8 +93,7 @@ class ShadowDevice:
         self._queue: collections.deque = collections.deque()
         device.add_sample_listener(self._queue.append)
         self.fixture = _FixturePair(self, device.fixture, twin.fixture)
-        self.monitor = Monitor(params, warmup_s=warmup_s, jacobian=self._jacobian if use_rod else None,
-                               tendon_stiffness_n_per_m=_tendon_stiffness(params), noise=noise)
+        self.monitor = Monitor(params, warmup_s=warmup_s, jacobian=self._jacobian if use_rod else None, noise=noise)
         self._log_path = Path(log_path) if log_path is not None else None
         self._console = console
         self._on_divergence = on_divergence
@@ -289,7 +288,9 @@ class ShadowDevice:
 
         twin = self._twin.twin
         n = self.params.tendons.count
-        if not math.isfinite(event.size):
+        # Only a change resolved (twice its uncertainty) is given to the twin; else the bias is
+        # learned again and that is all.
+        if not (math.isfinite(event.size) and math.isfinite(event.std) and abs(event.size) > 2 * event.std):
             return
         if event.kind in ("loadcell_offset", "loadcell_gain"):
             key = "effects.tension_offset_error_n" if event.kind == "loadcell_offset" else "effects.tension_gain_error"
@@ -317,9 +318,3 @@ class ShadowDevice:
         """Compile and cache the rod model's kernels now (once per install), not at the first
         divergence."""
         self._jacobian(np.full(self.params.tendons.count, self.params.tendons.pretension_n))
-
-
-def _tendon_stiffness(params: Params) -> float | None:
-    from twin.sim.model import tendon_stiffness_n_per_m
-
-    return tendon_stiffness_n_per_m(params)

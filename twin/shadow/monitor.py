@@ -50,6 +50,16 @@ PEAK_MARGIN = 1.5
 NAMING_FRAMES = 3
 # Time over which the bias is learned again after a divergence (s), alarms held meanwhile.
 RESYNC_S = 1.0
+# A load cell alone explains a tensions' change it leaves less than this fraction of unexplained
+# (in units of the bands).
+SINGLE_MISFIT = 0.35
+# The tip's move is the tensions' doing when the rod model leaves less than this fraction of it.
+EXPLAINED_FRACTION = 0.5
+# A friction change or a latency is named only where its model explains this fraction of the
+# residuals of the last frames at least.
+MIN_FIT = 0.3
+# A force direction resolved worse than this is left out of a tip load's estimate (N).
+MAX_FORCE_STD_N = 0.05
 # A tracker whose frames stop for this many device-telemetry periods has dropped out.
 DROPOUT_PERIODS = 4
 
@@ -132,12 +142,15 @@ class NoiseModel:
         mix: (C, C) the map from a residual to what is watched: each load cell's residual less
             what the other cells' residuals predict of it (learned in the warm-up), the other
             channels as they are.
+        stiffness_n_per_m: (n,) how much each tendon's tension falls per metre it is paid out on
+            the twin in this motion (the backbone's compliance included): what sizes a slip.
     """
 
     bias: np.ndarray
     sigma: np.ndarray
     band: np.ndarray
     mix: np.ndarray
+    stiffness_n_per_m: np.ndarray
 
 
 class Monitor:
@@ -145,25 +158,23 @@ class Monitor:
 
     Args:
         params: the robot's parameter set: the floors of the noise (load-cell and tracker noise,
-            the encoder's count) and the tendon stiffness a slip is sized by.
+            the encoder's count).
         warmup_s: device time of side-by-side running the noise is learned from (s); it should
             hold the motion the shadow watches.
         telemetry_period_s: the device's telemetry period (s).
         jacobian: a callable giving, for the twin's tensions (n,) N, the tip position's
             derivatives ``(d tip / d tension (3, n) m/N, d tip / d tip force (3, 3) m/N)``; None
             names without the rod model (a tip load then has no force estimate).
-        tendon_stiffness_n_per_m: axial stiffness of a tendon (N/m), for the size of a slip.
     """
 
     def __init__(self, params: Params, *, warmup_s: float = 10.0, telemetry_period_s: float = 0.025,
                  jacobian: Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]] | None = None,
-                 tendon_stiffness_n_per_m: float | None = None, noise: NoiseModel | None = None):
+                 noise: NoiseModel | None = None):
         n = params.tendons.count
         self.n = n
         self.warmup_s = float(warmup_s)
         self.period_s = float(telemetry_period_s)
         self._jacobian = jacobian
-        self._stiffness = tendon_stiffness_n_per_m
         # Floors of a frame's residual spread: what the sensors alone make it (both sides are noisy
         # where the twin simulates the sensor).
         count_m = params.rig.tendon_m_per_count
@@ -175,6 +186,7 @@ class Monitor:
         self.noise: NoiseModel | None = None if noise is None else dataclasses.replace(noise, bias=noise.bias.copy())
         self._start_s: float | None = None
         self._warm: list[np.ndarray] = []
+        self._warm_twin: list[np.ndarray] = []
         self._window: list[np.ndarray] = []
         self._raw_window: list[np.ndarray] = []
         self._statistic = np.zeros(3 * n + 3)
@@ -232,6 +244,7 @@ class Monitor:
             self._fault_raised = False
         if self.noise is None:
             self._warm.append(residual)
+            self._warm_twin.append(twin.vector())
             if device.time_s - self._start_s >= self.warmup_s:
                 self._learn()
             self.events.extend(raised)
@@ -299,7 +312,9 @@ class Monitor:
         # A median of k Gaussian frames spreads about 1.25/sqrt(k) of one frame.
         steady = sigma * 1.25 / math.sqrt(MEDIAN_FRAMES)
         band = np.maximum(ALARM_SIGMAS * np.maximum(median_sigma, steady), PEAK_MARGIN * medians_abs.max(axis=0))
-        self.noise = NoiseModel(np.nan_to_num(bias), sigma, band, mix)
+        twin_rows = np.array(self._warm_twin)
+        self._warm_twin = []
+        self.noise = NoiseModel(np.nan_to_num(bias), sigma, band, mix, _loop_stiffness(twin_rows, n))
         self._window = []
         self._raw_window = []
 
@@ -332,60 +347,83 @@ class Monitor:
 
     # ------------------------------------------------------------------ naming
     def _name(self, now_s: float, onset_s: float, frames: list) -> Divergence:
+        """Name the divergence from the pattern of the watched residuals (each channel in units of
+        its alarm band): which groups left their band, whether one load cell alone explains the
+        tensions' change, and whether the rod model explains the tip's move by the tensions'."""
         n = self.n
         noise = self.noise
-        # The running median at the naming: the frames since the change outnumber those before.
+        # The running medians at the naming: the frames since the change outnumber those before.
         watched = np.median(np.array(self._window), axis=0)
         deviation = np.median(np.array(self._raw_window), axis=0)
-        twin_frames = [f[1] for f in frames]
-        # Significance of each watched channel against the spread of a frame's.
-        z = watched / noise.sigma
-        band_z = np.abs(self._statistic) / noise.band
-        out = [self.names[k] for k in np.flatnonzero(band_z > 1.0)]
+        level = watched / noise.band
+        out = [self.names[k] for k in np.flatnonzero(np.abs(level) > 1.0)]
         where = tuple(out) or ("none",)
-        d_len, d_ten, d_duty, d_tip = deviation[:n], deviation[n:2 * n], deviation[2 * n:3 * n], deviation[3 * n:]
-        z_len, z_ten, z_duty, z_tip = z[:n], z[n:2 * n], z[2 * n:3 * n], z[3 * n:]
-        tensions = np.mean([f.tensions_n for f in twin_frames], axis=0)
-        tip_sig = float(np.linalg.norm(z_tip)) > 6.0
-        ten_abs = np.abs(z_ten)
-        ten_sig = ten_abs > 6.0
-        order = np.argsort(ten_abs)[::-1]
-        single = ten_sig.sum() >= 1 and (n == 1 or ten_abs[order[0]] > 3.0 * ten_abs[order[1]])
-        moving_len = np.abs(z_len) > 6.0
-        tip_sigma = noise.sigma[3 * n:] / math.sqrt(len(frames))
+        d_ten, d_tip = deviation[n:2 * n], deviation[3 * n:]
+        l_len, l_ten, l_duty, l_tip = (np.abs(level[:n]), level[n:2 * n], np.abs(level[2 * n:3 * n]),
+                                       np.abs(level[3 * n:]))
+        tip_sig = bool(l_tip.max() > 1.0)
+        ten_sig = bool(np.abs(l_ten).max() > 1.0)
+        len_sig = bool(l_len.max() > 1.0 or l_duty.max() > 1.0)
+        # One load cell: the watched tensions a change δ of cell i alone makes are column i of the
+        # mix (the others' prediction of it is what they see of it).
+        mix = noise.mix[n:2 * n, n:2 * n] / noise.band[n:2 * n, None]
+        target = l_ten
+        fits = []
+        for i in range(n):
+            column = mix[:, i]
+            delta = float(column @ target / max(column @ column, 1e-12))
+            fits.append((float(np.linalg.norm(target - column * delta)) / max(float(np.linalg.norm(target)), 1e-12), i))
+        single_misfit, channel = min(fits)
+        twin_tensions = np.mean([f[1].tensions_n for f in frames], axis=0)
+        tip_sigma = noise.band[3 * n:]
+        debug = {"single_misfit": single_misfit, "level_max": float(np.abs(level).max())}
 
-        unexplained_tip = d_tip
-        jac = None
-        if self._jacobian is not None and ten_sig.any() and tip_sig:
-            jac = self._jacobian(np.maximum(tensions, 0.0))
-            unexplained_tip = d_tip - jac[0] @ d_ten
-        explained = float(np.linalg.norm(unexplained_tip / tip_sigma)) < 0.5 * float(np.linalg.norm(z_tip))
-
-        if not ten_sig.any() and tip_sig and not moving_len.any():
-            size = float(np.linalg.norm(d_tip))
-            return Divergence(now_s, onset_s, "tracker_jump", "tracker.position_m", size,
-                              float(np.linalg.norm(tip_sigma)), "m", where, {"jump_m": d_tip})
-        if ten_sig.any() and not tip_sig:
-            if single:
-                i = int(order[0])
-                return self._loadcell(now_s, onset_s, frames, i, where)
-            return self._friction(now_s, onset_s, frames, where)
-        if ten_sig.any() and tip_sig:
-            if single and (jac is None or explained):
-                i = int(order[0])
-                size = -float(d_ten[i]) / self._stiffness if self._stiffness else float("nan")
-                std = float(noise.sigma[n + i] / math.sqrt(len(frames))) / self._stiffness if self._stiffness else float("nan")
+        if tip_sig and not ten_sig and not len_sig:
+            return Divergence(now_s, onset_s, "tracker_jump", "tracker.position_m", float(np.linalg.norm(d_tip)),
+                              float(np.linalg.norm(noise.sigma[3 * n:])), "m", where, {"jump_m": d_tip, **debug})
+        if ten_sig and not tip_sig and single_misfit < SINGLE_MISFIT:
+            return self._loadcell(now_s, onset_s, frames, channel, where)
+        if ten_sig and tip_sig:
+            explained = math.inf
+            force = cov = None
+            if self._jacobian is not None:
+                wrt_tension, wrt_force = self._jacobian(np.maximum(twin_tensions, 0.0))
+                unexplained = d_tip - wrt_tension @ d_ten
+                explained = float(np.linalg.norm(unexplained / tip_sigma)) / max(float(np.linalg.norm(d_tip / tip_sigma)), 1e-12)
+                force, cov = _least_squares(wrt_force, unexplained, tip_sigma)
+            debug["unexplained_tip_fraction"] = explained
+            if explained < EXPLAINED_FRACTION:
+                # The tip moved as the measured tensions say: a tendon's own length changed under
+                # the encoder, the one whose tension fell (paid out) or rose most.
+                i = int(np.argmax(np.abs(d_ten)))
+                stiffness = float(noise.stiffness_n_per_m[i])
+                size = -float(d_ten[i]) / stiffness if stiffness > 0 else math.nan
+                std = float(noise.sigma[n + i]) / stiffness if stiffness > 0 else math.nan
                 return Divergence(now_s, onset_s, "tendon_slip", f"tendon_slip_m[{i}]", size, std, "m", where,
-                                  {"tendon": i, "tension_change_n": float(d_ten[i])})
-            if jac is not None:
-                force, cov = _least_squares(jac[1], unexplained_tip, tip_sigma)
+                                  {"tendon": i, "tension_change_n": float(d_ten[i]), **debug})
+            if force is not None:
                 return Divergence(now_s, onset_s, "tip_load", "tip_force_n", float(np.linalg.norm(force)),
-                                  float(math.sqrt(max(np.trace(cov), 0.0))), "N", where, {"force_n": force})
-            return Divergence(now_s, onset_s, "tip_load", "tip_force_n", float("nan"), float("nan"), "N", where,
-                              {"tip_change_m": d_tip})
-        if moving_len.any() or (np.abs(z_duty) > 6.0).any():
-            return self._latency(now_s, onset_s, where)
-        return Divergence(now_s, onset_s, "unexplained", "", float(np.max(band_z)), 0.0, "bands", where)
+                                  float(math.sqrt(max(np.trace(cov), 0.0))), "N", where, {"force_n": force, **debug})
+            return Divergence(now_s, onset_s, "tip_load", "tip_force_n", math.nan, math.nan, "N", where,
+                              {"tip_change_m": d_tip, **debug})
+        friction = self._friction(now_s, onset_s, frames, where) if ten_sig else None
+        if friction is not None and friction.size > 2 * friction.std and friction.detail["fit"] >= MIN_FIT:
+            return friction
+        if len_sig or ten_sig:
+            latency = self._latency(now_s, onset_s, where)
+            if latency.size > 2 * latency.std and latency.detail["fit"] >= MIN_FIT:
+                return latency
+        if ten_sig and float(d_ten[int(np.argmax(np.abs(d_ten)))]) < 0:
+            # A tension fell with the encoders where the twin's are: the tendon is longer than its
+            # count says (slipped on its spool, or gone slack), though the tip's move is too small
+            # to tell.
+            i = int(np.argmax(np.abs(d_ten)))
+            stiffness = float(noise.stiffness_n_per_m[i])
+            size = -float(d_ten[i]) / stiffness if stiffness > 0 else math.nan
+            std = float(noise.sigma[n + i]) / stiffness if stiffness > 0 else math.nan
+            return Divergence(now_s, onset_s, "tendon_slip", f"tendon_slip_m[{i}]", size, std, "m", where,
+                              {"tendon": i, "tension_change_n": float(d_ten[i]), **debug})
+        return Divergence(now_s, onset_s, "unexplained", "", float(np.abs(level).max()), 0.0, "bands", where, debug)
 
     def _loadcell(self, now_s, onset_s, frames, i, where) -> Divergence:
         n = self.n
@@ -421,7 +459,7 @@ class Monitor:
         fraction = float(np.dot(x, y) / max(np.dot(x, x), 1e-12))
         std = float(np.mean(self.noise.sigma[n:2 * n]) / max(float(np.sqrt(np.dot(x, x))), 1e-12))
         return Divergence(now_s, onset_s, "friction", "effects.tendon_friction_coeff", fraction, std, "1 (tension fraction)",
-                          where)
+                          where, {"fit": _explained(x * fraction, y)})
 
     def _latency(self, now_s, onset_s, where) -> Divergence:
         """Encoders lagging the twin's: the residual length against the twin's length rate, the lag
@@ -437,13 +475,39 @@ class Monitor:
         x, y = np.concatenate(xs), np.concatenate(ys)
         lag = float(np.dot(x, y) / max(np.dot(x, x), 1e-18))
         std = float(np.mean(self.noise.sigma[:n]) / max(float(np.sqrt(np.dot(x, x))), 1e-18))
-        return Divergence(now_s, onset_s, "latency", "effects.actuation_latency_s", lag, std, "s", where)
+        return Divergence(now_s, onset_s, "latency", "effects.actuation_latency_s", lag, std, "s", where,
+                          {"fit": _explained(x * lag, y)})
+
+
+def _explained(model: np.ndarray, values: np.ndarray) -> float:
+    """The fraction of ``values``' sum of squares the ``model`` explains (R², about 0)."""
+    total = float(values @ values)
+    return 1.0 - float((values - model) @ (values - model)) / total if total > 0 else 0.0
 
 
 def _least_squares(matrix: np.ndarray, values: np.ndarray, sigma: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """x minimising ‖(A x − b)/σ‖ and its covariance."""
+    """x minimising ‖(A x − b)/σ‖ in the directions it resolves to :data:`MAX_FORCE_STD_N` (a
+    push along a stiff direction, the backbone's axis, moves the tip too little to be seen), and
+    its covariance there."""
     a = matrix / sigma[:, None]
     b = values / sigma
-    x, *_ = np.linalg.lstsq(a, b, rcond=None)
-    cov = np.linalg.pinv(a.T @ a)
+    u, singular, vt = np.linalg.svd(a, full_matrices=False)
+    keep = singular > 1.0 / MAX_FORCE_STD_N
+    inverse = np.where(keep, 1.0 / np.where(keep, singular, 1.0), 0.0)
+    x = vt.T @ (inverse * (u.T @ b))
+    cov = vt.T @ np.diag(inverse ** 2) @ vt
     return x, cov
+
+
+def _loop_stiffness(twin_rows: np.ndarray, n: int) -> np.ndarray:
+    """(n,) fall of each tendon's tension per metre it is paid out, from the twin's frames: the
+    slope of tension on length over frame-to-frame changes."""
+    if len(twin_rows) < 3:
+        return np.full(n, math.nan)
+    d = np.diff(twin_rows, axis=0)
+    lengths, tensions = d[:, :n], d[:, n:2 * n]
+    out = np.empty(n)
+    for i in range(n):
+        var = float(lengths[:, i] @ lengths[:, i])
+        out[i] = -float(lengths[:, i] @ tensions[:, i]) / var if var > 0 else math.nan
+    return out
