@@ -86,7 +86,7 @@ def main(argv=None) -> int:
     above = [t for t in trials if t.size != sb.EVENT_KINDS[t.kind][1][0]]
     detected = [t for t in trials if t.detected]
     latencies = [t.latency_s for t in detected]
-    figures = {
+    figures: dict = {
         "events": len(trials),
         "detected_above_smallest": sum(t.detected for t in above) / max(len(above), 1),
         "detected_all": len(detected) / max(len(trials), 1),

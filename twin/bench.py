@@ -46,6 +46,8 @@ TARGETS = {
     # Contact detection on the moving twin: no false alarm in a 10-minute clean run, every load flagged within 100 ms.
     "contact": ("twin.force.rig", "bench_contact", {"false_alarms": ("==", 0), "detected": (">=", 1.0),
                                                     "latency_max_s": ("<=", 0.1)}),
+    # The live shadow keeps up with the 40 Hz telemetry on one core: its twin's step and comparison per frame.
+    "shadow": ("twin.dynamics.shadow_bench", "bench_shadow", {"realtime_load": ("<=", 1.0)}),
     # A friction twin's validation sweep at most twice the CPU time of a frictionless one.
     "friction": ("twin.experiments.bench", "bench_friction", {"cpu_ratio": ("<=", 2.0), "completed": ("==", True)}),
 }

@@ -92,7 +92,11 @@ def run_emulate(args: argparse.Namespace) -> int:
             return 1
         if schedule is not None:
             plant = rig.board.board.plant
-            rig.board.tick_hooks.append(lambda: schedule.apply_due(plant))
+
+            def apply_events() -> None:
+                schedule.apply_due(plant)
+
+            rig.board.tick_hooks.append(apply_events)
         rig.board.plug()  # a --link that cannot be made is the command line's one-line OSError
         try:
             rig.start()

@@ -53,7 +53,9 @@ def standard_motion(params: Params) -> Motion:
     """The length-mode dynamic experiments back to back: steps, pull-release, chirp."""
     from twin.dynamics.protocols import experiment_set
 
-    times, rows, offset = [], [], 0.0
+    times: list[float] = []
+    rows: list[tuple[float, ...]] = []
+    offset = 0.0
     for experiment in experiment_set(params):
         if experiment.mode != "lengths":
             continue
@@ -76,7 +78,8 @@ def load_motion(path: str, params: Params) -> Motion:
         text = Path(path).read_text()
     except OSError as exc:
         raise ValueError(f"cannot be read: {exc.strerror or exc}") from None
-    times, rows = [], []
+    times: list[float] = []
+    rows: list[np.ndarray] = []
     for number, line in enumerate(text.splitlines(), start=1):
         if not line.strip() or line.lstrip().startswith("#"):
             continue

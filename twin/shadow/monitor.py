@@ -194,13 +194,18 @@ class Monitor:
         self._resync_until_s = -math.inf
         self._resync: list[np.ndarray] = []
         self._tip_time_s: float | None = None
-        self._tip_seen_s: float | None = None
+        self._tip_seen_s = 0.0
         self._dropout = False
         self._fault_raised = False
         self._fault_frames = 0
         self._history: list[tuple[FrameValues, FrameValues]] = []
         self.frames = 0
         self.events: list[Divergence] = []
+
+    def _model(self) -> NoiseModel:
+        if self.noise is None:
+            raise RuntimeError("the noise is not learned yet (the warm-up is not over)")
+        return self.noise
 
     @property
     def ready(self) -> bool:
@@ -329,7 +334,8 @@ class Monitor:
         self._resync = []
         if len(rows):
             new = np.nanmedian(rows, axis=0)
-            self.noise.bias = np.where(np.isfinite(new), new, self.noise.bias)
+            model = self._model()
+            model.bias = np.where(np.isfinite(new), new, model.bias)
 
     def _watch_tracker(self, now_s: float, frame_time_s: float | None) -> Divergence | None:
         if frame_time_s is None:
@@ -351,7 +357,7 @@ class Monitor:
         its alarm band): which groups left their band, whether one load cell alone explains the
         tensions' change, and whether the rod model explains the tip's move by the tensions'."""
         n = self.n
-        noise = self.noise
+        noise = self._model()
         # The running medians at the naming: the frames since the change outnumber those before.
         watched = np.median(np.array(self._window), axis=0)
         deviation = np.median(np.array(self._raw_window), axis=0)
@@ -385,7 +391,8 @@ class Monitor:
             return self._loadcell(now_s, onset_s, frames, channel, where)
         if ten_sig and tip_sig:
             explained = math.inf
-            force = cov = None
+            force: np.ndarray | None = None
+            cov = np.zeros((3, 3))
             if self._jacobian is not None:
                 wrt_tension, wrt_force = self._jacobian(np.maximum(twin_tensions, 0.0))
                 unexplained = d_tip - wrt_tension @ d_ten
@@ -429,7 +436,7 @@ class Monitor:
         n = self.n
         d = np.array([f[0][n + i] for f in frames])
         tau = np.array([f[1].tensions_n[i] for f in frames])
-        sigma = float(self.noise.sigma[n + i])
+        sigma = float(self._model().sigma[n + i])
         offset = float(d.mean())
         sse_offset = float(np.sum((d - offset) ** 2))
         gain = float(np.dot(d, tau) / max(np.dot(tau, tau), 1e-12))
@@ -453,11 +460,11 @@ class Monitor:
             twin_now, twin_before = hist[k][1], hist[k - 1][1]
             rate = (twin_now.lengths_m - twin_before.lengths_m)
             device_now = hist[k][0]
-            rows.append(device_now.tensions_n - twin_now.tensions_n - self.noise.bias[n:2 * n])
+            rows.append(device_now.tensions_n - twin_now.tensions_n - self._model().bias[n:2 * n])
             xs.append(-np.sign(rate) * twin_now.tensions_n)
         x, y = np.concatenate(xs), np.concatenate(rows)
         fraction = float(np.dot(x, y) / max(np.dot(x, x), 1e-12))
-        std = float(np.mean(self.noise.sigma[n:2 * n]) / max(float(np.sqrt(np.dot(x, x))), 1e-12))
+        std = float(np.mean(self._model().sigma[n:2 * n]) / max(float(np.sqrt(np.dot(x, x))), 1e-12))
         return Divergence(now_s, onset_s, "friction", "effects.tendon_friction_coeff", fraction, std, "1 (tension fraction)",
                           where, {"fit": _explained(x * fraction, y)})
 
@@ -470,11 +477,11 @@ class Monitor:
         for k in range(1, len(hist)):
             rate = (hist[k][1].lengths_m - hist[k - 1][1].lengths_m) / max(hist[k][1].time_s - hist[k - 1][1].time_s,
                                                                              1e-9)
-            ys.append(hist[k][0].lengths_m - hist[k][1].lengths_m - self.noise.bias[:n])
+            ys.append(hist[k][0].lengths_m - hist[k][1].lengths_m - self._model().bias[:n])
             xs.append(-rate)
         x, y = np.concatenate(xs), np.concatenate(ys)
         lag = float(np.dot(x, y) / max(np.dot(x, x), 1e-18))
-        std = float(np.mean(self.noise.sigma[:n]) / max(float(np.sqrt(np.dot(x, x))), 1e-18))
+        std = float(np.mean(self._model().sigma[:n]) / max(float(np.sqrt(np.dot(x, x))), 1e-18))
         return Divergence(now_s, onset_s, "latency", "effects.actuation_latency_s", lag, std, "s", where,
                           {"fit": _explained(x * lag, y)})
 

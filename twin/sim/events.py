@@ -167,7 +167,7 @@ class EventSchedule:
         self.applied: list[HiddenEvent] = []
         self._next = 0
         self._dropout_end_s = math.inf
-        self._friction = None  # a friction attached at run time lives as long as the plant
+        self._friction: Any = None  # a friction attached at run time lives as long as the plant
 
     @property
     def next_time_s(self) -> float:
@@ -240,6 +240,7 @@ class EventSchedule:
             if s.friction_sites:
                 s.friction_coeff = float(value)
             elif value > 0:
-                self._friction = effects.EFFECTS["tendon_friction"].step_hook(params, plant.model)
-                self._friction.attach(s)
+                friction = effects.EFFECTS["tendon_friction"].step_hook(params, plant.model)
+                friction.attach(s)  # type: ignore[union-attr]  # a coefficient > 0 makes one
+                self._friction = friction
         plant.params = params
