@@ -176,9 +176,10 @@ class Monitor:
         self.period_s = float(telemetry_period_s)
         self._jacobian = jacobian
         # Floors of a frame's residual spread: what the sensors alone make it (both sides are noisy
-        # where the twin simulates the sensor).
+        # where the twin simulates the sensor); the encoders' two counts, as each side's length loop
+        # holds to within a count (the hold bench's goal).
         count_m = params.rig.tendon_m_per_count
-        floor = np.concatenate([np.full(n, count_m), np.full(n, math.sqrt(2) * params.sensors.loadcell_noise_n),
+        floor = np.concatenate([np.full(n, 2 * count_m), np.full(n, math.sqrt(2) * params.sensors.loadcell_noise_n),
                                 np.full(n, 1e-3), np.full(3, params.sensors.tracker_noise_m)])
         self._floor = floor
         self.names = ([f"length[{i}]" for i in range(n)] + [f"tension[{i}]" for i in range(n)]
@@ -198,6 +199,7 @@ class Monitor:
         self._dropout = False
         self._fault_raised = False
         self._fault_frames = 0
+        self._out_frames = 0
         self._history: list[tuple[FrameValues, FrameValues]] = []
         self.frames = 0
         self.events: list[Divergence] = []
@@ -275,7 +277,9 @@ class Monitor:
             return raised
         self._statistic = np.median(np.array(self._window), axis=0)
         out = np.abs(self._statistic) > noise.band
-        if self._onset is None and out.any():
+        # Two frames out of band in a row start a divergence: one frame's crossing is the tail of the noise.
+        self._out_frames = self._out_frames + 1 if out.any() else 0
+        if self._onset is None and self._out_frames >= 2:
             self._onset = (device.time_s, [])
         if self._onset is not None:
             onset_s, frames = self._onset
@@ -389,28 +393,31 @@ class Monitor:
                               float(np.linalg.norm(noise.sigma[3 * n:])), "m", where, {"jump_m": d_tip, **debug})
         if ten_sig and not tip_sig and single_misfit < SINGLE_MISFIT:
             return self._loadcell(now_s, onset_s, frames, channel, where)
-        if ten_sig and tip_sig:
-            explained = math.inf
-            force: np.ndarray | None = None
-            cov = np.zeros((3, 3))
-            if self._jacobian is not None:
-                wrt_tension, wrt_force = self._jacobian(np.maximum(twin_tensions, 0.0))
-                unexplained = d_tip - wrt_tension @ d_ten
-                explained = float(np.linalg.norm(unexplained / tip_sigma)) / max(float(np.linalg.norm(d_tip / tip_sigma)), 1e-12)
-                force, cov = _least_squares(wrt_force, unexplained, tip_sigma)
+        explained = math.inf
+        force: np.ndarray | None = None
+        cov = np.zeros((3, 3))
+        if ten_sig and self._jacobian is not None:
+            # The rod model's tip for the measured tensions: what of the tip's move they do not
+            # explain is a load at the tip (in length control the tip barely moves under one, while
+            # the tensions that hold it change).
+            wrt_tension, wrt_force = self._jacobian(np.maximum(twin_tensions, 0.0))
+            unexplained = d_tip - wrt_tension @ d_ten
+            explained = (float(np.linalg.norm(unexplained / tip_sigma))
+                         / max(float(np.linalg.norm(d_tip / tip_sigma)), 1e-12))
+            force, cov = _least_squares(wrt_force, unexplained, tip_sigma)
             debug["unexplained_tip_fraction"] = explained
-            if explained < EXPLAINED_FRACTION:
+        force_std = float(math.sqrt(max(np.trace(cov), 0.0)))
+        load = None if force is None else Divergence(now_s, onset_s, "tip_load", "tip_force_n",
+                                                      float(np.linalg.norm(force)), force_std, "N", where,
+                                                      {"force_n": force, **debug})
+        slip = self._slip(now_s, onset_s, d_ten, where, debug) if ten_sig else None
+        if ten_sig and tip_sig:
+            if explained < EXPLAINED_FRACTION and slip is not None:
                 # The tip moved as the measured tensions say: a tendon's own length changed under
-                # the encoder, the one whose tension fell (paid out) or rose most.
-                i = int(np.argmax(np.abs(d_ten)))
-                stiffness = float(noise.stiffness_n_per_m[i])
-                size = -float(d_ten[i]) / stiffness if stiffness > 0 else math.nan
-                std = float(noise.sigma[n + i]) / stiffness if stiffness > 0 else math.nan
-                return Divergence(now_s, onset_s, "tendon_slip", f"tendon_slip_m[{i}]", size, std, "m", where,
-                                  {"tendon": i, "tension_change_n": float(d_ten[i]), **debug})
-            if force is not None:
-                return Divergence(now_s, onset_s, "tip_load", "tip_force_n", float(np.linalg.norm(force)),
-                                  float(math.sqrt(max(np.trace(cov), 0.0))), "N", where, {"force_n": force, **debug})
+                # the encoder.
+                return slip
+            if load is not None:
+                return load
             return Divergence(now_s, onset_s, "tip_load", "tip_force_n", math.nan, math.nan, "N", where,
                               {"tip_change_m": d_tip, **debug})
         friction = self._friction(now_s, onset_s, frames, where) if ten_sig else None
@@ -420,17 +427,26 @@ class Monitor:
             latency = self._latency(now_s, onset_s, where)
             if latency.size > 2 * latency.std and latency.detail["fit"] >= MIN_FIT:
                 return latency
-        if ten_sig and float(d_ten[int(np.argmax(np.abs(d_ten)))]) < 0:
+        if load is not None and load.size > 3 * load.std and explained >= EXPLAINED_FRACTION:
+            return load
+        if slip is not None and float(d_ten[slip.detail["tendon"]]) < 0:
             # A tension fell with the encoders where the twin's are: the tendon is longer than its
             # count says (slipped on its spool, or gone slack), though the tip's move is too small
             # to tell.
-            i = int(np.argmax(np.abs(d_ten)))
-            stiffness = float(noise.stiffness_n_per_m[i])
-            size = -float(d_ten[i]) / stiffness if stiffness > 0 else math.nan
-            std = float(noise.sigma[n + i]) / stiffness if stiffness > 0 else math.nan
-            return Divergence(now_s, onset_s, "tendon_slip", f"tendon_slip_m[{i}]", size, std, "m", where,
-                              {"tendon": i, "tension_change_n": float(d_ten[i]), **debug})
+            return slip
         return Divergence(now_s, onset_s, "unexplained", "", float(np.abs(level).max()), 0.0, "bands", where, debug)
+
+    def _slip(self, now_s, onset_s, d_ten, where, debug) -> Divergence:
+        """A slip of the tendon whose tension changed most, sized by how its tension falls per
+        metre paid out on the twin."""
+        noise = self._model()
+        n = self.n
+        i = int(np.argmax(np.abs(d_ten)))
+        stiffness = float(noise.stiffness_n_per_m[i])
+        size = -float(d_ten[i]) / stiffness if stiffness > 0 else math.nan
+        std = float(noise.sigma[n + i]) / stiffness if stiffness > 0 else math.nan
+        return Divergence(now_s, onset_s, "tendon_slip", f"tendon_slip_m[{i}]", size, std, "m", where,
+                          {"tendon": i, "tension_change_n": float(d_ten[i]), **debug})
 
     def _loadcell(self, now_s, onset_s, frames, i, where) -> Divergence:
         n = self.n
