@@ -118,8 +118,7 @@ def test_the_url_key_wraps_any_device_code_and_names_a_hidden_offset(tmp_path):
     log = tmp_path / "shadow.jsonl"
     start_s = 2.605  # the motion's start: run_motion pretensions and releases first
     path = _events(tmp_path, {"t_s": start_s + 9.0, "set": "effects.tension_offset_error_n=[0, 0, 0.2, 0]"})
-    device = open_device(f"sim://?events={path}&shadow={log}", params=PARAMS)
-    device.monitor.warmup_s = 6.0
+    device = open_device(f"sim://?events={path}&shadow={log}&shadow_warmup_s=6", params=PARAMS)
     with device:
         device.tare(loadcells=True, lengths=False)
         started = run_motion(device, PARAMS, standard_motion(PARAMS), 10.0)
@@ -144,6 +143,15 @@ def test_twin_shadow_prints_the_events_as_json(tmp_path, capsys):
     assert result["events"][0]["size"] == pytest.approx(0.098, rel=0.5)  # 10 g's weight, N
     assert result["realtime_load"] < 1.0
     assert (tmp_path / result["run"].split("/")[-1] / "events.jsonl").is_file()
+
+
+def test_a_bad_shadow_warmup_on_a_url_is_refused():
+    from twin.device import open_device
+
+    with pytest.raises(ValueError, match="shadow_warmup_s = 'soon'"):
+        open_device("sim://?shadow=1&shadow_warmup_s=soon")
+    with pytest.raises(ValueError, match="give shadow=1 too"):
+        open_device("sim://?shadow_warmup_s=5")
 
 
 @pytest.mark.parametrize("argv, words", [

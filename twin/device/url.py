@@ -20,6 +20,7 @@ on a pseudo-terminal).
 ``shadow=1`` (or ``shadow=PATH``) on either runs the device with a calibrated twin in lockstep
 beside it (:class:`twin.shadow.ShadowDevice`, the same parameters): divergences are named on the
 console (and appended to the JSON-lines file PATH); code written for a device runs unchanged.
+``shadow_warmup_s`` is the device time it learns the noise over first (default 60 s).
 
 ``pose`` / ``base_quat`` give the clamp's orientation (body → world; the twin is built in it, the
 rig is mounted so); default the parameter set's ``rig.base_quat``. It is
@@ -47,8 +48,8 @@ __all__ = ["SCHEMES", "open_device", "open_shadow_twin"]
 
 SCHEMES = ("sim", "serial")
 _CAP_KEYS = {"cap_a_mm": "position_a_m", "cap_a_axis": "axis_a", "cap_b_mm": "position_b_m", "cap_b_axis": "axis_b"}
-_QUERY_KEYS = {"sim": ("seed", "pose", "base_quat", "events", "shadow"),
-               "serial": ("igtl", *IGTL_KEYS, *_CAP_KEYS, "fixture", "pose", "base_quat", "shadow")}
+_QUERY_KEYS = {"sim": ("seed", "pose", "base_quat", "events", "shadow", "shadow_warmup_s"),
+               "serial": ("igtl", *IGTL_KEYS, *_CAP_KEYS, "fixture", "pose", "base_quat", "shadow", "shadow_warmup_s")}
 
 
 def _query(url: str, scheme: str, query: str) -> dict[str, str]:
@@ -171,10 +172,19 @@ def _shadowed(device: Device, options: dict[str, str], params: Params, url: str)
     """``device``, or with ``shadow`` in the URL the device with its twin beside it."""
     value = options.get("shadow", "0")
     if value in ("0", ""):
+        if "shadow_warmup_s" in options:
+            raise ValueError(f"device URL {url!r}: shadow_warmup_s configures the shadow; give shadow=1 too")
         return device
     from twin.shadow import ShadowDevice
 
-    return ShadowDevice(device, open_shadow_twin(params, device.base_rotation), params,
+    warmup = options.get("shadow_warmup_s", "60")
+    try:
+        warmup_s = float(warmup)
+    except ValueError:
+        warmup_s = math.nan
+    if not (math.isfinite(warmup_s) and warmup_s > 0):
+        raise ValueError(f"device URL {url!r}: shadow_warmup_s = {warmup!r}: expected a time > 0 (s)")
+    return ShadowDevice(device, open_shadow_twin(params, device.base_rotation), params, warmup_s=warmup_s,
                         log_path=None if value == "1" else value)
 
 

@@ -20,7 +20,13 @@ import numpy as np
 
 from twin.params import Params
 
-__all__ = ["Motion", "load_motion", "register", "run_motion", "standard_motion"]
+# The default warm-up: periods of the motion, and at most this long (s). Two twins on the same
+# commands part by their sensors' noise only after the first period or so (the standard motion's
+# second cycle on the endoscope), and a minute of it holds the tails a clean half hour showed.
+WARMUP_PERIODS = 4
+MAX_WARMUP_S = 60.0
+
+__all__ = ["MAX_WARMUP_S", "WARMUP_PERIODS", "Motion", "load_motion", "register", "run_motion", "standard_motion"]
 
 
 class Motion:
@@ -139,7 +145,7 @@ def register(subparsers) -> None:
     p.add_argument("--motion", metavar="FILE", default=None,
                    help="JSON lines {\"t_s\": ..., \"lengths_m\": [...]} instead of the dynamic experiments' excitation")
     p.add_argument("--warmup", type=float, default=None, metavar="S",
-                   help="device time the noise is learned over (s; default one period of the motion, at most 30 s)")
+                   help="device time the noise is learned over (s; default 4 periods of the motion, at most 60 s)")
     p.add_argument("--calibration", metavar="FILE", default=None, help="load-cell calibration (JSON) for the device")
     p.add_argument("--out", default="runs", help="parent of the run folder (shadow-<time>/events.jsonl)")
     p.add_argument("--json", action="store_true", help="print the divergences and figures as one JSON object")
@@ -172,7 +178,7 @@ def run_shadow_command(args: argparse.Namespace) -> int:
             calibration = load_calibration(args.calibration)
         except (OSError, ValueError) as exc:
             raise UsageError(f"--calibration {args.calibration}: {exc}") from None
-    warmup_s = args.warmup if args.warmup is not None else min(motion.period_s, 30.0)
+    warmup_s = args.warmup if args.warmup is not None else min(WARMUP_PERIODS * motion.period_s, MAX_WARMUP_S)
     if warmup_s >= args.duration:
         raise UsageError(f"--duration {args.duration}: must exceed the warm-up of {warmup_s:g} s (one period of the "
                          "motion; set --warmup)")

@@ -84,7 +84,7 @@ class ShadowDevice:
             (no warm-up then).
     """
 
-    def __init__(self, device, twin, params: Params, *, warmup_s: float = 10.0, log_path: str | Path | None = None,
+    def __init__(self, device, twin, params: Params, *, warmup_s: float = 60.0, log_path: str | Path | None = None,
                  console: IO[str] | None = sys.stderr, on_divergence: Callable[[Divergence], None] | None = None,
                  use_rod: bool = True, recalibrate: bool = True, noise=None):
         self._device = device
