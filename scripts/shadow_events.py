@@ -95,6 +95,7 @@ def main(argv=None) -> int:
         "latency_median_ms": float(np.median(latencies)) * 1e3 if latencies else math.nan,
         "latency_p95_ms": float(np.percentile(latencies, 95)) * 1e3 if latencies else math.nan,
         "false_alarms_before_events": sum(t.false_alarms for t in trials),
+        "alarms_in_pretension": sum(t.pretension_alarms for t in trials),
         "clean": {robot: {k: v for k, v in c.items() if k != "alarms"} for robot, c in clean.items()},
     }
     print(json.dumps(figures, indent=1))
