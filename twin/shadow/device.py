@@ -32,6 +32,8 @@ from twin.tracking import fuse_frame
 
 __all__ = ["BEHIND_FRAMES", "ShadowDevice"]
 
+# Longest a wall-clock shadow works in one of the host's calls (s): a fifth of the board's 0.25 s watchdog.
+SYNC_BUDGET_S = 0.05
 # Frames waiting for comparison beyond which a wall-clock shadow reports it is behind (100 ms at 40 Hz).
 BEHIND_FRAMES = 4
 # Commands that only move setpoints: both sides take them at the same instant of the same frame.
@@ -109,6 +111,7 @@ class ShadowDevice:
         self.behind = 0
         self.max_queue = 0
         self.twin_resyncs = 0
+        self.skipped = 0
         self.divergences: list[Divergence] = []
 
     # ------------------------------------------------------------------ forwarding
@@ -199,15 +202,22 @@ class ShadowDevice:
 
     def _sync(self, to_now: bool = False) -> None:
         """Compare the frames that arrived since the last call; with ``to_now`` also bring the
-        twin to the device's time now (before a command or fixture action)."""
+        twin to the device's time now (before a command or fixture action).
+
+        On a wall-clock device the shadow must not starve the control loop: it feeds the board's
+        watchdog between frames and spends at most :data:`SYNC_BUDGET_S` of wall time a call;
+        frames left over are compared at the next call, or, where a command needs the twin at the
+        device's time now, stepped over uncompared (counted in :attr:`skipped`)."""
         if self._in_sync or self._offset_s is None:
             return
         self._in_sync = True
         start = time.process_time()
+        wall = self._device.clock == "wall"
+        deadline = time.monotonic() + SYNC_BUDGET_S
         try:
             queue = self._queue
             self.max_queue = max(self.max_queue, len(queue))
-            if len(queue) > BEHIND_FRAMES and self._device.clock == "wall":
+            if len(queue) > BEHIND_FRAMES and wall:
                 self.behind += 1
                 if self._console is not None and self.behind in (1, 10, 100, 1000):
                     print(f"shadow: {len(queue)} frames behind the device (the twin and comparison cost more than "
@@ -216,9 +226,15 @@ class ShadowDevice:
             if queue and self._device.tracker is not None:
                 tip_frame = self._device_tip()
             while queue:
+                if wall:
+                    self._device.latest()  # sends the keepalive PING if one is due
+                    if time.monotonic() > deadline:
+                        break
                 sample = queue.popleft()
                 self._compare(sample, tip_frame if not queue else None)
             if to_now:
+                self.skipped += len(queue)
+                queue.clear()
                 self._advance_twin(self._device.time_s - self._offset_s)
         finally:
             self._in_sync = False

@@ -286,9 +286,10 @@ class Monitor:
             frames.append((deviation, twin, device))
             if len(frames) >= NAMING_FRAMES:
                 self._onset = None
-                event = self._name(device.time_s, onset_s, frames)
-                raised.append(event)
-                self._start_resync(device.time_s)
+                # A crossing gone by the naming frames was the noise's tail, not a divergence.
+                if out.any():
+                    raised.append(self._name(device.time_s, onset_s, frames))
+                    self._start_resync(device.time_s)
         self.events.extend(raised)
         return raised
 
