@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from twin.driver import open_device
-from twin.force.rig import rig_summary, rig_trials
+from twin.dynamics.force_rig import rig_summary, rig_trials
 from twin.params import load_params
 
 
@@ -28,7 +28,7 @@ def test_hidden_tip_loads_on_the_twin_are_estimated_from_the_devices_telemetry(f
 
 def test_a_load_appearing_at_the_moving_tip_is_flagged_fast_and_a_clean_run_is_not():
     params = load_params()
-    from twin.force.rig import contact_run
+    from twin.dynamics.force_rig import contact_run
 
     loads = [[0.0, 0.03, 0.0], [-0.1, 0.0, 0.08]]
     with open_device("sim://?seed=2", params=params) as device:

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from twin import effects
-from twin.device import igtl, open_device
+from twin.driver import igtl, open_device
 from twin.force.bench import pose_tensions_n
 from twin.force.estimator import estimate_tip_wrench
 from twin.force.stream import ForceSample, ForceStream, force_messages, uncertainty_ellipsoid
@@ -172,7 +172,7 @@ def test_the_rosbag_export_carries_the_estimated_tip_wrench(tmp_path):
     from mcap_ros2.decoder import DecoderFactory
 
     from twin.data.dataset import DatasetWriter
-    from twin.data.rosbag import WRENCH_TOPIC, export_bag
+    from twin.rosbag import WRENCH_TOPIC, export_bag
 
     model = RodModel.from_params(PARAMS)
     forces = [np.zeros(3), np.array([0.0, 0.1, 0.0]), np.array([0.05, 0.0, -0.1])]

@@ -10,7 +10,7 @@ from mcap_ros2.decoder import DecoderFactory
 
 from twin.cli import main
 from twin.data.dataset import DatasetError, DatasetWriter, read_dataset
-from twin.data.rosbag import (BACKBONE_TOPIC, JOINT_STATE, PATH, POSE_STAMPED, PREDICTED_TIP_TOPIC, TENDONS_TOPIC,
+from twin.rosbag import (BACKBONE_TOPIC, JOINT_STATE, PATH, POSE_STAMPED, PREDICTED_TIP_TOPIC, TENDONS_TOPIC,
                               TF_MESSAGE, TF_STATIC_TOPIC, TIP_TOPIC, WRENCH_STAMPED, WRENCH_TOPIC, export_bag)
 from twin.params import load_params
 from twin.pose import HORIZONTAL

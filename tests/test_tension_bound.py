@@ -359,14 +359,13 @@ def test_a_rig_with_another_spool_gearbox_and_encoder_runs_on_its_emulated_board
     count_m = params.rig.tendon_m_per_count
     with open_device("sim://?seed=0", params=params) as device:
         assert device.info.tendon_m_per_count == pytest.approx(count_m, rel=1e-6)
-        plant = device.twin._board.plant
         zero = pretension_straight(device, params, mode="lengths")
-        spools = plant.spool_positions_m()
+        spools = device.twin.spool_positions_m()
         target = zero.copy()
         target[0] -= 0.0003
         device.set_lengths(target)
         device.wait(2.0)
-        moved = plant.spool_positions_m() - spools
+        moved = device.twin.spool_positions_m() - spools
         sample = device.latest()
     assert sample.state is c.State.ENABLED
     assert moved[0] < -0.0002

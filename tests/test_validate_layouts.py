@@ -215,7 +215,7 @@ def test_an_n_tendon_dataset_exports_one_joint_per_tendon(tmp_path):
     from mcap.reader import make_reader
     from mcap_ros2.decoder import DecoderFactory
 
-    from twin.data.rosbag import TENDONS_TOPIC, export_bag
+    from twin.rosbag import TENDONS_TOPIC, export_bag
 
     params = load_robot("two-segment")
     run_validation(IdealRig(params), tmp_path / "data", params, grid=GRID[:6], progress=False, robot="two-segment")

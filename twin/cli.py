@@ -32,11 +32,12 @@ COMMAND_MODULES = [
     "twin.experiments.commands",
     "twin.discrepancy.commands",
     "twin.dynamics.commands",
+    "twin.dynamics.shadow",
     "twin.control.commands",
     "twin.tuning",
     "twin.bench",
     "twin.demo",
-    "twin.data.rosbag",
+    "twin.rosbag",
     "twin.data.importer",
 ]
 

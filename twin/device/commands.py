@@ -35,6 +35,9 @@ def register(subparsers) -> None:
     p.add_argument("--fixture-port", type=int, default=18945,
                    help="TCP port of the automatic fixture (default 18945; 0 picks a free one; -1 none: the host "
                         "then asks an operator, as on the rig)")
+    p.add_argument("--events", metavar="FILE", default=None,
+                   help="JSON-lines schedule of hidden events applied to the twin at their simulated t_s "
+                        "(twin.sim.events), which the host is not told of")
     add_live_argument(p)
     add_pose_args(p)
     add_param_args(p)
@@ -67,6 +70,15 @@ def run_emulate(args: argparse.Namespace) -> int:
 
     with sigterm_event() as stop:
         params = params_from_args(args)
+        schedule = None
+        if args.events is not None:
+            from twin.sim.events import load_events
+
+            try:
+                schedule = load_events(args.events, params)
+            except ValueError as exc:
+                print(f"twin emulate: --events {args.events}: {exc}", file=sys.stderr)
+                return 2
         try:
             # A pose given here goes into the URL printed, so that the host runs in the same one.
             rig = EmulatedRig(params, seed=args.seed, link_path=args.link, host=args.host,
@@ -78,6 +90,13 @@ def run_emulate(args: argparse.Namespace) -> int:
             # One line: a build error's compiler output is for make to show, not this command.
             print(f"twin emulate: the board cannot start: {_first_line(exc)}", file=sys.stderr)
             return 1
+        if schedule is not None:
+            plant = rig.board.board.plant
+
+            def apply_events() -> None:
+                schedule.apply_due(plant)
+
+            rig.board.tick_hooks.append(apply_events)
         try:
             rig.board.plug()  # a --link that cannot be made is the command line's one-line OSError
         except OSError as exc:

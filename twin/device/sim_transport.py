@@ -18,6 +18,7 @@ from typing import Callable, ContextManager
 from twin.device.board import EmulatedBoard, Reason
 from twin.driver.inbox import Inbox
 from twin.driver.transport import Clock, Transport
+from twin.sim.events import EventSchedule
 
 __all__ = ["SimTransport"]
 
@@ -31,13 +32,16 @@ class SimTransport(Transport):
     Args:
         board: the emulated board.
         url: the device URL, for messages.
+        schedule: hidden events applied to the plant as its time passes (``sim://?events=FILE``),
+            each at the first tick boundary at or after its time; None for none.
     """
 
     clock = Clock.SIMULATED
 
-    def __init__(self, board: EmulatedBoard, *, url: str = "sim://"):
+    def __init__(self, board: EmulatedBoard, *, url: str = "sim://", schedule: EventSchedule | None = None):
         self.board = board
         self.url = url
+        self.schedule = schedule
         self._inbox: Inbox | None = None
         self._keepalive_s: float | None = None
         self._ping: Callable[[], None] | None = None
@@ -86,6 +90,11 @@ class SimTransport(Transport):
         """Ticks up to the deadline, the keepalive or bytes for the host; bytes are delivered
         and their tick finished."""
         board = self.board
+        schedule = self.schedule
+        if schedule is not None:
+            schedule.apply_due(board.plant)
+            # Board time of the next event: the ticks stop there so that it happens on time.
+            deadline_s = min(deadline_s, schedule.next_time_s - (board.plant.time_s - board.time_s))
         reason = board.run(deadline_s=deadline_s, last_write_s=self._last_write_s, keepalive_s=self._keepalive_s,
                            max_ticks=max_ticks)
         if reason == Reason.TX:

@@ -15,6 +15,8 @@ import numpy as np
 if TYPE_CHECKING:
     from twin.device.board import EmulatedBoard
     from twin.device.sim_fixture import SimFixture
+    from twin.params import Params
+    from twin.sim.events import EventSchedule, HiddenEvent
     from twin.sim.plant import DriveMode
 
 __all__ = ["SimTwin"]
@@ -36,6 +38,21 @@ class SimTwin:
     def __init__(self, board: EmulatedBoard, fixture: SimFixture | None = None):
         self._board = board
         self.fixture = fixture
+        self._changes: EventSchedule | None = None
+
+    @property
+    def params(self) -> Params:
+        """The twin's parameter set now (with the changes :meth:`change` made)."""
+        return self._board.plant.params
+
+    def change(self, event: HiddenEvent) -> None:
+        """Make the change ``event`` describes (:mod:`twin.sim.events`, its time ignored) to the
+        twin now: how a shadow re-calibrates the parameter it found changed."""
+        from twin.sim.events import EventSchedule
+
+        if self._changes is None:
+            self._changes = EventSchedule([])
+        self._changes.apply_now(self._board.plant, event)
 
     def reset(self, seed: int | None = None) -> None:
         """Back to the twin's start (straight, at rest, no tip mass, holder released; sensor
@@ -59,6 +76,10 @@ class SimTwin:
     def backbone_positions_m(self) -> np.ndarray:
         """(N + 2, 3) true positions of the base, each station and the tip, world frame (m)."""
         return self._board.plant.backbone_positions_m()
+
+    def spool_positions_m(self) -> np.ndarray:
+        """(N,) true travel of each spool's rim from its zero (m): what a perfect encoder reads."""
+        return self._board.plant.spool_positions_m()
 
     def true_tensions_n(self) -> np.ndarray:
         """(N,) true tension at the spool end of each tendon (N): what a perfect load cell reads."""

@@ -607,6 +607,11 @@ class Device:
         self._transport.ping_if_due()
         return self._inbox.drain()
 
+    def add_sample_listener(self, listener) -> None:
+        """Have ``listener(sample)`` called with every telemetry sample as it arrives (in the
+        transport's reader thread on ``serial://``, so it must be short), whoever drains them."""
+        self._inbox.listeners.append(listener)
+
     @property
     def lost_samples(self) -> int:
         """Samples missing from the board's sequence (lost on the link)."""

@@ -74,6 +74,8 @@ class Inbox:
         self._sent: collections.OrderedDict[int, int] = collections.OrderedDict()  # seq → type, the latest
         self.decoder = codec.FrameDecoder()
         self.latest: Telemetry | None = None
+        # Called with each sample as it arrives (in the reader's thread on serial://): keep them short.
+        self.listeners: list[Callable[[Telemetry], None]] = []
         self.sample_count = 0
         self.dropped_samples = 0
         self.lost_samples = 0
@@ -177,6 +179,8 @@ class Inbox:
             self._samples.append(sample)
             self.latest = sample
             self.sample_count += 1
+            for listener in self.listeners:
+                listener(sample)
         elif isinstance(message, (codec.Ack, codec.Nack)):
             awaited = self._awaited.get(message.acked_seq)
             if awaited is None:

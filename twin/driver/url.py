@@ -29,8 +29,13 @@ it ``device.tracker`` is None. With it: ``igtl_probes=Probe1ToTracker,Probe2ToTr
 calibration (:class:`twin.tracking.CapCalibration`): ``cap_a_mm=x,y,z`` and
 ``cap_a_axis=x,y,z`` for probe A in the tip frame, ``cap_b_mm``, ``cap_b_axis`` for B.
 
-``sim://[?seed=N][&pose=…]`` is the twin behind the real firmware in simulated time, registered
-by :mod:`twin.device.sim_url` above the driver.
+``sim://[?seed=N][&pose=…][&events=FILE]`` is the twin behind the real firmware in simulated
+time, registered by :mod:`twin.device.sim_url` above the driver.
+
+Rooms above the driver may also add query keys that every scheme takes (:class:`Wrapper`,
+:func:`register_wrapper`, found through :data:`WRAPPER_MODULES` when a URL uses a key its scheme
+does not know): ``shadow=1`` (or ``shadow=PATH``, ``&shadow_warmup_s=S``) runs any device with
+a calibrated twin in lockstep beside it (:mod:`twin.shadow.url`).
 
 ``pose`` / ``base_quat`` give the clamp's orientation (body → world; the twin is built in it, the
 rig is mounted so); default the parameter set's ``rig.base_quat``. It is
@@ -56,7 +61,8 @@ from twin.params import Params, load_params
 from twin.pose import base_rotation_from
 from twin.tracking import CapCalibration, FusionSettings
 
-__all__ = ["POSE_KEYS", "SCHEME_MODULES", "DeviceRequest", "Scheme", "open_device", "register_scheme", "schemes"]
+__all__ = ["POSE_KEYS", "SCHEME_MODULES", "WRAPPER_MODULES", "DeviceRequest", "Scheme", "Wrapper", "device_arguments",
+           "open_device", "register_scheme", "register_wrapper", "schemes"]
 
 _CAP_KEYS = {"cap_a_mm": "position_a_m", "cap_a_axis": "axis_a", "cap_b_mm": "position_b_m", "cap_b_axis": "axis_b"}
 # The query keys every scheme takes.
@@ -104,7 +110,26 @@ class Scheme:
     open: Callable[[DeviceRequest], Device]
 
 
+@dataclasses.dataclass(frozen=True)
+class Wrapper:
+    """Query keys that every scheme takes, handled above the driver.
+
+    Attributes:
+        name: what the wrapper is (one of a name is kept).
+        keys: its query keys; a URL with any of them has its device passed through ``wrap``.
+        wrap: gets the opened device and the request, returns the device to hand out (the same
+            one, or another in its place); a bad value is a ValueError naming the URL.
+    """
+
+    name: str
+    keys: tuple[str, ...]
+    wrap: Callable[[Device, DeviceRequest], Device]
+
+
 _SCHEMES: dict[str, Scheme] = {}
+_WRAPPERS: dict[str, Wrapper] = {}
+# Modules that register wrappers when imported, loaded only when a URL has a key its scheme lacks.
+WRAPPER_MODULES: list[str] = ["twin.shadow.url"]
 # Modules that register more schemes when imported, named rather than imported (pyserial's
 # ``protocol_handler_packages``): the twin's rooms sit above the driver. Append your own.
 SCHEME_MODULES: list[str] = ["twin.device.sim_url"]
@@ -114,6 +139,11 @@ _LOADED: set[str] = set()
 def register_scheme(scheme: Scheme) -> None:
     """Make ``scheme.name://`` URLs open through ``scheme`` (replacing one of that name)."""
     _SCHEMES[scheme.name] = scheme
+
+
+def register_wrapper(wrapper: Wrapper) -> None:
+    """Make ``wrapper.keys`` valid on every scheme's URLs (replacing a wrapper of that name)."""
+    _WRAPPERS[wrapper.name] = wrapper
 
 
 def _load_scheme_modules(until: str | None = None) -> None:
@@ -134,13 +164,32 @@ def schemes() -> dict[str, Scheme]:
 def _query(url: str, scheme: Scheme, query: str) -> dict[str, str]:
     pairs = urllib.parse.parse_qsl(query, keep_blank_values=True, strict_parsing=bool(query))
     options = dict(pairs)
-    unknown = sorted(set(options) - set(scheme.keys))
+    if set(options) - set(scheme.keys):
+        for module in WRAPPER_MODULES:
+            importlib.import_module(module)
+    known = [*scheme.keys, *(key for wrapper in _WRAPPERS.values() for key in wrapper.keys)]
+    unknown = sorted(set(options) - set(known))
     if unknown or len(options) != len(pairs):
         raise ValueError(
             f"device URL {url!r}: options {', '.join(unknown) or 'repeated'} not understood; "
-            f"{scheme.name}:// takes {', '.join(scheme.keys)}"
+            f"{scheme.name}:// takes {', '.join(known)}"
         )
     return options
+
+
+def device_arguments(params: Params, base_rotation, *, robot: str | None = None, command_timeout_s: float = 0.5,
+                     keepalive_s: float | None = 0.1, queue_size: int = 4096) -> dict[str, Any]:
+    """The keyword arguments of :class:`Device` that come from the parameter set: the tension
+    limit the board drives with (:meth:`Device.enable` sends it), the tendon count, load-cell
+    gain, length per encoder count and motors the board is checked against and told, and the
+    clamp orientation (3×3)."""
+    return dict(command_timeout_s=command_timeout_s, keepalive_s=keepalive_s, queue_size=queue_size,
+                tension_limit_n=params.rig.tension_limit_n, base_rotation=base_rotation,
+                tendons=params.tendons.count, robot=robot,
+                loadcell_gain_counts_per_n=params.sensors.loadcell_gain_counts_per_n,
+                tendon_m_per_count=params.rig.tendon_m_per_count,
+                motors=codec.SetMotors(params.rig.motor_stall_force_n, params.rig.motor_no_load_speed_m_per_s,
+                                       params.rig.motor_reflected_mass_kg))
 
 
 def open_device(
@@ -180,16 +229,15 @@ def open_device(
                          + ", ".join(f"{s}://" for s in schemes()))
     options = _query(url, scheme, parts.query)
     params = params if params is not None else load_params()
-    # The parameter set's tension limit is what the board drives with: Device.enable sends it.
-    device_args = dict(command_timeout_s=command_timeout_s, keepalive_s=keepalive_s, queue_size=queue_size,
-                       tension_limit_n=params.rig.tension_limit_n, base_rotation=_pose(url, options, params),
-                       tendons=params.tendons.count, robot=robot,
-                       loadcell_gain_counts_per_n=params.sensors.loadcell_gain_counts_per_n,
-                       tendon_m_per_count=params.rig.tendon_m_per_count,
-                       motors=codec.SetMotors(params.rig.motor_stall_force_n, params.rig.motor_no_load_speed_m_per_s,
-                                              params.rig.motor_reflected_mass_kg))
-    return scheme.open(DeviceRequest(url, parts, options, params, seed, prompt, device_args,
-                                     FusionSettings.from_params(params)))
+    device_args = device_arguments(params, _pose(url, options, params), robot=robot,
+                                   command_timeout_s=command_timeout_s, keepalive_s=keepalive_s,
+                                   queue_size=queue_size)
+    request = DeviceRequest(url, parts, options, params, seed, prompt, device_args, FusionSettings.from_params(params))
+    device = scheme.open(request)
+    for wrapper in _WRAPPERS.values():
+        if any(key in options for key in wrapper.keys):
+            device = wrapper.wrap(device, request)
+    return device
 
 
 def _open_port(request: DeviceRequest) -> Device:

@@ -14,7 +14,7 @@ with :meth:`ForceStream.subscribe` and get every sample; a controller reads :att
 
 Sinks of the repository: the env's ``info`` (``envs``), the live view's arrow and ellipsoid
 (:mod:`twin.live`), OpenIGTLink messages 3D Slicer shows (:func:`force_messages`) and
-``geometry_msgs/msg/WrenchStamped`` in a rosbag2 export (:mod:`twin.data.rosbag`).
+``geometry_msgs/msg/WrenchStamped`` in a rosbag2 export (:mod:`twin.rosbag`).
 
 Example:
     >>> stream = ForceStream.for_device(device, params)          # doctest: +SKIP
@@ -100,7 +100,7 @@ class ForceStream:
     Args:
         params: the model's parameter set (the robot, its sensors' noise, its friction).
         tendon_m_per_count: tendon length per encoder count (m), the device handshake's
-            (:attr:`twin.device.DeviceInfo.tendon_m_per_count`): the sliding states follow the encoders.
+            (:attr:`twin.driver.DeviceInfo.tendon_m_per_count`): the sliding states follow the encoders.
         base_rotation: the clamp's orientation (3, 3), body to world (the device's ``base_rotation``).
         rate_hz: the telemetry rate (Hz) the detector's time constants are counted in; default the
             parameter set's ``rig.telemetry_rate_hz``.
@@ -164,7 +164,7 @@ class ForceStream:
             sample: the newest telemetry sample.
             tip_position_m, tip_rotation: the tracker's fused tip pose (m; 3×3, or None).
             samples: every telemetry sample since the last update, oldest first, ``sample`` last
-                (a :meth:`twin.device.Device.drain`): their encoder ticks move the sliding states;
+                (a :meth:`twin.driver.Device.drain`): their encoder ticks move the sliding states;
                 default ``[sample]``.
 
         Raises:
@@ -235,7 +235,7 @@ def force_messages(sample: ForceSample, *, timestamp_s: float, device: str = "Ti
     named ``tip`` and ``force``. With header version 2 each message carries the force (N), its
     standard deviations (N) and the contact flag as metadata.
     """
-    from twin.device import igtl
+    from twin.driver import igtl
 
     tip = np.asarray(sample.tip_position_m, dtype=float) * 1e3
     force = np.asarray(sample.force_observable_n, dtype=float)

@@ -8,7 +8,6 @@ fused frames, as it would on a rig.
 
 from __future__ import annotations
 
-
 import numpy as np
 from scipy.stats import chi2
 

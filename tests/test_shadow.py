@@ -1,0 +1,175 @@
+"""The shadow: thresholds learned from the noise, divergences named, no alarm in clean running;
+on sim:// through the URL key and through twin shadow."""
+
+import json
+
+import numpy as np
+import pytest
+
+from twin.cli import main
+from twin.params import load_params
+from twin.shadow import FrameValues, Monitor
+
+PARAMS = load_params()
+N = PARAMS.tendons.count
+PERIOD_S = 0.025
+
+
+def _frames(rng, count, start_s=0.0, *, tension_noise_n=0.01, tip_noise_m=2e-4):
+    """Pairs of frames of a device and its twin that differ by sensor noise only, over a moving twin."""
+    for k in range(count):
+        t = start_s + k * PERIOD_S
+        lengths = 1e-3 * np.sin(2 * np.pi * 0.3 * t + np.arange(N))
+        tensions = 1.5 + 0.5 * np.sin(2 * np.pi * 0.3 * t + np.arange(N))
+        tip = np.array([0.06, 0.005 * np.sin(t), 0.005 * np.cos(t)])
+        twin = FrameValues(t, lengths, tensions, np.zeros(N), tip)
+        device = FrameValues(t, lengths.copy(), tensions + rng.normal(0, tension_noise_n, N), np.zeros(N),
+                             tip + rng.normal(0, tip_noise_m, 3))
+        yield device, twin
+
+
+def _learned(rng, warmup_s=10.0):
+    monitor = Monitor(PARAMS, warmup_s=warmup_s)
+    frames = 0
+    for device, twin in _frames(rng, int(warmup_s / PERIOD_S) + 1):
+        assert monitor.update(device, twin, tip_frame_time_s=device.time_s) == []
+        frames += 1
+    assert monitor.ready
+    return monitor, frames * PERIOD_S
+
+
+def test_clean_running_raises_nothing_and_the_band_follows_the_noise():
+    rng = np.random.default_rng(0)
+    quiet, start = _learned(rng)
+    for device, twin in _frames(rng, 4000, start):
+        assert quiet.update(device, twin, tip_frame_time_s=device.time_s) == []
+    noisy = Monitor(PARAMS, warmup_s=10.0)
+    for device, twin in _frames(np.random.default_rng(1), 401, tension_noise_n=0.05):
+        noisy.update(device, twin, tip_frame_time_s=device.time_s)
+    band = slice(N, 2 * N)
+    # Five times the noise, about five times the band: learned, not a constant.
+    assert 3.0 < np.median(noisy.noise.band[band] / quiet.noise.band[band]) < 8.0
+
+
+def _after(monitor, rng, start, change, frames=40, frame_time=None):
+    raised = []
+    for k, (device, twin) in enumerate(_frames(rng, frames, start)):
+        device = change(device)
+        stamp = device.time_s if frame_time is None else frame_time(device.time_s)
+        raised += monitor.update(device, twin, tip_frame_time_s=stamp)
+    return raised
+
+
+@pytest.mark.parametrize("channel", [0, 2])
+def test_a_load_cell_offset_is_named_with_its_channel_and_size(channel):
+    rng = np.random.default_rng(2)
+    monitor, start = _learned(rng)
+    offset = np.zeros(N)
+    offset[channel] = 0.1
+    raised = _after(monitor, rng, start, lambda d: FrameValues(d.time_s, d.lengths_m, d.tensions_n + offset, d.duty,
+                                                                d.tip_m))
+    assert raised, "a 0.1 N offset, ten times the noise, was not seen"
+    first = raised[0]
+    assert first.kind == "loadcell_offset"
+    assert first.key == f"effects.tension_offset_error_n[{channel}]"
+    assert first.size == pytest.approx(0.1, abs=4 * first.std + 0.01)
+    assert first.t_s - start <= 0.25
+
+
+def test_a_tip_jump_with_the_tensions_unchanged_is_the_tracker():
+    rng = np.random.default_rng(3)
+    monitor, start = _learned(rng)
+    jump = np.array([0.0, 0.002, 0.0])
+    raised = _after(monitor, rng, start, lambda d: FrameValues(d.time_s, d.lengths_m, d.tensions_n, d.duty,
+                                                                d.tip_m + jump))
+    assert raised and raised[0].kind == "tracker_jump"
+    assert raised[0].size == pytest.approx(0.002, rel=0.2)
+
+
+def test_frames_that_stop_are_a_tracker_dropout_within_four_periods():
+    rng = np.random.default_rng(4)
+    monitor, start = _learned(rng)
+    raised = _after(monitor, rng, start, lambda d: d, frames=10, frame_time=lambda t: start)
+    assert [e.kind for e in raised] == ["tracker_dropout"]
+    assert raised[0].t_s - start <= 4 * PERIOD_S + 1e-9
+
+
+def test_a_board_fault_the_twin_does_not_have_is_raised():
+    rng = np.random.default_rng(5)
+    monitor, start = _learned(rng)
+    raised = _after(monitor, rng, start, lambda d: FrameValues(d.time_s, d.lengths_m, d.tensions_n, d.duty, d.tip_m,
+                                                                state=2, faults=2), frames=5)
+    assert [e.kind for e in raised] == ["fault"]
+
+
+# ------------------------------------------------------------------------------------ on the twin
+def _events(tmp_path, *lines):
+    path = tmp_path / "hidden.jsonl"
+    path.write_text("".join(json.dumps(line) + "\n" for line in lines))
+    return path
+
+
+def test_the_url_key_wraps_any_device_code_and_names_a_hidden_offset(tmp_path):
+    """Code written for a device (pretension, setpoints, waits) runs unchanged with ?shadow=1; the
+    hidden 0.2 N offset is named, on its channel, within 250 ms; nothing before it."""
+    from twin.driver import open_device
+    from twin.dynamics.shadow import run_motion, standard_motion
+
+    log = tmp_path / "shadow.jsonl"
+    start_s = 2.605  # the motion's start: run_motion pretensions and releases first
+    path = _events(tmp_path, {"t_s": start_s + 9.0, "set": "effects.tension_offset_error_n=[0, 0, 0.2, 0]"})
+    device = open_device(f"sim://?events={path}&shadow={log}&shadow_warmup_s=6", params=PARAMS)
+    with device:
+        device.tare(loadcells=True, lengths=False)
+        started = run_motion(device, PARAMS, standard_motion(PARAMS), 10.0)
+    assert started == pytest.approx(start_s, abs=0.01)
+    lines = [json.loads(line) for line in log.read_text().splitlines()]
+    assert lines, "no divergence named"
+    first = lines[0]
+    assert first["kind"] == "loadcell_offset" and first["key"].endswith("[2]")
+    assert 0 <= first["t_s"] - (start_s + 9.0) <= 0.25
+    assert device.compared > 400 and device.unmatched == 0
+
+
+def test_twin_shadow_prints_the_events_as_json(tmp_path, capsys):
+    path = _events(tmp_path, {"t_s": 2.605 + 8.0, "tip_mass_kg": 0.01})
+    code = main(["shadow", "--device", f"sim://?events={path}", "--duration", "9", "--warmup", "6", "--json",
+                 "--out", str(tmp_path)])
+    assert code == 0
+    result = json.loads(capsys.readouterr().out)
+    kinds = [e["kind"] for e in result["events"]]
+    assert kinds and kinds[0] == "tip_load"
+    assert 8.0 <= result["events"][0]["t_s"] <= 8.25
+    assert result["events"][0]["size"] == pytest.approx(0.098, rel=0.5)  # 10 g's weight, N
+    assert result["realtime_load"] < 1.0
+    assert (tmp_path / result["run"].split("/")[-1] / "events.jsonl").is_file()
+
+
+def test_a_bad_shadow_warmup_on_a_url_is_refused():
+    from twin.driver import open_device
+
+    with pytest.raises(ValueError, match="shadow_warmup_s = 'soon'"):
+        open_device("sim://?shadow=1&shadow_warmup_s=soon")
+    with pytest.raises(ValueError, match="give shadow=1 too"):
+        open_device("sim://?shadow_warmup_s=5")
+
+
+@pytest.mark.parametrize("argv, words", [
+    (["--duration", "-1"], ["--duration", "-1"]),
+    (["--motion", "/no/such.jsonl"], ["--motion", "/no/such.jsonl"]),
+    (["--warmup", "20", "--duration", "10"], ["--warmup", "20"]),
+    (["--device", "sim://?shadow=1"], ["--device", "shadow="]),
+])
+def test_bad_arguments_end_in_one_line(argv, words, capsys):
+    base = ["shadow", "--device", "sim://"]
+    if "--device" in argv:
+        base = ["shadow"]
+    try:
+        code = main(base + argv)
+    except SystemExit as exc:
+        code = exc.code
+    assert code == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1
+    for word in words:
+        assert word in err

@@ -1,0 +1,198 @@
+"""How well the shadow sees hidden events: detection, latency, naming and false alarms on ``sim://``.
+
+For a robot the noise is learned once, in a clean warm-up of the standard motion
+(:func:`learn_noise`), which then runs on clean for the false-alarm count. Each trial then opens a
+fresh ``sim://`` device with one hidden event of a kind and size at a random time of the motion
+(:data:`EVENT_KINDS`; the shadow is given the learned noise, not the event) and records the
+first divergence raised at or after the event: detected within :data:`DETECTION_WINDOW_S`, its
+latency, whether it is named right. Divergences in the motion before the event are false alarms
+too (those in the pretension before the motion, which a shadow's own warm-up covers, are counted
+apart).
+
+``twin bench shadow`` (:func:`bench_shadow`) is the cost per frame; ``scripts/shadow_events.py``
+prints the whole table.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import tempfile
+import time
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+
+from twin.params import Params
+
+__all__ = ["DETECTION_WINDOW_S", "EVENT_KINDS", "Trial", "bench_shadow", "learn_noise", "run_trial", "summarise"]
+
+# A divergence raised this long after the event at most is its detection (s).
+DETECTION_WINDOW_S = 2.0
+
+
+def _channel_vector(n: int, channel: int, value: float) -> list[float]:
+    values = [0.0] * n
+    values[channel] = value
+    return values
+
+
+# kind → (the name the shadow should give it, three sizes smallest first, unit, the event line
+# for a size, a tendon chosen at random and the tendon count).
+EVENT_KINDS: dict[str, tuple[str, tuple[float, ...], str, Callable[[float, int, int], dict]]] = {
+    "tip_mass": ("tip_load", (0.002, 0.005, 0.01), "kg", lambda size, i, n: {"tip_mass_kg": size}),
+    "tip_push": ("tip_load", (0.02, 0.05, 0.1), "N",
+                 lambda size, i, n: {"tip_force_n": [0.0, size * math.cos(i), size * math.sin(i)]}),
+    "tendon_slip": ("tendon_slip", (1e-4, 2e-4, 5e-4), "m", lambda size, i, n: {"tendon_slip_m": _channel_vector(n, i, size)}),
+    "loadcell_offset": ("loadcell_offset", (0.05, 0.1, 0.2), "N",
+                        lambda size, i, n: {"set": f"effects.tension_offset_error_n={_channel_vector(n, i, size)}"}),
+    "loadcell_gain": ("loadcell_gain", (0.05, 0.1, 0.2), "1",
+                      lambda size, i, n: {"set": f"effects.tension_gain_error={_channel_vector(n, i, size)}"}),
+    "friction": ("friction", (0.05, 0.1, 0.2), "1", lambda size, i, n: {"set": f"effects.tendon_friction_coeff={size}"}),
+    "tracker_dropout": ("tracker_dropout", (0.2, 0.5, 1.0), "s", lambda size, i, n: {"tracker_dropout_s": size}),
+    "tracker_jump": ("tracker_jump", (0.001, 0.002, 0.005), "m",
+                     lambda size, i, n: {"tracker_jump_m": [0.0, size * math.cos(i), size * math.sin(i)]}),
+    "latency": ("latency", (0.005, 0.01, 0.02), "s", lambda size, i, n: {"set": f"effects.actuation_latency_s={size}"}),
+}
+
+
+@dataclasses.dataclass(frozen=True)
+class Trial:
+    """One hidden event and what the shadow made of it."""
+
+    robot: str
+    kind: str
+    size: float
+    event_s: float
+    detected: bool
+    latency_s: float
+    named: str
+    right_name: bool
+    false_alarms: int
+    cpu_per_frame_s: float
+    pretension_alarms: int = 0
+    divergences: tuple = ()
+    details: tuple = ()
+
+
+def _shadow(device_url: str, params: Params, *, noise=None, warmup_s: float = 60.0):
+    from twin.driver import open_device
+    from twin.device.sim_url import open_shadow_twin
+    from twin.shadow import ShadowDevice
+
+    device = open_device(device_url, params=params)
+    return ShadowDevice(device, open_shadow_twin(params, device.base_rotation), params, warmup_s=warmup_s,
+                        console=None, noise=noise)
+
+
+def learn_noise(params: Params, *, warmup_s: float, clean_s: float, seed: int = 0):
+    """Learn the noise in ``warmup_s`` of the standard motion, then run ``clean_s`` more on clean.
+
+    Returns:
+        (the noise model, the divergences raised after the warm-up, frames compared, shadow CPU s)
+    """
+    from twin.dynamics.shadow import run_motion, standard_motion
+
+    shadow = _shadow(f"sim://?seed={seed}", params, warmup_s=warmup_s)
+    shadow.warm_rod()
+    with shadow:
+        shadow.tare(loadcells=True, lengths=False)
+        run_motion(shadow, params, standard_motion(params), warmup_s + clean_s)
+    if shadow.monitor.noise is None:
+        raise RuntimeError(f"the warm-up of {warmup_s} s did not finish in {warmup_s + clean_s} s of motion")
+    return shadow.monitor.noise, list(shadow.divergences), shadow.compared, shadow.cpu_s
+
+
+def run_trial(params: Params, noise, kind: str, size: float, *, robot: str, rng: np.random.Generator,
+              folder: Path, after_s: float = 3.0) -> Trial:
+    """One hidden event of ``kind`` and ``size`` at a random time of the first period of the motion."""
+    from twin.dynamics.shadow import run_motion, standard_motion
+
+    expected, _, _, make = EVENT_KINDS[kind]
+    n = params.tendons.count
+    motion = standard_motion(params)
+    offset_s = float(rng.uniform(3.0, min(motion.period_s, 15.0)))
+    tendon = int(rng.integers(n))
+    seed = int(rng.integers(1 << 16))
+    # The motion starts after the pretension; the event's time is the plant's, which starts with it.
+    start_s = _motion_start_s(params)
+    event_s = start_s + offset_s
+    path = folder / f"{robot}-{kind}-{size:g}-{seed}.jsonl"
+    path.write_text(json.dumps({"t_s": round(event_s, 4), **make(size, tendon, n)}) + "\n")
+    shadow = _shadow(f"sim://?seed={seed}&events={path}", params, noise=noise)
+    with shadow:
+        shadow.tare(loadcells=True, lengths=False)
+        run_motion(shadow, params, motion, offset_s + after_s)
+    # Before the motion the device is pretensioned in the holder, which a shadow's own warm-up
+    # covers; a trial, given a noise learned elsewhere, watches it too: counted apart.
+    pretension = [d for d in shadow.divergences if d.t_s < start_s + 0.5]
+    before = [d for d in shadow.divergences if start_s + 0.5 <= d.t_s < event_s - 1e-9]
+    after = [d for d in shadow.divergences if d.t_s >= event_s - 1e-9]
+    first = after[0] if after and after[0].t_s - event_s <= DETECTION_WINDOW_S else None
+    return Trial(robot, kind, size, event_s, first is not None, (first.t_s - event_s) if first else math.nan,
+                 first.kind if first else "", bool(first and first.kind == expected), len(before),
+                 shadow.cpu_s / max(shadow.compared, 1), len(pretension), tuple(d.line() for d in shadow.divergences),
+                 tuple({k: v for k, v in d.to_dict().items() if k not in ("t_s", "onset_s", "where", "unit")}
+                       for d in shadow.divergences[:2]))
+
+
+_STARTS: dict[str, float] = {}
+
+
+def _motion_start_s(params: Params) -> float:
+    """Device time at which :func:`run_motion` starts the motion (pretension and release before it):
+    measured once per robot on a plain ``sim://`` device."""
+    from twin.driver import open_device
+    from twin.dynamics.shadow import run_motion, standard_motion
+
+    key = params.to_toml()
+    if key not in _STARTS:
+        with open_device("sim://", params=params) as device:
+            device.tare(loadcells=True, lengths=False)
+            _STARTS[key] = run_motion(device, params, standard_motion(params), 0.05)
+    return _STARTS[key]
+
+
+def summarise(trials: list[Trial], kinds=None) -> list[dict]:
+    """Per kind and size: detection rate, latency median and 95th percentile, right-name rate."""
+    rows = []
+    for kind in kinds or EVENT_KINDS:
+        for size in EVENT_KINDS[kind][1]:
+            group = [t for t in trials if t.kind == kind and t.size == size]
+            if not group:
+                continue
+            latencies = [t.latency_s for t in group if t.detected]
+            rows.append({"kind": kind, "size": size, "unit": EVENT_KINDS[kind][2], "trials": len(group),
+                         "detected": sum(t.detected for t in group) / len(group),
+                         "latency_median_s": float(np.median(latencies)) if latencies else math.nan,
+                         "latency_p95_s": float(np.percentile(latencies, 95)) if latencies else math.nan,
+                         "right_name": sum(t.right_name for t in group) / len(group),
+                         "names": sorted({t.named or "-" for t in group}),
+                         "false_alarms": sum(t.false_alarms for t in group)})
+    return rows
+
+
+def bench_shadow(params: Params, *, duration_s: float = 30.0) -> dict:
+    """The shadow's cost per 40 Hz frame on a clean ``sim://`` run of the standard motion: the CPU
+    time of stepping the twin to the frame and comparing (s), and its share of the 25 ms period. (Its
+    warm-up is half the run, too short for a false-alarm figure: ``scripts/shadow_events.py`` has that.)"""
+    from twin.dynamics.shadow import run_motion, standard_motion
+
+    shadow = _shadow("sim://", params, warmup_s=duration_s / 2)
+    wall = time.perf_counter()
+    cpu = time.process_time()
+    with shadow:
+        shadow.tare(loadcells=True, lengths=False)
+        run_motion(shadow, params, standard_motion(params), duration_s)
+    cpu = time.process_time() - cpu
+    wall = time.perf_counter() - wall
+    per_frame_s = shadow.cpu_s / max(shadow.compared, 1)
+    return {"frames": shadow.compared, "shadow_cpu_per_frame_s": per_frame_s,
+            "realtime_load": per_frame_s / 0.025, "device_and_shadow_cpu_per_frame_s": cpu / max(shadow.compared, 1),
+            "device_and_shadow_cpu_per_frame_wall_s": wall / max(shadow.compared, 1)}
+
+
+def temporary_folder() -> Path:
+    return Path(tempfile.mkdtemp(prefix="shadow-events-"))

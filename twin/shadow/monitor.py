@@ -1,0 +1,537 @@
+"""Frame-by-frame comparison of a device with its twin: thresholds learned from the noise, divergence
+found and named.
+
+Each telemetry frame gives a residual ``r = device − twin`` per channel: tendon lengths (m), load-cell
+tensions (N), motor duty (1) and tracked tip position (m). During a warm-up the monitor learns, per
+channel, the residual's bias and noise as the two run side by side on the same commands: the load
+cells' and tracker's noise, the twin's own sensor noise and what the calibrated twin still gets
+wrong at this motion. Afterwards a channel diverges when the exponentially weighted mean of its
+bias-free residual leaves the band the warm-up saw (:data:`ALARM_SIGMAS` of its spread, and never
+less than the sensor noise of the parameter set allows). The frames after the first crossing
+(:data:`NAMING_FRAMES`) are then averaged into a residual pattern and named by what could cause it
+(:func:`name_divergence`), the twin re-calibrated where the cause has a parameter, and the bias
+learned again over :data:`RESYNC_S` before the monitor watches on.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import Callable
+
+import numpy as np
+
+from twin.params import Params
+
+__all__ = ["ALARM_SIGMAS", "KINDS", "Divergence", "FrameValues", "Monitor", "NoiseModel"]
+
+# The divergences the monitor names, and what each is.
+KINDS = {
+    "tip_load": "a force at the tip (a load or a contact)",
+    "tendon_slip": "a tendon slipped on its spool (or went slack)",
+    "loadcell_offset": "a load cell's offset drifted",
+    "loadcell_gain": "a load cell's gain drifted",
+    "friction": "the tendons' friction changed",
+    "tracker_dropout": "the EM tracker sends no frames",
+    "tracker_jump": "the tracked tip jumped with no change in the tendons",
+    "latency": "the motors answer later than the twin's",
+    "fault": "the board's state or faults differ from the twin's",
+    "unexplained": "a divergence no cause of the library fits",
+}
+# Frames of the running median each channel is watched through (175 ms at 40 Hz): a change that
+# lasts more than half of it moves the median, a transient of the motion (a step's overshoot on one
+# side only) does not.
+MEDIAN_FRAMES = 7
+# Alarm band: this many robust spreads of the running median seen in the warm-up ...
+ALARM_SIGMAS = 7.0
+# ... and never less than this multiple of the largest running median the warm-up saw.
+PEAK_MARGIN = 1.5
+# Frames averaged after the first crossing to name the divergence (75 ms at 40 Hz).
+NAMING_FRAMES = 3
+# Time over which the bias is learned again after a divergence (s), alarms held meanwhile.
+RESYNC_S = 1.0
+# A load cell alone explains a tensions' change it leaves less than this fraction of unexplained
+# (in units of the bands).
+SINGLE_MISFIT = 0.35
+# The tip's move is the tensions' doing when the rod model leaves less than this fraction of it.
+EXPLAINED_FRACTION = 0.5
+# A friction change or a latency is named only where its model explains this fraction of the
+# residuals of the last frames at least.
+MIN_FIT = 0.3
+# A force direction resolved worse than this is left out of a tip load's estimate (N).
+MAX_FORCE_STD_N = 0.05
+# A tracker whose frames stop for this many device-telemetry periods has dropped out.
+DROPOUT_PERIODS = 4
+
+
+@dataclasses.dataclass(frozen=True)
+class FrameValues:
+    """What one side reports at one telemetry frame.
+
+    Attributes:
+        time_s: device time of the frame (s).
+        lengths_m: (n,) tendon lengths from the encoders (m).
+        tensions_n: (n,) load-cell tensions (N).
+        duty: (n,) motor duty (1).
+        tip_m: (3,) tip position (m, world frame), NaN when not tracked.
+        state: the board's state code; faults: its fault flags.
+    """
+
+    time_s: float
+    lengths_m: np.ndarray
+    tensions_n: np.ndarray
+    duty: np.ndarray
+    tip_m: np.ndarray
+    state: int = 0
+    faults: int = 0
+
+    def vector(self) -> np.ndarray:
+        return np.concatenate([self.lengths_m, self.tensions_n, self.duty, self.tip_m])
+
+
+@dataclasses.dataclass(frozen=True)
+class Divergence:
+    """A named divergence.
+
+    Attributes:
+        t_s: device time it was raised (s).
+        onset_s: device time of the first frame out of band (s).
+        kind: one of :data:`KINDS`.
+        key: the effect key or quantity it changes (e.g. ``effects.tension_offset_error_n[1]``).
+        size: its estimated size, in ``unit``; ``std`` the size's standard deviation.
+        where: the channels out of band, e.g. ``["tension[1]", "tip"]``.
+        detail: further numbers (a force vector, a channel index).
+    """
+
+    t_s: float
+    onset_s: float
+    kind: str
+    key: str
+    size: float
+    std: float
+    unit: str
+    where: tuple[str, ...]
+    detail: dict = dataclasses.field(default_factory=dict)
+
+    def to_dict(self) -> dict:
+        return {"t_s": round(self.t_s, 4), "onset_s": round(self.onset_s, 4), "kind": self.kind, "key": self.key,
+                "size": _round(self.size), "std": _round(self.std), "unit": self.unit, "where": list(self.where),
+                **{k: _round(v) for k, v in self.detail.items()}}
+
+    def line(self) -> str:
+        return (f"{self.t_s:8.3f} s  {self.kind:16s} {self.key} = {self.size:.4g} ± {self.std:.2g} {self.unit}"
+                f"  ({', '.join(self.where)})")
+
+
+def _round(value):
+    if isinstance(value, (list, tuple, np.ndarray)):
+        return [_round(v) for v in np.asarray(value).tolist()]
+    if isinstance(value, float):
+        return float(f"{value:.6g}") if math.isfinite(value) else None
+    return value
+
+
+@dataclasses.dataclass
+class NoiseModel:
+    """Per-channel residual bias and spreads, learned in the warm-up.
+
+    Attributes:
+        bias: (C,) mean residual (device − twin).
+        sigma: (C,) spread of one frame's watched residual about the bias.
+        band: (C,) half-width of the alarm band of the running median.
+        mix: (C, C) the map from a residual to what is watched: each load cell's residual less
+            what the other cells' residuals predict of it (learned in the warm-up), the other
+            channels as they are.
+        stiffness_n_per_m: (n,) how much each tendon's tension falls per metre it is paid out on
+            the twin in this motion (the backbone's compliance included): what sizes a slip.
+    """
+
+    bias: np.ndarray
+    sigma: np.ndarray
+    band: np.ndarray
+    mix: np.ndarray
+    stiffness_n_per_m: np.ndarray
+
+
+class Monitor:
+    """Compares device and twin frames, learns the noise, raises named divergences.
+
+    Args:
+        params: the robot's parameter set: the floors of the noise (load-cell and tracker noise,
+            the encoder's count).
+        warmup_s: device time of side-by-side running the noise is learned from (s); it should
+            hold the motion the shadow watches.
+        telemetry_period_s: the device's telemetry period (s).
+        jacobian: a callable giving, for the twin's tensions (n,) N, the tip position's
+            derivatives ``(d tip / d tension (3, n) m/N, d tip / d tip force (3, 3) m/N)``; None
+            names without the rod model (a tip load then has no force estimate).
+    """
+
+    def __init__(self, params: Params, *, warmup_s: float = 10.0, telemetry_period_s: float = 0.025,
+                 jacobian: Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]] | None = None,
+                 noise: NoiseModel | None = None):
+        n = params.tendons.count
+        self.n = n
+        self.warmup_s = float(warmup_s)
+        self.period_s = float(telemetry_period_s)
+        self._jacobian = jacobian
+        # Floors of a frame's residual spread: what the sensors alone make it (both sides are noisy
+        # where the twin simulates the sensor); the encoders' two counts, as each side's length loop
+        # holds to within a count (the hold bench's goal).
+        count_m = params.rig.tendon_m_per_count
+        floor = np.concatenate([np.full(n, 2 * count_m), np.full(n, math.sqrt(2) * params.sensors.loadcell_noise_n),
+                                np.full(n, 1e-3), np.full(3, params.sensors.tracker_noise_m)])
+        self._floor = floor
+        self.names = ([f"length[{i}]" for i in range(n)] + [f"tension[{i}]" for i in range(n)]
+                      + [f"duty[{i}]" for i in range(n)] + ["tip.x", "tip.y", "tip.z"])
+        self.noise: NoiseModel | None = None if noise is None else dataclasses.replace(noise, bias=noise.bias.copy())
+        self._start_s: float | None = None
+        self._warm: list[np.ndarray] = []
+        self._warm_twin: list[np.ndarray] = []
+        self._window: list[np.ndarray] = []
+        self._raw_window: list[np.ndarray] = []
+        self._statistic = np.zeros(3 * n + 3)
+        self._onset: tuple[float, list] | None = None  # (time, frames since)
+        self._resync_until_s = -math.inf
+        self._resync: list[np.ndarray] = []
+        self._tip_time_s: float | None = None
+        self._tip_seen_s = 0.0
+        self._dropout = False
+        self._fault_raised = False
+        self._fault_frames = 0
+        self._out_frames = 0
+        self._history: list[tuple[FrameValues, FrameValues]] = []
+        self.frames = 0
+        self.events: list[Divergence] = []
+
+    def _model(self) -> NoiseModel:
+        if self.noise is None:
+            raise RuntimeError("the noise is not learned yet (the warm-up is not over)")
+        return self.noise
+
+    @property
+    def ready(self) -> bool:
+        """True once the warm-up is over and the noise learned."""
+        return self.noise is not None
+
+    def update(self, device: FrameValues, twin: FrameValues, *, tip_frame_time_s: float | None = None,
+               settling: bool = False) -> list[Divergence]:
+        """One frame of each side; returns the divergences raised at it.
+
+        Args:
+            device, twin: the two frames (same device time).
+            tip_frame_time_s: the timestamp of the device's newest tracker frame (any clock), or
+                None without a tracker: frames that stop coming are a dropout.
+            settling: the frame follows a change of state both sides were given (enable, tare, a
+                fixture action) by less than a frame or two: the two may differ by when in the
+                frame it took effect, so it is not compared.
+        """
+        self.frames += 1
+        raised: list[Divergence] = []
+        if settling:
+            return raised
+        residual = device.vector() - twin.vector()
+        if self._start_s is None:
+            self._start_s = device.time_s
+        self._history.append((device, twin))
+        if len(self._history) > 8:
+            del self._history[0]
+        dropout = self._watch_tracker(device.time_s, tip_frame_time_s)
+        if dropout is not None:
+            raised.append(dropout)
+        differ = device.state != twin.state or device.faults != twin.faults
+        self._fault_frames = self._fault_frames + 1 if differ else 0
+        if self._fault_frames >= NAMING_FRAMES and not self._fault_raised:
+            self._fault_raised = True
+            raised.append(Divergence(device.time_s, device.time_s, "fault", "board.state", float(device.faults), 0.0,
+                                     "flags", ("state",), {"device_state": device.state, "twin_state": twin.state,
+                                                            "device_faults": device.faults,
+                                                            "twin_faults": twin.faults}))
+        elif not differ:
+            self._fault_raised = False
+        if self.noise is None:
+            self._warm.append(residual)
+            self._warm_twin.append(twin.vector())
+            if device.time_s - self._start_s >= self.warmup_s:
+                self._learn()
+            self.events.extend(raised)
+            return raised
+        noise = self.noise
+        if device.time_s < self._resync_until_s:
+            self._resync.append(residual)
+            self.events.extend(raised)
+            return raised
+        if self._resync:
+            self._rebias()
+        valid = np.isfinite(residual)
+        deviation = np.where(valid, residual - noise.bias, 0.0)
+        if self._dropout or not np.isfinite(device.tip_m).all():
+            deviation[-3:] = 0.0
+        self._raw_window.append(deviation)
+        self._window.append(noise.mix @ deviation)
+        if len(self._window) > MEDIAN_FRAMES:
+            del self._window[0]
+            del self._raw_window[0]
+        if len(self._window) < MEDIAN_FRAMES:
+            self.events.extend(raised)
+            return raised
+        self._statistic = np.median(np.array(self._window), axis=0)
+        out = np.abs(self._statistic) > noise.band
+        # Two frames out of band in a row start a divergence: one frame's crossing is the tail of the noise.
+        self._out_frames = self._out_frames + 1 if out.any() else 0
+        if self._onset is None and self._out_frames >= 2:
+            self._onset = (device.time_s, [])
+        if self._onset is not None:
+            onset_s, frames = self._onset
+            frames.append((deviation, twin, device))
+            if len(frames) >= NAMING_FRAMES:
+                self._onset = None
+                # A crossing gone by the naming frames was the noise's tail, not a divergence.
+                if out.any():
+                    raised.append(self._name(device.time_s, onset_s, frames))
+                    self._start_resync(device.time_s)
+        self.events.extend(raised)
+        return raised
+
+    # ------------------------------------------------------------------ learning
+    def _learn(self) -> None:
+        warm = np.array(self._warm)
+        self._warm = []
+        bias = np.nanmedian(warm, axis=0)
+        n = self.n
+        # The twin and the device part ways a little through the sensors' noise alone (the same
+        # commands, another noise), mostly as all tendons' tensions shifting together; each cell is
+        # watched for what the others do not explain.
+        mix = np.eye(len(bias))
+        tensions = np.nan_to_num(warm[:, n:2 * n] - bias[n:2 * n])
+        if n > 1:
+            for i in range(n):
+                others = [j for j in range(n) if j != i]
+                coeffs, *_ = np.linalg.lstsq(tensions[:, others], tensions[:, i], rcond=None)
+                mix[n + i, [n + j for j in others]] = -coeffs
+        centred = (np.nan_to_num(warm - bias) @ mix.T)
+        centred[~np.isfinite(warm)] = np.nan
+        # The spread from the median absolute deviation: a glitch in the warm-up does not widen it.
+        sigma = np.maximum(1.4826 * np.nanmedian(np.abs(centred), axis=0), self._floor)
+        rows = np.nan_to_num(centred)
+        medians = np.array([np.median(rows[k - MEDIAN_FRAMES:k], axis=0) for k in range(MEDIAN_FRAMES, len(rows) + 1)])
+        medians_abs = np.abs(medians)
+        # Robust spread of the running median (its correlation in time included), and its peak: a
+        # motion whose residual is not Gaussian widens the band by what the warm-up saw of it.
+        median_sigma = 1.4826 * np.median(medians_abs, axis=0)
+        # A median of k Gaussian frames spreads about 1.25/sqrt(k) of one frame.
+        steady = sigma * 1.25 / math.sqrt(MEDIAN_FRAMES)
+        band = np.maximum(ALARM_SIGMAS * np.maximum(median_sigma, steady), PEAK_MARGIN * medians_abs.max(axis=0))
+        twin_rows = np.array(self._warm_twin)
+        self._warm_twin = []
+        self.noise = NoiseModel(np.nan_to_num(bias), sigma, band, mix, _loop_stiffness(twin_rows, n))
+        self._window = []
+        self._raw_window = []
+
+    def _start_resync(self, now_s: float) -> None:
+        self._resync_until_s = now_s + RESYNC_S
+        self._resync = []
+        self._window = []
+        self._raw_window = []
+
+    def _rebias(self) -> None:
+        rows = np.array(self._resync)
+        self._resync = []
+        if len(rows):
+            new = np.nanmedian(rows, axis=0)
+            model = self._model()
+            model.bias = np.where(np.isfinite(new), new, model.bias)
+
+    def _watch_tracker(self, now_s: float, frame_time_s: float | None) -> Divergence | None:
+        if frame_time_s is None:
+            return None
+        if frame_time_s != self._tip_time_s:
+            self._tip_time_s, self._tip_seen_s = frame_time_s, now_s
+            self._dropout = False
+            return None
+        age_s = now_s - self._tip_seen_s
+        if not self._dropout and self.noise is not None and age_s >= DROPOUT_PERIODS * self.period_s - 1e-9:
+            self._dropout = True
+            return Divergence(now_s, self._tip_seen_s, "tracker_dropout", "tracker.frames", age_s, self.period_s, "s",
+                              ("tip",), {"last_frame_s": self._tip_seen_s})
+        return None
+
+    # ------------------------------------------------------------------ naming
+    def _name(self, now_s: float, onset_s: float, frames: list) -> Divergence:
+        """Name the divergence from the pattern of the watched residuals (each channel in units of
+        its alarm band): which groups left their band, whether one load cell alone explains the
+        tensions' change, and whether the rod model explains the tip's move by the tensions'."""
+        n = self.n
+        noise = self._model()
+        # The running medians at the naming: the frames since the change outnumber those before.
+        watched = np.median(np.array(self._window), axis=0)
+        deviation = np.median(np.array(self._raw_window), axis=0)
+        level = watched / noise.band
+        out = [self.names[k] for k in np.flatnonzero(np.abs(level) > 1.0)]
+        where = tuple(out) or ("none",)
+        d_ten, d_tip = deviation[n:2 * n], deviation[3 * n:]
+        l_len, l_ten, l_duty, l_tip = (np.abs(level[:n]), level[n:2 * n], np.abs(level[2 * n:3 * n]),
+                                       np.abs(level[3 * n:]))
+        tip_sig = bool(l_tip.max() > 1.0)
+        ten_sig = bool(np.abs(l_ten).max() > 1.0)
+        len_sig = bool(l_len.max() > 1.0 or l_duty.max() > 1.0)
+        # One load cell: the watched tensions a change δ of cell i alone makes are column i of the
+        # mix (the others' prediction of it is what they see of it).
+        mix = noise.mix[n:2 * n, n:2 * n] / noise.band[n:2 * n, None]
+        target = l_ten
+        fits = []
+        for i in range(n):
+            column = mix[:, i]
+            delta = float(column @ target / max(column @ column, 1e-12))
+            fits.append((float(np.linalg.norm(target - column * delta)) / max(float(np.linalg.norm(target)), 1e-12), i))
+        single_misfit, channel = min(fits)
+        twin_tensions = np.mean([f[1].tensions_n for f in frames], axis=0)
+        tip_sigma = noise.band[3 * n:]
+        debug = {"single_misfit": single_misfit, "level_max": float(np.abs(level).max())}
+
+        if tip_sig and not ten_sig and not len_sig:
+            return Divergence(now_s, onset_s, "tracker_jump", "tracker.position_m", float(np.linalg.norm(d_tip)),
+                              float(np.linalg.norm(noise.sigma[3 * n:])), "m", where, {"jump_m": d_tip, **debug})
+        if ten_sig and not tip_sig and single_misfit < SINGLE_MISFIT:
+            return self._loadcell(now_s, onset_s, frames, channel, where)
+        explained = math.inf
+        force: np.ndarray | None = None
+        cov = np.zeros((3, 3))
+        if ten_sig and self._jacobian is not None:
+            # The rod model's tip for the measured tensions: what of the tip's move they do not
+            # explain is a load at the tip (in length control the tip barely moves under one, while
+            # the tensions that hold it change).
+            wrt_tension, wrt_force = self._jacobian(np.maximum(twin_tensions, 0.0))
+            unexplained = d_tip - wrt_tension @ d_ten
+            explained = (float(np.linalg.norm(unexplained / tip_sigma))
+                         / max(float(np.linalg.norm(d_tip / tip_sigma)), 1e-12))
+            force, cov = _least_squares(wrt_force, unexplained, tip_sigma)
+            debug["unexplained_tip_fraction"] = explained
+        force_std = float(math.sqrt(max(np.trace(cov), 0.0)))
+        load = None if force is None else Divergence(now_s, onset_s, "tip_load", "tip_force_n",
+                                                      float(np.linalg.norm(force)), force_std, "N", where,
+                                                      {"force_n": force, **debug})
+        slip = self._slip(now_s, onset_s, d_ten, where, debug) if ten_sig else None
+        if ten_sig and tip_sig:
+            if explained < EXPLAINED_FRACTION and slip is not None:
+                # The tip moved as the measured tensions say: a tendon's own length changed under
+                # the encoder.
+                return slip
+            if load is not None:
+                return load
+            return Divergence(now_s, onset_s, "tip_load", "tip_force_n", math.nan, math.nan, "N", where,
+                              {"tip_change_m": d_tip, **debug})
+        friction = self._friction(now_s, onset_s, frames, where) if ten_sig else None
+        if friction is not None and friction.size > 2 * friction.std and friction.detail["fit"] >= MIN_FIT:
+            return friction
+        if len_sig or ten_sig:
+            latency = self._latency(now_s, onset_s, where)
+            if latency.size > 2 * latency.std and latency.detail["fit"] >= MIN_FIT:
+                return latency
+        if load is not None and load.size > 3 * load.std and explained >= EXPLAINED_FRACTION:
+            return load
+        if slip is not None and float(d_ten[slip.detail["tendon"]]) < 0:
+            # A tension fell with the encoders where the twin's are: the tendon is longer than its
+            # count says (slipped on its spool, or gone slack), though the tip's move is too small
+            # to tell.
+            return slip
+        return Divergence(now_s, onset_s, "unexplained", "", float(np.abs(level).max()), 0.0, "bands", where, debug)
+
+    def _slip(self, now_s, onset_s, d_ten, where, debug) -> Divergence:
+        """A slip of the tendon whose tension changed most, sized by how its tension falls per
+        metre paid out on the twin."""
+        noise = self._model()
+        n = self.n
+        i = int(np.argmax(np.abs(d_ten)))
+        stiffness = float(noise.stiffness_n_per_m[i])
+        size = -float(d_ten[i]) / stiffness if stiffness > 0 else math.nan
+        std = float(noise.sigma[n + i]) / stiffness if stiffness > 0 else math.nan
+        return Divergence(now_s, onset_s, "tendon_slip", f"tendon_slip_m[{i}]", size, std, "m", where,
+                          {"tendon": i, "tension_change_n": float(d_ten[i]), **debug})
+
+    def _loadcell(self, now_s, onset_s, frames, i, where) -> Divergence:
+        n = self.n
+        d = np.array([f[0][n + i] for f in frames])
+        tau = np.array([f[1].tensions_n[i] for f in frames])
+        sigma = float(self._model().sigma[n + i])
+        offset = float(d.mean())
+        sse_offset = float(np.sum((d - offset) ** 2))
+        gain = float(np.dot(d, tau) / max(np.dot(tau, tau), 1e-12))
+        sse_gain = float(np.sum((d - gain * tau) ** 2))
+        # A gain drift scales with the tension: named so only where the frames' tensions tell it
+        # from an offset (the gain model fits clearly better).
+        if sse_gain < 0.5 * sse_offset and np.ptp(tau) > 3 * sigma:
+            return Divergence(now_s, onset_s, "loadcell_gain", f"effects.tension_gain_error[{i}]", gain,
+                              sigma / max(float(np.sqrt(np.dot(tau, tau))), 1e-12), "1", where, {"channel": i})
+        return Divergence(now_s, onset_s, "loadcell_offset", f"effects.tension_offset_error_n[{i}]", offset,
+                          sigma / math.sqrt(len(d)), "N", where, {"channel": i, "gain_if_gain": gain})
+
+    def _friction(self, now_s, onset_s, frames, where) -> Divergence:
+        """Friction changes the tension a load cell reads against the tendon's sliding: pulled in
+        (length falling) it reads more than the twin, released less; sized as the fraction of the
+        tension lost per unit of that direction."""
+        n = self.n
+        hist = self._history
+        rows, xs = [], []
+        for k in range(1, len(hist)):
+            twin_now, twin_before = hist[k][1], hist[k - 1][1]
+            rate = (twin_now.lengths_m - twin_before.lengths_m)
+            device_now = hist[k][0]
+            rows.append(device_now.tensions_n - twin_now.tensions_n - self._model().bias[n:2 * n])
+            xs.append(-np.sign(rate) * twin_now.tensions_n)
+        x, y = np.concatenate(xs), np.concatenate(rows)
+        fraction = float(np.dot(x, y) / max(np.dot(x, x), 1e-12))
+        std = float(np.mean(self._model().sigma[n:2 * n]) / max(float(np.sqrt(np.dot(x, x))), 1e-12))
+        return Divergence(now_s, onset_s, "friction", "effects.tendon_friction_coeff", fraction, std, "1 (tension fraction)",
+                          where, {"fit": _explained(x * fraction, y)})
+
+    def _latency(self, now_s, onset_s, where) -> Divergence:
+        """Encoders lagging the twin's: the residual length against the twin's length rate, the lag
+        the slope."""
+        n = self.n
+        hist = self._history
+        ys, xs = [], []
+        for k in range(1, len(hist)):
+            rate = (hist[k][1].lengths_m - hist[k - 1][1].lengths_m) / max(hist[k][1].time_s - hist[k - 1][1].time_s,
+                                                                             1e-9)
+            ys.append(hist[k][0].lengths_m - hist[k][1].lengths_m - self._model().bias[:n])
+            xs.append(-rate)
+        x, y = np.concatenate(xs), np.concatenate(ys)
+        lag = float(np.dot(x, y) / max(np.dot(x, x), 1e-18))
+        std = float(np.mean(self._model().sigma[:n]) / max(float(np.sqrt(np.dot(x, x))), 1e-18))
+        return Divergence(now_s, onset_s, "latency", "effects.actuation_latency_s", lag, std, "s", where,
+                          {"fit": _explained(x * lag, y)})
+
+
+def _explained(model: np.ndarray, values: np.ndarray) -> float:
+    """The fraction of ``values``' sum of squares the ``model`` explains (R², about 0)."""
+    total = float(values @ values)
+    return 1.0 - float((values - model) @ (values - model)) / total if total > 0 else 0.0
+
+
+def _least_squares(matrix: np.ndarray, values: np.ndarray, sigma: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """x minimising ‖(A x − b)/σ‖ in the directions it resolves to :data:`MAX_FORCE_STD_N` (a
+    push along a stiff direction, the backbone's axis, moves the tip too little to be seen), and
+    its covariance there."""
+    a = matrix / sigma[:, None]
+    b = values / sigma
+    u, singular, vt = np.linalg.svd(a, full_matrices=False)
+    keep = singular > 1.0 / MAX_FORCE_STD_N
+    inverse = np.where(keep, 1.0 / np.where(keep, singular, 1.0), 0.0)
+    x = vt.T @ (inverse * (u.T @ b))
+    cov = vt.T @ np.diag(inverse ** 2) @ vt
+    return x, cov
+
+
+def _loop_stiffness(twin_rows: np.ndarray, n: int) -> np.ndarray:
+    """(n,) fall of each tendon's tension per metre it is paid out, from the twin's frames: the
+    slope of tension on length over frame-to-frame changes."""
+    if len(twin_rows) < 3:
+        return np.full(n, math.nan)
+    d = np.diff(twin_rows, axis=0)
+    lengths, tensions = d[:, :n], d[:, n:2 * n]
+    out = np.empty(n)
+    for i in range(n):
+        var = float(lengths[:, i] @ lengths[:, i])
+        out[i] = -float(lengths[:, i] @ tensions[:, i]) / var if var > 0 else math.nan
+    return out
