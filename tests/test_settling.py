@@ -7,8 +7,10 @@ to peak with its mean 0.14-0.16 N off the setpoint (μ = 0.1 and 0.3, endoscope 
 With the twin's friction following the spool travel through a lag (as the host's sliding state
 does), held tensions on the endoscope and the soft-G endoscope stay within 0.05 N peak to peak
 (load-cell noise included) and their means within 0.02 N of the setpoints, and the length loop
-reaches its targets within an encoder count. The 100 mm robot still rings at μ = 0.3 (0.6 N
-peak to peak); that case is a known failure, held here so that its fix is noticed.
+reaches its targets within an encoder count. With the tuned proportional gain (loop gain 0.92
+against the stall force) the 100 mm robot rang at μ = 0.3 (0.6 N peak to peak) and the helical
+one at 0.065 N; the gains now come from the rig's stall force at loop gain 0.46
+(:func:`twin.control.gains.tension_gains_for`), and they hold within the noise.
 """
 
 from __future__ import annotations
@@ -20,9 +22,8 @@ from twin.robots import load_robot
 
 
 @pytest.mark.parametrize("robot, mu", [
-    ("endoscope", 0.1), ("endoscope", 0.3), ("endoscope-soft-g", 0.3), ("long", 0.1),
-    pytest.param("long", 0.3, marks=pytest.mark.xfail(strict=True, reason="the 100 mm robot's held tensions "
-                                                       "still ring at 0.6 N peak to peak at μ = 0.3")),
+    ("endoscope", 0.1), ("endoscope", 0.3), ("endoscope-soft-g", 0.3), ("long", 0.1), ("long", 0.3),
+    ("helical", 0.3),
 ])
 def test_held_tensions_settle_under_friction(robot, mu):
     params = load_robot(robot).replace({"effects.tendon_friction_coeff": mu})
@@ -30,6 +31,20 @@ def test_held_tensions_settle_under_friction(robot, mu):
     assert figures["tension_ptp_n"] <= 0.05, figures
     assert figures["tension_offset_n"] <= 0.02, figures
     assert figures["length_error_counts"] <= 1.0, figures
+
+
+def test_the_tension_loops_proportional_gain_follows_the_rigs_stall_force():
+    # The loop gain kp × stall force is what makes a stuck tendon ring, so a spool of twice the
+    # radius (half the stall force at the tendon) gets twice the kp; the integral stays as tuned.
+    from twin.control.gains import PROPORTIONAL_LOOP_GAIN, TUNED_TENSION_GAINS, tension_gains_for
+
+    params = load_robot("endoscope")
+    gains = tension_gains_for(params)
+    assert gains["kp"] * params.rig.motor_stall_torque_nm / params.rig.spool_radius_m == pytest.approx(
+        PROPORTIONAL_LOOP_GAIN)
+    assert gains["kp"] < TUNED_TENSION_GAINS["kp"] and gains["ki"] == TUNED_TENSION_GAINS["ki"]
+    wide = params.replace({"rig.spool_radius_m": 2 * params.rig.spool_radius_m})
+    assert tension_gains_for(wide)["kp"] == pytest.approx(2 * gains["kp"])
 
 
 def test_twin_bench_hold_prints_the_figures_beside_their_goals(capsys):

@@ -121,6 +121,28 @@ constexpr float kTensionRatePerS = 10.0f;
 // noisy recording's tension steps 0.3 mm from their noiseless replay (a clean run then read as
 // an effect); the 100 mm robot rings at 0.6 N either way (0.06 N at 50 ms).
 constexpr float kTensionProportionalLagS = 0.0f;
+// Tension mode can hold each taut tendon (over kTautFraction of the limit) at its reference
+// plus a damping (N·s/m) times the tendon's swinging speed (paying out raises the reference,
+// winding in lowers it): a viscous tendon to the rod's swing modes instead of an ideal tension
+// source, whose only damping is then the rod's own. 0 turns it off. Under tendon friction those
+// modes grow into limit cycles whatever the kp (the endoscope at κ 17.5 1/m, φ 0, μ = 0.3:
+// its sideways pair ±0.6 N at 3 Hz within 3 s of a 5 g hold; a 10 g hold at the compensation's
+// ceiling swinging to the 6 N limit). Measured on the twin: 300 and 600 N·s/m let that 10 g
+// hold reach the limit still, 1500 held both, and 1500 (five times the motor's back-EMF
+// damping, 302 N·s/m, which the tension loop otherwise cancels) took `twin compensate` at
+// μ = 0.3 from 9 of 14 faulted rows on the high-curvature bends to none. But it slows a tension
+// step through the soft rod by as much (a dynamics recording's 2.75 N step held at 2.12 N), which
+// the tuned gains, the tuning's step rollout and the dynamics identification were all made
+// without: off until they are made with it. A slack tendon is never damped: its spool is free,
+// and there the damping would be a velocity loop through the speed's lag.
+constexpr float kTensionDampingNsPerM = 0.0f;
+// The swinging speed is the length's difference over a control period through a first-order
+// lag of kTensionDampingLagS (an encoder count in a period, 0.094 mm/s, is then ~0.05 N of
+// reference at 1500 N·s/m, not 0.14 N), less its average over kTensionDampingWashoutS: a
+// steady motion (slack taken up, a slow tension ramp through the soft rod) is not damped, and
+// swings faster than ~1/(2π · 0.5 s) = 0.3 Hz are.
+constexpr float kTensionDampingLagS = 0.02f;
+constexpr float kTensionDampingWashoutS = 0.5f;
 // Spool speeds are measured tick to tick (5 ms on the Teensy: 0.19 mm/s per encoder count), over
 // at least this (µs).
 constexpr uint32_t kSpeedWindowUs = 1000;

@@ -77,6 +77,8 @@ void Controller::restart(const Measurements& now) {
     pid_[i].reset(measured(now, i));
     last_duty_[i] = 0.0f;
     references_[i] = mode_ == Mode::kTension ? now.tensions_n[i] : now.lengths_m[i];
+    last_length_m_[i] = now.lengths_m[i];
+    speed_m_s_[i] = steady_m_s_[i] = 0.0f;
   }
 }
 
@@ -101,8 +103,22 @@ void Controller::step(const Measurements& now, float dt_s, const float* lowest, 
     // A ramping length is fed forward as the duty its speed takes an unloaded motor, so that the
     // integral holds only the load and has nothing to unwind when the ramp ends.
     float feedforward = 0.0f;
+    float tracked = reference;
+    // The speeds are clamped to the no-load speed, which no spool exceeds: no NaN or overflow
+    // from a length jump (a restart's) reaches a reference.
+    const float speed_m_s = clamp_range((now.lengths_m[i] - last_length_m_[i]) / dt_s, -no_load_speed_m_per_s_, no_load_speed_m_per_s_);
+    last_length_m_[i] = now.lengths_m[i];
+    speed_m_s_[i] += dt_s / (kTensionDampingLagS + dt_s) * (speed_m_s - speed_m_s_[i]);
+    steady_m_s_[i] += dt_s / (kTensionDampingWashoutS + dt_s) * (speed_m_s - steady_m_s_[i]);
     if (mode_ == Mode::kTension) {
       reference += clamp_range(targets_[i] - reference, -ramp_n, ramp_n);
+      tracked = reference;
+      // Only a taut tendon is damped: a slack one's spool is free, and on a free spool the
+      // damping would be a velocity loop through the speed's lag, five times the motor's own.
+      if (tension_damping_ns_per_m_ > 0.0f && now.tensions_n[i] > kTautFraction * tension_limit_n_) {
+        const float swinging_m_s = speed_m_s_[i] - steady_m_s_[i];
+        tracked = clamp_range(reference + tension_damping_ns_per_m_ * swinging_m_s, 0.0f, tension_limit_n_);
+      }
     } else {
       // Nor does it run ahead of a tendon that cannot follow (a motor at its pull limit): the
       // error stays small, and so does the overshoot when the tendon catches up.
@@ -111,13 +127,14 @@ void Controller::step(const Measurements& now, float dt_s, const float* lowest, 
       const float least_m = -clamp_range(kMaxLengthLeadM + lead_m, 0.0f, ramp_m);
       const float move_m = clamp_range(targets_[i] - reference, least_m, most_m);
       reference += move_m;
+      tracked = reference;
       feedforward = move_m / dt_s / no_load_speed_m_per_s_;
     }
     // In tension mode the loop runs on −tension: paying out (positive duty) lowers tension.
     const float sign = mode_ == Mode::kTension ? -1.0f : 1.0f;
     const float low = clamp_range(lowest[i], -g.output_limit, g.output_limit);
     const float lag_s = mode_ == Mode::kTension ? kTensionProportionalLagS : 0.0f;
-    duty[i] = pid_[i].step(g, sign * reference, measured(now, i), dt_s, low, g.output_limit, feedforward, lag_s);
+    duty[i] = pid_[i].step(g, sign * tracked, measured(now, i), dt_s, low, g.output_limit, feedforward, lag_s);
     last_duty_[i] = duty[i];
   }
 }

@@ -10,9 +10,10 @@
 // length_rate(), so a step is driven as a ramp, its speed fed forward: no spool is jerked, and
 // no tendon paid out so fast that it goes slack and snaps taut again when the rod moves. In
 // tension mode the references move at no more than tension_rate(): a motor's pull rises no
-// faster than the spool of the tendon it pulls against, held at its cap, can yield; the
-// proportional term can act through a lag (kTensionProportionalLagS, off by default: config.h
-// says what it was measured to do).
+// faster than the spool of the tendon it pulls against, held at its cap, can yield; a taut
+// tendon's can be raised by a damping times its swinging speed (kTensionDampingNsPerM) within
+// [0, tension limit], and the proportional term can act through a lag
+// (kTensionProportionalLagS): both off by default, config.h says what they were measured to do.
 #pragma once
 
 #include <cstddef>
@@ -56,6 +57,10 @@ class Controller {
   void set_no_load_speed(float no_load_speed_m_per_s) { no_load_speed_m_per_s_ = no_load_speed_m_per_s; }
   float tension_rate() const { return tension_rate_n_per_s_; }
   void set_tension_rate(float tension_rate_n_per_s) { tension_rate_n_per_s_ = tension_rate_n_per_s; }
+  // Highest tension reference (N) the damping may raise a reference to: the tension limit.
+  void set_tension_limit(float tension_limit_n) { tension_limit_n_ = tension_limit_n; }
+  // Tendon damping of tension mode (N·s/m; kTensionDampingNsPerM by default, 0 = off).
+  void set_tension_damping(float ns_per_m) { tension_damping_ns_per_m_ = ns_per_m; }
 
   // Switches mode and holds (see hold()), with each PID's integral starting at the duty of the
   // last step, so the motors keep pulling as they were instead of letting go: entering tension
@@ -104,6 +109,11 @@ class Controller {
   float tension_rate_n_per_s_ = kTensionRatePerS * kDefaultTensionLimitN;
   float no_load_speed_m_per_s_ = kDefaultNoLoadSpeedMPerS;
   float last_duty_[kMaxChannels] = {};  // duty of the last step; 0 after restart()
+  float last_length_m_[kMaxChannels] = {};  // tendon length at the last step
+  float speed_m_s_[kMaxChannels] = {};      // tendon speed (m/s, paying out > 0) through kTensionDampingLagS
+  float steady_m_s_[kMaxChannels] = {};     // ... and through kTensionDampingWashoutS
+  float tension_limit_n_ = kDefaultTensionLimitN;
+  float tension_damping_ns_per_m_ = kTensionDampingNsPerM;
 };
 
 }  // namespace twinfw

@@ -132,6 +132,7 @@ void Firmware::set_tension_limit(float tension_limit_n) {
   const float rate = guard_.winding_speed_limit();
   controller_.set_length_rate(rate < kMaxLengthRateMPerS ? rate : kMaxLengthRateMPerS);
   controller_.set_tension_rate(kTensionRatePerS * tension_limit_n);
+  controller_.set_tension_limit(tension_limit_n);
 }
 
 // A HELLO starts a host's session: whatever the last host left driving stops (FAULT stays, so

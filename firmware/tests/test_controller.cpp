@@ -99,6 +99,29 @@ void tension_references_ramp() {
   CHECK_NEAR(c.targets()[0], 2.0, 0.0);  // the targets are the setpoints at once
 }
 
+// With the tendon damping on, a taut tendon swinging out (paying out) is held at more than its reference,
+// one swinging in at less: the motor winds in harder against the one, lets go of the other,
+// a damper on the rod's swing. Slack, the reference itself.
+void tension_damping_on_a_taut_tendon() {
+  const float taut_n = 2.0f, slack_n = 0.3f;  // the 6 N limit's taut fraction is 0.6 N
+  auto duties_after = [](float tension_n, float speed_m_s, int periods) {
+    Controller c;
+    c.set_tension_damping(1500.0f);
+    c.set_mode(Mode::kTension, at(0, 0, 0, 0, tension_n), 6.0f);
+    float duty[kDefaultChannels] = {};
+    for (int k = 1; k <= periods; ++k) {
+      const float x = speed_m_s * kControlPeriodS * static_cast<float>(k);
+      c.step(at(x, -x, 0.0f, 0.0f, tension_n), kControlPeriodS, duty);
+    }
+    return duty[0] - duty[2];  // channel 0 moves, channel 2 stands still
+  };
+  // 2 mm/s out for 50 ms: wound in harder (more negative duty) than the still channel.
+  CHECK(duties_after(taut_n, 0.002f, 5) < -1e-4f);
+  CHECK(duties_after(taut_n, -0.002f, 5) > 1e-4f);
+  // A slack tendon is not damped: its spool is free.
+  CHECK_NEAR(duties_after(slack_n, 0.002f, 5), 0.0, 1e-6);
+}
+
 void tension_hold_clamps_to_limit() {
   Controller c;
   Measurements now = at(0, 0, 0, 0, 0.0f);
@@ -208,6 +231,7 @@ void test_controller() {
   tension_mode_sign();
   tension_references_ramp();
   tension_hold_clamps_to_limit();
+  tension_damping_on_a_taut_tendon();
   tension_hold_settles_on_a_stiff_load();
   closed_loops_on_the_bench();
 }

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from twin.control.gains import TUNED_TENSION_GAINS
+from twin.control.gains import tension_gains_for
 from twin.driver.errors import DeviceError
 from twin.control.pretension import pretension_straight
 from twin.params import Params, load_params
@@ -45,20 +45,23 @@ def hold_figures(params: Params | None = None, *, kappa_per_m: float = HOLD_KAPP
 
     Args:
         params: the twin's parameter set (default ``models/endoscope/endoscope.toml``).
-        tension_gains: the board's tension gains; default :data:`twin.control.gains.TUNED_TENSION_GAINS`.
+        tension_gains: the board's tension gains; default :func:`twin.control.gains.tension_gains_for` the
+            robot (the gains ``twin compensate`` runs on).
         seed: the twin's sensor-noise seed.
 
     Returns:
         ``length_error_counts`` (largest of ``length_errors_counts``, one per channel, absolute),
         ``length_settle_s``,
-        ``tension_ptp_n`` (largest of ``tension_ptps_n``) and ``tension_offset_n`` (largest
-        absolute of ``tension_offsets_n``, signed per channel).
+        ``tension_ptp_n`` (largest of ``tension_ptps_n``), ``tension_offset_n`` (largest
+        absolute of ``tension_offsets_n``, signed per channel) and ``tension_ring_rms_n`` (N: the
+        largest channel's RMS beyond the load cells' stated noise, ``sensors.loadcell_noise_n``,
+        as a variance difference: what the loop adds to the noise).
     """
     from twin.driver import open_device
 
     params = params if params is not None else load_params()
     with open_device("sim://", params=params, seed=seed) as device:
-        device.set_gains("tensions", **(tension_gains or TUNED_TENSION_GAINS))
+        device.set_gains("tensions", **(tension_gains or tension_gains_for(params)))
         zero = pretension_straight(device, params, mode="lengths")
         device.set_lengths(zero + tendon_length_changes_m(kappa_per_m, phi_deg, params))
         start_s = device.time_s
@@ -83,11 +86,15 @@ def hold_figures(params: Params | None = None, *, kappa_per_m: float = HOLD_KAPP
         tensions = np.array([s.tensions_n for s in samples])
         ptps = np.ptp(tensions, axis=0)
         offsets = tensions.mean(axis=0) - samples[-1].targets
+        # What the loop adds to the cells' own noise (their stated RMS, sensors.loadcell_noise_n):
+        # on 5 kg cells (25 mN RMS) the noise alone spans ~0.13 N over a second of samples.
+        rings = np.sqrt(np.maximum(tensions.var(axis=0) - params.sensors.loadcell_noise_n ** 2, 0.0))
     return {
         "length_error_counts": float(length_errors.max()),
         "length_settle_s": round(float(length_s), 2),
         "tension_ptp_n": float(ptps.max()),
         "tension_offset_n": float(np.abs(offsets).max()),
+        "tension_ring_rms_n": float(rings.max()),
         "length_errors_counts": [round(float(e), 1) for e in length_errors],
         "tension_ptps_n": [round(float(p), 4) for p in ptps],
         "tension_offsets_n": [round(float(o), 4) for o in offsets],
