@@ -265,8 +265,9 @@ def _smoke(bin_dir: Path, work: Path) -> None:
     from mcap.reader import make_reader
     with open(work / "sweep.mcap", "rb") as stream:
         counts = make_reader(stream).get_summary().statistics.channel_message_counts
-    # /tf_static once; tendons, measured tip, predicted tip and backbone per row (every prediction converged).
-    assert sorted(counts.values()) == [1, 24, 24, 24, 24]
+    # /tf_static once; tendons, measured tip, predicted tip, backbone and estimated tip wrench per row
+    # (every prediction converged).
+    assert sorted(counts.values()) == [1, 24, 24, 24, 24, 24]
 
     # The Gymnasium envs come as twin.envs, registered on import; no top-level `envs` exists.
     gym_check = subprocess.run([str(bin_dir / "python"), "-c", "import importlib.util, gymnasium as gym, twin.envs; "

@@ -84,9 +84,11 @@ def _probe_rows(rotation, position_m, cal=CapCalibration(), t_s=1.0):
 def test_device_serial_and_tracker_fusion_work_without_mujoco_or_a_compiler(tmp_path):
     rotation = quat_to_matrix(np.array([0.9, 0.1, -0.3, 0.2]))
     rows = _probe_rows(rotation, np.array([0.01, -0.02, 0.05]))
-    # An empty PATH: no g++ to build the firmware or the native plant loop with.
+    # An empty PATH: no g++ to build the firmware or the native plant loop with. The timeout only
+    # catches a hang: a fresh HOME compiles the fusion's Numba kernels, which a loaded CI box took
+    # more than a minute for.
     run = subprocess.run([sys.executable, "-c", HOST_WITHOUT_MUJOCO, json.dumps(rows)], capture_output=True,
-                         text=True, timeout=60, env={"PATH": str(tmp_path), "HOME": str(tmp_path)})
+                         text=True, timeout=240, env={"PATH": str(tmp_path), "HOME": str(tmp_path)})
     assert run.returncode == 0, run.stderr
     out = json.loads(run.stdout)
     assert out["loaded"] == []

@@ -78,6 +78,12 @@ DESCRIBING = [
     "- `rig.tension_limit_n` <= `sensors.loadcell_capacity_n` and <= 50 N (the firmware's largest), and "
     "`sensors.loadcell_gain_counts_per_n` (the cells' rated sensitivity, which bounds the calibrations the board "
     "accepts to 25 % either way) within 100 … 117,440 counts/N.",
+    "- the motors as the board is sent them (SET_MOTORS, `firmware/PROTOCOL.md`), at the tendon: stall force "
+    "`rig.motor_stall_torque_nm / rig.spool_radius_m` within 1 … 10,000 N, no-load speed "
+    "`rig.motor_no_load_speed_rpm` × 2π/60 × `rig.spool_radius_m` within 0.001 … 10 m/s, reflected rotor mass "
+    "`rig.motor_rotor_inertia_kgm2` × `rig.gear_ratio`² / `rig.spool_radius_m`² within 0.01 … 1000 kg. The board "
+    "derives its pull cap, winding speed limit, back-EMF damping, brake settling and load-cell plausibility check "
+    "from them, so a robot on other motors needs no firmware build.",
 ]
 
 
