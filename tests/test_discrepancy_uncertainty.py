@@ -9,7 +9,7 @@ import pytest
 from twin import load_params
 from twin.data.fitting import fit_parameters
 from twin.discrepancy import candidate_library, synthetic_validation_dataset
-from twin.discrepancy.uncertainty import LEVEL_SIGMA, honest_uncertainty
+from twin.discrepancy.uncertainty import LEVEL_SIGMA, PATTERNS, honest_uncertainty
 from twin.pcc import validation_grid
 
 NOMINAL = load_params()
@@ -66,3 +66,15 @@ def test_bad_levels_and_splits_are_refused(tilted):
         honest_uncertainty(data, fit, model_form_m=float("nan"))
     with pytest.raises(ValueError, match="structured_rms_m"):
         honest_uncertainty(data, fit, model_form_m=0.0, structured_rms_m=-1.0)
+
+
+def test_beyond_a_sixth_of_the_thesis_grid_more_configurations_do_not_shrink_the_model_form_term(tmp_path):
+    """A model-form error is smooth over the workspace: over 72 configurations (every plane) f
+    counts 36 independent ones, so it is √2 wider than se / σ · m alone, not equal to it."""
+    grid = [g for g in validation_grid() if g[1] in (0.0, 13.0, 26.2) and g[3] in (0.0, 0.01)]
+    truth = NOMINAL.replace({"effects.base_tilt_deg": [0.8, -0.5]})
+    data = synthetic_validation_dataset(tmp_path, NOMINAL, truth, grid=grid, seed=6)
+    fit = fit_parameters(data, NOMINAL, candidate_library(NOMINAL)["base_tilt"].parameters, max_evaluations=25)
+    assert len(data) == 72 > PATTERNS
+    for u, se in zip(honest_uncertainty(data, fit, model_form_m=0.17e-3, splits=2), fit.std_errors):
+        assert u.model_form == pytest.approx(se / fit.residual_sigma_m * 0.17e-3 * math.sqrt(72 / PATTERNS), rel=1e-9)
