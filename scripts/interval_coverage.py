@@ -35,7 +35,7 @@ import numpy as np
 from tqdm import tqdm
 
 from twin.data.dataset import read_dataset
-from twin.data.fitting import current_value, fit_parameters
+from twin.data.fitting import fit_parameters
 from twin.driver import open_device
 from twin.discrepancy.candidates import candidate_library
 from twin.discrepancy.uncertainty import LEVEL_SIGMA, honest_uncertainty
@@ -131,10 +131,10 @@ def main(argv=None) -> int:
                 print(f"| {case} | {effect} | {', '.join(f'{t:.5g}' for t in truth)} | sweep failed: "
                       f"{str(exc).splitlines()[0][:120]} | | | | | | |", flush=True)
                 continue
-        parameters = list(library[effect].parameters)
-        # A log-fitted parameter whose nominal is 0 (friction off) starts at its typical size.
-        start = [current_value(model, p) or (p.scale if p.log else 0.0) for p in parameters]
-        fit = fit_parameters(data, model, parameters, x0=start, max_evaluations=25)
+        candidate = library[effect]
+        parameters = list(candidate.parameters)
+        # From where the workflow starts the candidate (friction, off in the model: at 0.02).
+        fit = fit_parameters(data, model, parameters, x0=candidate.x0(model), max_evaluations=25)
         # As the workflow: the structure the fitted model leaves, judged at the data's noise.
         before = find_discrepancy(data, model)
         after = find_discrepancy(data, fit.params, noise=before.noise)
