@@ -110,19 +110,29 @@ class SlidingState:
         # The friction's travel lag (FRICTION_TRAVEL_LAG_S) over one tick, as the twin's at 5 ms steps.
         self._blend = tick_s / (FRICTION_TRAVEL_LAG_S + tick_s)
 
-    def follow(self, samples) -> np.ndarray | None:
+    def follow(self, samples, *, mean_from_s: float | None = None) -> np.ndarray | None:
         """Advance over telemetry samples (oldest first) and, within each, over the counts of
         every board tick it carries (``encoder_history_counts``, (K, N), oldest first; a sample
         without them, ``encoder_counts``, (N,)): the spool's motion between 40 Hz samples (a
         length controller's settling dither of a few µm) moves σ as the twin's friction sees it.
 
+        Args:
+            samples: telemetry samples, oldest first.
+            mean_from_s: with a device time (s), :attr:`window_mean` becomes the mean σ over the
+                ticks of the samples stamped from then on: what a measurement averaged over that
+                window saw. A length controller's dither moves σ by ~0.08 RMS within a 0.25 s
+                window (its magnitude by +0.02 on average; endoscope, μ = 0.25, 36 rows).
+
         Returns:
-            σ per tendon, or None before the first sample.
+            σ per tendon (at the last tick), or None before the first sample.
         """
-        rows = []
+        rows, times = [], []
         for sample in samples:
             ticks = getattr(sample, "encoder_history_counts", None)
-            rows.append(np.atleast_2d(np.asarray(sample.encoder_counts if ticks is None else ticks, dtype=float)))
+            block = np.atleast_2d(np.asarray(sample.encoder_counts if ticks is None else ticks, dtype=float))
+            rows.append(block)
+            times.append(np.full(len(block), float(getattr(sample, "time_s", np.inf))))
+        self.window_mean = None
         if not rows:
             return self.state
         positions_m = np.concatenate(rows) * self.tendon_m_per_count
@@ -135,8 +145,22 @@ class SlidingState:
             lagged = [y + m for y, m in zip(lagged, move)]
             moves.append(move)
         self._lagged_m = np.array(lagged)
-        self.state = slide_path(self.state, -np.array(moves))
+        pulls = -np.array(moves)
+        if mean_from_s is None:
+            self.state = slide_path(self.state, pulls)
+            return self.state
+        inside = np.concatenate(times) >= mean_from_s
+        self.state = slide_path(self.state, pulls[~inside])
+        history = []
+        for pull in pulls[inside]:
+            self.state = slide(self.state, pull)
+            history.append(self.state)
+        self.window_mean = np.mean(history, axis=0) if history else self.state.copy()
         return self.state
+
+    #: σ per tendon averaged over the ticks of the last :meth:`follow` from ``mean_from_s`` on
+    #: (None when it was not asked for).
+    window_mean: np.ndarray | None = None
 
 
 class TendonFriction:
