@@ -4,6 +4,8 @@ report, bad paths and bad datasets (one line each)."""
 import json
 import shutil
 
+import numpy as np
+
 import pytest
 
 from twin import load_params
@@ -36,6 +38,12 @@ def test_json_names_the_hidden_tip_load_and_writes_params_and_report(tmp_path, c
     assert data["remaining_rms_m"] == data["rms_after_m"] < 1.3 * data["noise_rms_m"]
     value = data["parameters"]["effects.tip_load_error_fraction"]
     assert value["value"] == pytest.approx(-0.12, abs=0.02) and 0 < value["std_error"] < 0.02
+    # The honest interval holds the statistical one and every term it is built of.
+    u = value["uncertainty"]
+    assert u == pytest.approx(np.sqrt(value["std_error"]**2 + value["split_scatter"]**2 + value["model_form"]**2))
+    assert value["ci95"] == pytest.approx([value["value"] - 1.96 * u, value["value"] + 1.96 * u])
+    assert value["ci95"][0] < value["ci95_statistical"][0] < value["ci95_statistical"][1] < value["ci95"][1]
+    assert value["ci95"][0] < -0.12 < value["ci95"][1] and value["model_form"] > 0
     assert data["rms_after_m"] < 0.5 * data["rms_before_m"]
     assert sorted(r["effect"] for r in data["ranking"]) == sorted(candidate_library(NOMINAL))
     assert all("score" in r for r in data["ranking"])

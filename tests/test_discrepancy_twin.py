@@ -82,6 +82,9 @@ def test_hidden_friction_is_named_and_its_y_signature_removed(tmp_path):
     assert result.effect == "tendon_friction", [r.to_dict()["ranking"][:3] for r in result.rounds]
     mu = result.parameters()["effects.tendon_friction_coeff"]
     assert abs(mu["value"] - 0.15) < 0.02
+    # The twin's friction is the predictor's at the joints (half a joint's turn either side): μ
+    # within its honest interval, not 10-13 % high outside it.
+    assert mu["ci95"][0] < 0.15 < mu["ci95"][1], mu
     assert result.rms_after_m < 0.5 * result.rms_before_m
     # The thesis's y pattern (Fig. 20): e_y a sine over the bending plane, most of a millimetre,
     # and gone once friction is added. Its sign follows the tendons' last sliding direction: the
@@ -94,3 +97,21 @@ def test_hidden_friction_is_named_and_its_y_signature_removed(tmp_path):
     assert abs(before["corr_y_minus_sin_phi"]) > 0.5
     assert abs(before["y_sine_amplitude_m"]) > 5e-4
     assert abs(after["y_sine_amplitude_m"]) < 0.3 * abs(before["y_sine_amplitude_m"])
+
+
+@pytest.mark.slow
+def test_friction_whose_tendons_last_backed_off_is_named_alone_within_its_interval(tmp_path):
+    """Every configuration approached from the other side (each tendon past its setpoint by a
+    third of its move, then back): each tendon's last motion is against its move, so its sliding
+    state is the reverse of a direct approach's, and friction alone still explains the data — no
+    load-cell offset added beside it."""
+    truth = MODEL.replace({"effects.tendon_friction_coeff": 0.2}, source="hidden")
+    with open_device("sim://?seed=11", params=truth) as device:
+        cal = nominal_calibration(MODEL)
+        device.set_calibration(gain_counts_per_n=cal["gain_counts_per_n"], offset_counts=cal["offset_counts"])
+        run_validation(device, tmp_path, MODEL, grid=GRID, progress=False, overshoot=0.3)
+    data = read_dataset(tmp_path)
+    result = run_discrepancy(data)
+    assert result.verdict == "effect" and result.named == ("tendon_friction",), result.statement()
+    mu = result.parameters()["effects.tendon_friction_coeff"]
+    assert mu["ci95"][0] < 0.2 < mu["ci95"][1] and mu["ci95"][1] - mu["ci95"][0] < 0.03, mu

@@ -57,6 +57,30 @@ def test_the_sliding_state_follows_every_tick_a_sample_carries():
     assert coarse.follow([_Sample([0, 0]), _Sample(ticks[-1])]).tolist() == pytest.approx([0.0, 0.0])
 
 
+class _TimedSample(_TickSample):
+    def __init__(self, ticks, time_s):
+        super().__init__(ticks)
+        self.time_s = time_s
+
+
+def test_the_window_mean_is_the_state_averaged_over_the_ticks_of_the_window():
+    """A measurement averages the tip over its window: the state it saw is σ's mean over the
+    window's ticks, not σ at its end; the state itself moves as without a window."""
+    pull = [[-40, 0]] * 5
+    samples = [_TimedSample([[0, 0]] * 5, 0.0), _TimedSample(pull, 0.025), _TimedSample(pull, 0.05)]
+    plain = SlidingState(tendon_m_per_count=PRESLIDING_M / 10)
+    end = plain.follow(samples).tolist()
+    assert plain.window_mean is None
+    timed = SlidingState(tendon_m_per_count=PRESLIDING_M / 10)
+    assert timed.follow(samples, mean_from_s=0.025).tolist() == pytest.approx(end)
+    # Tick by tick over the last two samples' ten ticks.
+    ticks = SlidingState(tendon_m_per_count=PRESLIDING_M / 10)
+    ticks.follow(samples[:1])
+    seen = [ticks.follow([_Sample(row)]).copy() for row in pull + pull]
+    assert timed.window_mean.tolist() == pytest.approx(np.mean(seen, axis=0).tolist())
+    assert 0 < timed.window_mean[0] < end[0]
+
+
 def test_each_sample_carries_the_encoder_counts_of_every_board_tick_since_the_one_before():
     with open_device("sim://", params=load_params()) as device:
         device.enable()

@@ -1,6 +1,8 @@
 """The interval-coverage measurement (scripts/interval_coverage.py) on a reduced set of hidden
-twin cases: it runs, reports each fitted value against the truth, and its widened interval
-(with the split-to-split scatter) is never narrower than the statistical one."""
+twin cases: it runs, reports each fitted value against the truth, its honest interval (the
+workflow's: standard error, split scatter and model form, twin.discrepancy.uncertainty) is never
+narrower than the statistical one, and on these cases it covers the truth where the statistical
+one does not."""
 
 import importlib.util
 import re
@@ -16,21 +18,39 @@ def load():
     return module
 
 
-def test_coverage_reports_every_fitted_value_and_widens_by_the_split_scatter(capsys):
+def rows_of(out):
+    return [[c.strip() for c in line.split("|")[1:-1]] for line in out.splitlines() if re.match(r"\| \d+ \|", line)]
+
+
+def test_coverage_reports_every_fitted_value_and_the_honest_interval_covers(capsys):
     code = load().main(["2", "--splits", "2", "--seed", "5"])
     out = capsys.readouterr().out
-    rows = [line.split("|")[1:-1] for line in out.splitlines() if re.match(r"\| \d+ \|", line)]
+    rows = rows_of(out)
     # Case 0 is a tilt (two angles), case 1 a friction coefficient.
-    assert [r[1].strip() for r in rows] == ["base_tilt", "base_tilt", "tendon_friction"]
+    assert [r[1] for r in rows] == ["base_tilt", "base_tilt", "tendon_friction"]
     for r in rows:
-        z, z_wide = float(r[5]), float(r[7])
-        assert abs(z_wide) <= abs(z) + 1e-9 and (abs(z) <= 1.96) == (r[6].strip() == "yes")
+        z, z_honest = float(r[6]), float(r[8])
+        assert abs(z_honest) <= abs(z) + 1e-9 and (abs(z) <= 1.96) == (r[7] == "yes")
+        assert (abs(z_honest) <= 1.96) == (r[9] == "yes") and float(r[5]) > 0
     assert "coverage of the 95 % intervals over 3 parameters" in out
-    assert code in (0, 1) and (code == 0) == ("with the split scatter (goal 90%)" in out and
-                                              float(re.search(r"(\d+)% with the split", out).group(1)) >= 90)
+    share = float(re.search(r"(\d+)% honest", out).group(1))
+    assert (code == 0) == (share >= 90)
+    # The twin's friction (per joint, half a turn either side) and the predictor's agree: the
+    # fitted μ is within its honest interval, and within 5 % of the truth.
+    friction = rows[2]
+    assert friction[9] == "yes"
+    assert abs(float(friction[3].split("±")[0]) / float(friction[2]) - 1) < 0.05
+
+
+def test_another_robot_and_one_effect(capsys):
+    code = load().main(["1", "--splits", "2", "--seed", "3", "--robot", "three-tendon", "--effects", "weight"])
+    out = capsys.readouterr().out
+    assert "robot three-tendon" in out and [r[1] for r in rows_of(out)] == ["weight"] and code in (0, 1)
 
 
 def test_bad_arguments_are_one_line(capsys):
     assert load().main(["0"]) == 2
     assert load().main(["2", "--splits", "1"]) == 2
-    assert capsys.readouterr().err.count("\n") == 2
+    assert load().main(["2", "--effects", "gravity"]) == 2
+    assert load().main(["2", "--robot", "no-such-robot"]) == 2
+    assert capsys.readouterr().err.count("\n") == 4

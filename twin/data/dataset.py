@@ -129,7 +129,8 @@ TENDON_GROUPS = (
     TendonGroup("tensions", "tension_{i}_n", "calibrated tension at the load cell (N)"),
     TendonGroup("lengths", "length_{i}_m", "relative tendon length from the encoder (m, + = paid out)",
                 required=False),
-    TendonGroup("sliding_state", "slide_{i}", "the tendon friction's sliding state σ followed from the encoder "
+    TendonGroup("sliding_state", "slide_{i}", "the tendon friction's sliding state σ followed from the encoder, "
+                "averaged over the row's measurement window "
                 "(+1 last pulled in … −1 last paid out, 1; twin.effects.SlidingState)", required=False),
 )
 

@@ -172,7 +172,18 @@ def write_report(result: DiscrepancyResult, folder: str | Path) -> Path:
     lines += ["## Add", ""]
     if result.fit is not None:
         lines += ["Fitted on the training rows (standard errors from the fit's Jacobian):", "",
-                  markdown_table(result.fit.table(), digits=4),
+                  markdown_table(result.fit.table(), digits=4)]
+        if result.uncertainty:
+            lines += ["Honest uncertainty u = √(se² + s² + f²) of each value: the standard error se, the "
+                      "scatter s of the same fit over halves of the training configurations and the model-form "
+                      "term f, the spread a model-form error of "
+                      f"{result.uncertainty[0].model_form_level_m * 1e3:.3g} mm per configuration makes "
+                      "(twin.discrepancy.uncertainty); the 95 % interval is value ± 1.96 u:", "",
+                      markdown_table([{"parameter": u.parameter, "value": u.value, "std_error": u.std_error,
+                                       "split_scatter": u.split_scatter, "model_form": u.model_form,
+                                       "uncertainty": u.total, "ci95_low": u.interval()[0],
+                                       "ci95_high": u.interval()[1]} for u in result.uncertainty], digits=4)]
+        lines += [
                   "Written into the parameter set with source "
                   f"`{result.params_after.source(result.fit.parameters[0].key)}`; use it with `--params FILE` "
                   "(`twin discrepancy ... --out-params FILE`).", ""]

@@ -49,6 +49,7 @@ from twin.discrepancy.naming import (MIN_HELDOUT_GAIN, PAIR_POOL, TIE_Z, Baselin
                                      rank_candidates, rank_pairs, row_errors, split_rows, worse_z)
 from twin.discrepancy.probes import PROBES, fit_probe
 from twin.discrepancy.residuals import ResidualMap, find_discrepancy, thesis_signature
+from twin.discrepancy.uncertainty import Uncertainty, honest_uncertainty
 from twin.discrepancy.verdict import Verdict
 from twin.data.dataset import Dataset
 from twin.data.fitting import ParameterFit
@@ -94,6 +95,9 @@ class DiscrepancyResult:
             written into ``params_after``; :attr:`errors_after_m` are theirs for ``unexplained``.
         outside: the causes outside the library (:mod:`twin.discrepancy.probes`) that explain
             the data as well as the answer or better, best first, with their fits.
+        uncertainty: for an ``effect`` answer, each fitted value's honest uncertainty
+            (:mod:`twin.discrepancy.uncertainty`: standard error, split-to-split scatter and
+            model-form error together), in the order of :attr:`fit`'s parameters.
     """
 
     dataset: Dataset
@@ -115,6 +119,7 @@ class DiscrepancyResult:
     remaining: ResidualMap | None = None
     stand_ins: tuple[CandidateScore, ...] = ()
     outside: tuple[CandidateScore, ...] = ()
+    uncertainty: tuple[Uncertainty, ...] = ()
 
     @property
     def effect(self) -> str:
@@ -155,11 +160,17 @@ class DiscrepancyResult:
                 "after": thesis_signature(self.errors_after_m, phi)}
 
     def parameters(self) -> dict:
-        """Fitted values with standard errors of every named effect's parameters (label → dict)."""
+        """Every named effect's fitted values (label → dict): the value, its statistical standard
+        error, the split-to-split scatter, the model-form term, the uncertainty u of all three and
+        the 95 % interval value ± 1.96 u (``ci95``; ``ci95_statistical`` the standard error's
+        alone), :class:`twin.discrepancy.uncertainty.Uncertainty`."""
         if self.fit is None:
             return {}
+        if self.uncertainty:
+            return {u.parameter: u.to_dict() for u in self.uncertainty}
         return {row["parameter"]: {"value": row["value"], "std_error": row["std_error"],
-                                   "ci95": [row["ci95_low"], row["ci95_high"]]} for row in self.fit.table()}
+                                   "ci95": [row["ci95_low"], row["ci95_high"]],
+                                   "ci95_statistical": [row["ci95_low"], row["ci95_high"]]} for row in self.fit.table()}
 
     def candidates(self) -> list[dict]:
         """Every explanation the data leave open, with figures, none of them named: a tie's
@@ -416,9 +427,15 @@ def run_discrepancy(dataset: Dataset, params: Params | None = None, *, holdout_f
             named, fit, current = [], None, params
             if verdict == Verdict.AMBIGUOUS:
                 errors_after, ok_after, after = errors_before, ok_before, residuals
+    uncertainty: tuple[Uncertainty, ...] = ()
+    if verdict == Verdict.EFFECT and fit is not None:
+        left = after.structure.structured_rms_m if after.structure.beyond_noise else 0.0
+        uncertainty = tuple(honest_uncertainty(dataset, fit, rows=train, model_form_m=model_form_m,
+                                               structured_rms_m=left, max_evaluations=max_evaluations,
+                                               seed=seed, progress=progress))
     return DiscrepancyResult(dataset, params, current, train, test, seed, residuals, tuple(rounds), tuple(named),
                              fit, errors_before, errors_after, ok_before, ok_after, verdict, tied, after,
-                             stand_ins, outside)
+                             stand_ins, outside, uncertainty)
 
 
 def _joint_score(base: Baseline, rounds: list[Round], named: list[str], fit: ParameterFit,

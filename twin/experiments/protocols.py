@@ -305,6 +305,7 @@ def run_validation(device, folder: str | Path, params: Params, *, grid: Sequence
 
     Every row records each tendon's friction sliding state, followed from the encoders over the
     whole run (:class:`twin.effects.SlidingState`): a static state remembers how it was reached.
+    The state recorded is its mean over the measurement's window, as the averaged tip saw it.
 
     The setpoints realise (κ, φ) for any tendon layout: each tendon shortens by r κ s cos(φ − α)
     over its anchored length s (:func:`twin.pcc.tendon_length_changes_m`). The configurations
@@ -355,8 +356,11 @@ def run_validation(device, folder: str | Path, params: Params, *, grid: Sequence
                         current = (config, mass)
                         device.fixture.hang_tip_mass(mass)
                         wait_for_rest(device, timeout_s=settle_timeout_s)
+                        window_s = device.time_s
                         m = measure(device) if config not in done else None
-                        state = sliding.follow(device.drain())  # through the measurement's window
+                        # σ as the averaged tip saw it: its mean over the measurement's window.
+                        sliding.follow(device.drain(), mean_from_s=window_s)
+                        state = sliding.window_mean if sliding.window_mean is not None else sliding.state
                         if m is not None:
                             writer.write(_row(config, kappa, phi, mass, m, zero, sliding=state))
                         bar.update(1)

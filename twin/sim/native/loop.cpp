@@ -92,6 +92,7 @@ enum { BL_DRIVE_COAST = 0, BL_DRIVE_ON = 1 };
   S(f64, presliding_m)          /* spool travel over which the friction turns round (m) */              \
   S(f64, friction_lag_s)        /* time constant of the tension the friction follows (s) */             \
   S(f64, friction_travel_lag_s) /* ... and of the spool travel that moves σ (s) */                      \
+  S(f64, friction_turn_beyond) /* share of a site's turn whose loss the next segment does not carry */ \
   A(f64, slack_length_m, BL_MAX_CHANNELS)       /* slack edge of each tendon's spring now (m) */       \
   A(f64, taut_length_m, BL_MAX_CHANNELS)        /* ... in the straight pose (m) */                     \
   A(f64, loadcell_offset_counts, BL_MAX_CHANNELS)                                                       \
@@ -495,9 +496,12 @@ static void tendon_friction(const mjModel* m, mjData* d, bl_state* s) {
       u[0] /= norm, u[1] /= norm, u[2] /= norm;
       if (k > 0) {
         double c = before[0] * u[0] + before[1] * u[1] + before[2] * u[2];
-        wrap += acos(c > 1.0 ? 1.0 : c < -1.0 ? -1.0 : c);
-        // Segment k pulls site k towards site k + 1 and site k + 1 back, with T_k − T0.
-        double excess = t0 * (exp(decay * wrap) - 1.0);
+        double turn = acos(c > 1.0 ? 1.0 : c < -1.0 ? -1.0 : c);
+        wrap += turn;
+        // Segment k pulls site k towards site k + 1 and site k + 1 back, with T_k − T0. Where a
+        // site stands for a bend spread over the bodies on both sides of it (a joint's plane),
+        // segment k carries the loss of half its turn, the next segment the rest.
+        double excess = t0 * (exp(decay * (wrap - s->friction_turn_beyond * turn)) - 1.0);
         for (int end = 0; end < 2; ++end) {
           int site = row[k + end];
           double sign = end ? -excess : excess;
