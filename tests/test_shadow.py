@@ -173,3 +173,43 @@ def test_bad_arguments_end_in_one_line(argv, words, capsys):
     assert len(err.splitlines()) == 1
     for word in words:
         assert word in err
+
+
+def test_rare_transients_of_the_loop_are_extrapolated_from_the_warm_up_not_alarmed():
+    """A motion whose encoders part from the twin's for a few frames now and then (a tendon taking
+    up its slack), by a size the noise draws: the warm-up sees a handful of them, fifteen minutes
+    seventy, the largest well beyond the warm-up's; none is an alarm, while an encoder
+    change of their size that stays is."""
+    rng = np.random.default_rng(7)
+    count_m = PARAMS.rig.tendon_m_per_count
+    every = int(12.8 / PERIOD_S)
+
+    sizes = np.zeros(N)
+
+    def transients(start_k):
+        def change(k, device):
+            phase = (start_k + k) % every
+            if phase == 0:
+                # One transient per tendon and pass, its size drawn once (counts, exponential tail).
+                sizes[:] = np.round(rng.exponential(3.0, N)) * np.sign(rng.normal(size=N))
+            lengths = device.lengths_m + (sizes * count_m if 0 < phase <= 5 else 0.0)
+            return FrameValues(device.time_s, lengths, device.tensions_n, device.duty, device.tip_m)
+        return change
+
+    monitor = Monitor(PARAMS, warmup_s=60.0)
+    warm = int(60.0 / PERIOD_S) + 1
+    change = transients(0)
+    for k, (device, twin) in enumerate(_frames(rng, warm)):
+        monitor.update(change(k, device), twin, tip_frame_time_s=device.time_s)
+    assert monitor.ready
+    change = transients(warm)
+    raised = []
+    for k, (device, twin) in enumerate(_frames(rng, int(900 / PERIOD_S), warm * PERIOD_S)):
+        raised += monitor.update(change(k, device), twin, tip_frame_time_s=device.time_s)
+    assert raised == []
+    # The band covers the transients, not a lasting change of their size.
+    shift = np.zeros(N)
+    shift[1] = 1.5 * monitor.noise.band[1]
+    raised = _after(monitor, rng, (warm + int(900 / PERIOD_S)) * PERIOD_S,
+                    lambda d: FrameValues(d.time_s, d.lengths_m + shift, d.tensions_n, d.duty, d.tip_m), frames=40)
+    assert raised and "length[1]" in raised[0].where
