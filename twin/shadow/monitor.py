@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import warnings
 from typing import Callable
 
 import numpy as np
@@ -178,6 +179,9 @@ class NoiseModel:
             divergence: :data:`MIN_PERSIST_FRAMES`, and for the length loop's own channels (the
             encoders and duties, which the loop drives back to the setpoints) one frame longer
             than their excursions beyond half the band lasted in the warm-up.
+        ring_band_n: the tensions' frame-to-frame change (N, the norm over the cells, a median
+            over :data:`FIT_FRAMES`) beyond which they ring: :data:`PEAK_MARGIN` times the
+            largest the warm-up saw.
     """
 
     bias: np.ndarray
@@ -186,6 +190,7 @@ class NoiseModel:
     mix: np.ndarray
     stiffness_n_per_m: np.ndarray
     persist: np.ndarray
+    ring_band_n: float = math.inf
 
 
 class Monitor:
@@ -343,7 +348,7 @@ class Monitor:
     def _learn(self) -> None:
         warm = np.array(self._warm)
         self._warm = []
-        bias = np.nanmedian(warm, axis=0)
+        bias = _nanmedian(warm)
         n = self.n
         # The twin and the device part ways a little through the sensors' noise alone (the same
         # commands, another noise), mostly as all tendons' tensions shifting together; each cell is
@@ -358,7 +363,7 @@ class Monitor:
         centred = (np.nan_to_num(warm - bias) @ mix.T)
         centred[~np.isfinite(warm)] = np.nan
         # The spread from the median absolute deviation: a glitch in the warm-up does not widen it.
-        sigma = np.maximum(1.4826 * np.nanmedian(np.abs(centred), axis=0), self._floor)
+        sigma = np.fmax(1.4826 * _nanmedian(np.abs(centred)), self._floor)
         rows = np.nan_to_num(centred)
         medians = np.array([np.median(rows[k - MEDIAN_FRAMES:k], axis=0) for k in range(MEDIAN_FRAMES, len(rows) + 1)])
         medians_abs = np.abs(medians)
@@ -377,7 +382,8 @@ class Monitor:
         persist = np.full(len(band), MIN_PERSIST_FRAMES, dtype=int)
         for group in groups[:3:2]:
             persist[group] = max(MIN_PERSIST_FRAMES, _longest_excursion(medians_abs[:, group], band[group] / 2) + 1)
-        self.noise = NoiseModel(np.nan_to_num(bias), sigma, band, mix, _loop_stiffness(twin_rows, n), persist)
+        self.noise = NoiseModel(np.nan_to_num(bias), sigma, band, mix, _loop_stiffness(twin_rows, n), persist,
+                                PEAK_MARGIN * _ringing(np.nan_to_num(warm[:, n:2 * n] - bias[n:2 * n])).max(initial=0.0))
         self._window = []
         self._raw_window = []
 
@@ -392,7 +398,7 @@ class Monitor:
         rows = np.array(self._resync)
         self._resync = []
         if len(rows):
-            new = np.nanmedian(rows, axis=0)
+            new = _nanmedian(rows)
             model = self._model()
             model.bias = np.where(np.isfinite(new), new, model.bias)
 
@@ -448,6 +454,20 @@ class Monitor:
                               float(np.linalg.norm(noise.sigma[3 * n:])), "m", where, {"jump_m": d_tip, **debug})
         if ten_sig and not tip_sig and single_misfit < SINGLE_MISFIT:
             return self._loadcell(now_s, onset_s, frames, channel, where)
+        if ten_sig or len_sig:
+            # Tensions that swing from frame to frame more than they shift: the loop rings where
+            # the twin's does not, as a loop whose motors answer late does (or one that friction
+            # makes hunt: that is named friction where the friction model fits).
+            recent = np.array([h[0].tensions_n - h[1].tensions_n for h in self._history[-FIT_FRAMES:]]) - noise.bias[n:2 * n]
+            swing = float(_ringing(recent)[-1]) if len(recent) > FIT_FRAMES // 2 else 0.0
+            shift = float(np.linalg.norm(np.median(recent, axis=0)))
+            debug["ringing_n"] = swing
+            if swing > noise.ring_band_n and swing / 2 > shift:
+                hunting = self._friction(now_s, onset_s, frames, where)
+                if hunting.size > 2 * hunting.std and hunting.detail["fit"] >= MIN_FIT:
+                    return hunting
+                latency = self._latency(now_s, onset_s, where)
+                return dataclasses.replace(latency, detail={**latency.detail, **debug})
         explained = math.inf
         force: np.ndarray | None = None
         cov = np.zeros((3, 3))
@@ -647,3 +667,20 @@ def _longest_excursion(medians_abs: np.ndarray, level: np.ndarray) -> int:
         if len(edges):
             longest = max(longest, int((edges[1::2] - edges[::2]).max()))
     return longest
+
+
+def _ringing(tensions_n: np.ndarray) -> np.ndarray:
+    """The running median over :data:`FIT_FRAMES` of the tensions' frame-to-frame change (N, the
+    norm over the cells), one value per window of rows (T, n)."""
+    steps = np.linalg.norm(np.diff(tensions_n, axis=0), axis=1)
+    if len(steps) == 0:
+        return np.zeros(1)
+    width = min(FIT_FRAMES - 1, len(steps))
+    return np.array([np.median(steps[k - width:k]) for k in range(width, len(steps) + 1)])
+
+
+def _nanmedian(rows: np.ndarray) -> np.ndarray:
+    """Column medians of the finite values; NaN where a column has none (a tendon slack all along)."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        return np.nanmedian(rows, axis=0)
