@@ -282,3 +282,15 @@ def test_the_live_view_lists_the_divergences_and_labels_the_tip():
         label = view._handles["divergence"]
         assert "tip_load" in label.text
         np.testing.assert_allclose(label.position, [0.05, 0.01, 0.0])
+
+
+def test_tensions_that_ring_are_named_latency_not_a_slip():
+    """A loop whose motors answer late rings: every cell's tension swings from frame to frame,
+    here ±30 noise levels at the frame rate, with no lasting shift."""
+    rng = np.random.default_rng(8)
+    monitor, start = _learned(rng)
+    swing = 30 * PARAMS.sensors.loadcell_noise_n
+    raised = _after(monitor, rng, start, lambda d: FrameValues(
+        d.time_s, d.lengths_m, d.tensions_n + swing * (-1) ** round(d.time_s / PERIOD_S), d.duty, d.tip_m))
+    assert raised and raised[0].kind == "latency"
+    assert raised[0].detail["ringing_n"] > monitor.noise.ring_band_n
