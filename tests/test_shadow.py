@@ -1,7 +1,9 @@
 """The shadow: thresholds learned from the noise, divergences named, no alarm in clean running;
 on sim:// through the URL key and through twin shadow."""
 
+import dataclasses
 import json
+import time
 
 import numpy as np
 import pytest
@@ -134,7 +136,7 @@ def test_the_url_key_wraps_any_device_code_and_names_a_hidden_offset(tmp_path):
 def test_twin_shadow_prints_the_events_as_json(tmp_path, capsys):
     path = _events(tmp_path, {"t_s": 2.605 + 8.0, "tip_mass_kg": 0.01})
     code = main(["shadow", "--device", f"sim://?events={path}", "--duration", "9", "--warmup", "6", "--json",
-                 "--out", str(tmp_path)])
+                 "--out", str(tmp_path), "--igtl", "0"])
     assert code == 0
     result = json.loads(capsys.readouterr().out)
     kinds = [e["kind"] for e in result["events"]]
@@ -173,3 +175,122 @@ def test_bad_arguments_end_in_one_line(argv, words, capsys):
     assert len(err.splitlines()) == 1
     for word in words:
         assert word in err
+
+
+def test_rare_transients_of_the_loop_are_extrapolated_from_the_warm_up_not_alarmed():
+    """A motion whose encoders part from the twin's for a few frames now and then (a tendon taking
+    up its slack), by a size the noise draws: the warm-up sees a handful of them, fifteen minutes
+    seventy, the largest well beyond the warm-up's; none is an alarm, while an encoder
+    change of their size that stays is."""
+    rng = np.random.default_rng(7)
+    count_m = PARAMS.rig.tendon_m_per_count
+    every = int(12.8 / PERIOD_S)
+
+    sizes = np.zeros(N)
+
+    def transients(start_k):
+        def change(k, device):
+            phase = (start_k + k) % every
+            if phase == 0:
+                # One transient per tendon and pass, its size drawn once (counts, exponential tail).
+                sizes[:] = np.round(rng.exponential(3.0, N)) * np.sign(rng.normal(size=N))
+            lengths = device.lengths_m + (sizes * count_m if 0 < phase <= 5 else 0.0)
+            return FrameValues(device.time_s, lengths, device.tensions_n, device.duty, device.tip_m)
+        return change
+
+    monitor = Monitor(PARAMS, warmup_s=60.0)
+    warm = int(60.0 / PERIOD_S) + 1
+    change = transients(0)
+    for k, (device, twin) in enumerate(_frames(rng, warm)):
+        monitor.update(change(k, device), twin, tip_frame_time_s=device.time_s)
+    assert monitor.ready
+    change = transients(warm)
+    raised = []
+    for k, (device, twin) in enumerate(_frames(rng, int(900 / PERIOD_S), warm * PERIOD_S)):
+        raised += monitor.update(change(k, device), twin, tip_frame_time_s=device.time_s)
+    assert raised == []
+    # The band covers the transients, not a lasting change of their size.
+    shift = np.zeros(N)
+    shift[1] = 1.5 * monitor.noise.band[1]
+    raised = _after(monitor, rng, (warm + int(900 / PERIOD_S)) * PERIOD_S,
+                    lambda d: FrameValues(d.time_s, d.lengths_m + shift, d.tensions_n, d.duty, d.tip_m), frames=40)
+    assert raised and "length[1]" in raised[0].where
+
+
+# ------------------------------------------------------------------------ where divergences go
+def _divergence():
+    from twin.shadow import Divergence
+
+    return Divergence(12.5, 12.33, "loadcell_offset", "effects.tension_offset_error_n[2]", 0.198, 0.007, "N",
+                      ("tension[2]",), {"channel": 2})
+
+
+@pytest.mark.parametrize("version", [1, 2])
+def test_a_divergence_reaches_an_openigtlink_client_as_a_string_slicer_shows(version):
+    import socket
+
+    from twin.device.igtl_server import OpenIGTLinkServer
+    from twin.driver import igtl
+    from twin.shadow.device import IGTL_DEVICE, divergence_message
+
+    event = _divergence()
+    with OpenIGTLinkServer(port=0) as server, socket.create_connection((server.host, server.port)) as client:
+        deadline = time.monotonic() + 10.0
+        while server.clients < 1 and time.monotonic() < deadline:
+            time.sleep(0.01)
+        assert server.send([divergence_message(event, timestamp_s=1000.0, version=version)]) == 1
+        client.settimeout(10.0)
+        data = b""
+        while len(data) < igtl.HEADER_SIZE or len(data) < igtl.HEADER_SIZE + igtl.unpack_header(data[:58])[4]:
+            data += client.recv(65536)
+    size = igtl.unpack_header(data[:igtl.HEADER_SIZE])[4]
+    message = igtl.decode(data[:igtl.HEADER_SIZE], data[igtl.HEADER_SIZE:igtl.HEADER_SIZE + size])
+    assert (message.type, message.device) == ("STRING", IGTL_DEVICE)
+    text = igtl.decode_string(message.content)
+    assert "loadcell_offset" in text and "0.198" in text and "tension[2]" in text
+    if version == 2:
+        assert message.metadata["kind"] == "loadcell_offset"
+        assert float(message.metadata["size"]) == pytest.approx(0.198)
+
+
+def test_a_string_that_does_not_fit_is_refused():
+    from twin.driver import igtl
+
+    with pytest.raises(ValueError, match="65535"):
+        igtl.encode_string("x" * 70000)
+    with pytest.raises(igtl.MessageError, match="do not fit"):
+        igtl.decode_string(igtl.encode_string("shadow")[:-2])
+
+
+def test_the_live_view_lists_the_divergences_and_labels_the_tip():
+    pytest.importorskip("viser", reason="the live view needs viser")
+    from twin.live import LiveView
+
+    with LiveView(PARAMS, predict=False) as view:
+        view.show(tip_m=np.array([0.05, 0.01, 0.0]))
+        assert view.wait_drawn(1, timeout_s=30.0)
+        first, second = _divergence(), dataclasses.replace(_divergence(), t_s=20.0, kind="tip_load")
+        view.show_divergence(first)
+        view.show_divergence(second)
+        assert view.wait_drawn(2, timeout_s=30.0)
+        deadline = time.monotonic() + 10.0
+        while "tip_load" not in (getattr(view._divergence_text, "content", "") or "") and time.monotonic() < deadline:
+            time.sleep(0.05)
+        text = view._divergence_text.content
+        # Newest first, both listed.
+        assert text.index("tip_load") < text.index("loadcell_offset")
+        label = view._handles["divergence"]
+        assert "tip_load" in label.text
+        np.testing.assert_allclose(label.position, [0.05, 0.01, 0.0])
+
+
+def test_tensions_that_ring_are_named_latency_not_a_slip():
+    """A loop whose motors answer late rings: every cell's tension swings from frame to frame,
+    here ±30 noise levels at the frame rate, with no lasting shift."""
+    rng = np.random.default_rng(8)
+    monitor, start = _learned(rng)
+    swing = 30 * PARAMS.sensors.loadcell_noise_n
+    raised = _after(monitor, rng, start, lambda d: FrameValues(
+        d.time_s, d.lengths_m, d.tensions_n + swing * (-1) ** round(d.time_s / PERIOD_S), d.duty, d.tip_m))
+    assert raised and raised[0].kind == "latency"
+    assert raised[0].detail["ringing_n"] > monitor.noise.ring_band_n

@@ -16,6 +16,7 @@ Example:
 
 from __future__ import annotations
 
+import collections
 import dataclasses
 import sys
 import threading
@@ -27,7 +28,7 @@ import numpy as np
 if TYPE_CHECKING:
     from twin.params import Params
 
-__all__ = ["COLORS", "LiveDevice", "LiveState", "LiveView", "add_live_argument", "live_view_from_args", "show_twin"]
+__all__ = ["COLORS", "DIVERGENCE_LINES", "LiveDevice", "LiveState", "LiveView", "add_live_argument", "live_view_from_args", "show_twin"]
 
 # RGB of each thing drawn; the page's legend names them in these colours. Colour-blind safe
 # (Okabe-Ito): vermillion, blue, bluish green, reddish purple.
@@ -39,6 +40,8 @@ COLORS = {
     "force": (230, 159, 0),
 }
 _HEX = {name: "#%02x%02x%02x" % rgb for name, rgb in COLORS.items()}
+# A shadow's divergences listed on the page, newest first.
+DIVERGENCE_LINES = 5
 
 
 @dataclasses.dataclass(frozen=True)
@@ -112,6 +115,12 @@ class LiveView:
         self.draws = 0
         self.prediction_time_s = 0.0
         self._force = None  # the newest twin.force.stream.ForceSample shown
+        # The shadow's newest divergences (twin.shadow.Divergence), newest last, and how many
+        # were shown: drawn as lines of text and a label at the tip.
+        self._divergences: collections.deque = collections.deque(maxlen=DIVERGENCE_LINES)
+        self._divergences_seen = 0
+        self._divergences_drawn = 0
+        self._divergence_text: Any = None
         # Arrow length per newton (m/N): the contact range's top (0.3 N) half the backbone's length.
         self.force_m_per_n = self.params.backbone.length_m / 0.6
         self._thread = threading.Thread(target=self._run, name="twin-live", daemon=True)
@@ -133,6 +142,19 @@ class LiveView:
         with self._lock:
             self._force = sample
         self._wake.set()
+
+    def show_divergence(self, event) -> None:
+        """Show a shadow's :class:`twin.shadow.Divergence` with the next draw: a line of text
+        (the newest :data:`DIVERGENCE_LINES` are listed) and its kind as a label at the tip;
+        returns at once."""
+        with self._lock:
+            self._divergences.append(event)
+            self._divergences_seen += 1
+        self._wake.set()
+
+    def follow_shadow(self, shadow) -> None:
+        """Show every divergence a :class:`twin.shadow.ShadowDevice` raises."""
+        shadow.subscribe(self.show_divergence)
 
     def follow(self, stream) -> None:
         """Show every sample of a :class:`twin.force.stream.ForceStream`."""
@@ -191,8 +213,10 @@ class LiveView:
             with self._lock:
                 state, self._pending = self._pending, None
                 force = self._force
+                divergences = list(self._divergences) if self._divergences_seen > self._divergences_drawn else None
+                self._divergences_drawn = self._divergences_seen
                 self._wake.clear()
-            if state is None and force is None:
+            if state is None and force is None and divergences is None:
                 continue
             state = state if state is not None else self._last_state
             next_s = time.monotonic() + self._period_s
@@ -200,6 +224,7 @@ class LiveView:
                 self._last_state = state
                 self._draw(state)
                 self._draw_force(force)
+                self._draw_divergences(divergences, state)
             except Exception as exc:  # a bad state must not end the view; say so once per state
                 print(f"twin live view: could not draw ({exc})", file=sys.stderr)
             with self._drawn:
@@ -270,6 +295,22 @@ class LiveView:
         self._force_text.content = (
             f"<span style='color:{_HEX['force']}'>&#9632; estimated tip force (arrow; 95 % ellipsoid at its head)</span>"
             f"<br>{norm * 1e3:.1f} mN (±{1.96 * std.max() * 1e3:.1f} mN, 95 %)" + (" — **contact**" if sample.contact else ""))
+
+    def _draw_divergences(self, events, state: LiveState) -> None:
+        if not events:
+            return
+        if self._divergence_text is None:
+            self._divergence_text = self._server.gui.add_markdown("")
+        lines = "<br>".join(f"{e.line().strip()}" for e in reversed(events))
+        self._divergence_text.content = f"**shadow: the device parts from its twin** (newest first)<br>{lines}"
+        # The newest one's kind by the tip, where the eye is.
+        tip = state.tip_m if state.tip_m is not None else (None if state.backbone_m is None else state.backbone_m[-1])
+        label: Any = self._handles.pop("divergence", None)
+        if label is not None:
+            label.remove()
+        if tip is not None:
+            self._handles["divergence"] = self._server.scene.add_label(
+                "/divergence", f"{events[-1].kind} ({events[-1].t_s:.2f} s)", position=np.asarray(tip, dtype=float))
 
     def _node(self, name: str, value, make):
         """The scene node ``name``, made by ``make()`` on first use and shown; hidden (and None

@@ -54,7 +54,11 @@ def open_sim(request: DeviceRequest) -> Device:
     return device
 
 
-def open_shadow_twin(params: Params, base_rotation, *, seed: int = 1) -> Device:
+# The shadow twin's sensor-noise seed: a sim:// device of the same seed draws the same noise.
+SHADOW_TWIN_SEED = 1
+
+
+def open_shadow_twin(params: Params, base_rotation, *, seed: int = SHADOW_TWIN_SEED) -> Device:
     """The twin a shadow runs beside a device: a ``sim://`` device of ``params`` in the clamp
     orientation ``base_rotation`` (3×3) whose fixture acts at once (the device's fixture settles
     for both)."""

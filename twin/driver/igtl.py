@@ -28,6 +28,9 @@ Contents handled here (all big-endian float32 unless noted, lengths in the sende
     uint32 counts (points; vertices, lines, polygons, triangle strips, each as a cell count and
     a byte size; attributes), the points as float32 triplets, then each cell list as uint32
     ``n, i₁ … iₙ`` runs. Attributes are neither written nor read.
+``STRING``
+    uint16 character encoding (the IANA MIBenum; 106 UTF-8), uint16 byte length, the bytes:
+    Slicer shows it as a text node named by the device.
 """
 
 from __future__ import annotations
@@ -50,9 +53,11 @@ __all__ = [
     "decode_point",
     "decode_polydata",
     "decode_pose",
+    "decode_string",
     "encode_point",
     "encode_polydata",
     "encode_position",
+    "encode_string",
     "encode_transform",
     "pack",
     "unpack_header",
@@ -358,3 +363,26 @@ def decode_polydata(content: bytes) -> tuple[np.ndarray, list[list[int]]]:
         lines.append(flat[i + 1:i + 1 + count])
         i += 1 + count
     return points, lines
+
+
+_STRING_HEADER = struct.Struct(">HH")
+
+
+def encode_string(text: str) -> bytes:
+    """STRING content of ``text`` (UTF-8; at most 65535 bytes, OpenIGTLink's limit)."""
+    raw = text.encode("utf-8")
+    if len(raw) > 0xFFFF:
+        raise ValueError(f"STRING of {len(raw)} bytes: longer than 65535 bytes, OpenIGTLink's limit")
+    return _STRING_HEADER.pack(_IANA_UTF8, len(raw)) + raw
+
+
+def decode_string(content: bytes) -> str:
+    """The text of STRING content (US-ASCII or UTF-8)."""
+    if len(content) < _STRING_HEADER.size:
+        raise MessageError(f"STRING: {len(content)} bytes of content, shorter than its header")
+    encoding, size = _STRING_HEADER.unpack_from(content)
+    if _STRING_HEADER.size + size > len(content):
+        raise MessageError(f"STRING: {size} bytes of text do not fit {len(content)} bytes")
+    if encoding not in (_IANA_US_ASCII, _IANA_UTF8):
+        raise MessageError(f"STRING: character encoding {encoding} (IANA MIBenum), expected 3 or 106")
+    return content[_STRING_HEADER.size:_STRING_HEADER.size + size].decode("utf-8", "replace")

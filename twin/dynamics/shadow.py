@@ -10,6 +10,7 @@ repeated for as long as asked; ``--motion FILE`` gives another (JSON lines ``{"t
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import math
 import sys
@@ -135,6 +136,7 @@ def run_motion(device, params: Params, motion: Motion, duration_s: float, *, pro
 # ---------------------------------------------------------------------------------------- command line
 def register(subparsers) -> None:
     from twin.cliargs import add_device_arg, add_param_args
+    from twin.live import add_live_argument
 
     p = subparsers.add_parser(
         "shadow",
@@ -149,6 +151,10 @@ def register(subparsers) -> None:
     p.add_argument("--calibration", metavar="FILE", default=None, help="load-cell calibration (JSON) for the device")
     p.add_argument("--out", default="runs", help="parent of the run folder (shadow-<time>/events.jsonl)")
     p.add_argument("--json", action="store_true", help="print the divergences and figures as one JSON object")
+    p.add_argument("--igtl", type=int, default=None, metavar="PORT",
+                   help="also serve each divergence over OpenIGTLink on this port (0 picks one) as a STRING message "
+                        "'ShadowEvent', which 3D Slicer's OpenIGTLinkIF shows as a text node")
+    add_live_argument(p)
     add_param_args(p)
     p.set_defaults(func=run_shadow_command)
 
@@ -187,14 +193,16 @@ def run_shadow_command(args: argparse.Namespace) -> int:
     shadow = ShadowDevice(device, open_shadow_twin(params, device.base_rotation), params, warmup_s=warmup_s,
                           log_path=log_path, console=None if args.json else sys.stderr)
     shadow.warm_rod()
-    wall = time.monotonic()
-    with shadow:
+    with contextlib.ExitStack() as stack:
+        _publish_divergences(args, shadow, stack)
+        wall = time.monotonic()
+        watched = stack.enter_context(shadow)
         if calibration is not None:
-            shadow.set_calibration(calibration)
+            watched.set_calibration(calibration)
         else:
-            shadow.tare(loadcells=True, lengths=False)
-        start_s = run_motion(shadow, params, motion, args.duration)
-    wall = time.monotonic() - wall
+            watched.tare(loadcells=True, lengths=False)
+        start_s = run_motion(stack.enter_context(_live(args, watched, params)), params, motion, args.duration)
+        wall = time.monotonic() - wall
     figures = summary(shadow, start_s, wall)
     result = {"device": args.device, "run": str(folder), "warmup_s": warmup_s, **figures,
               "events": [{**e.to_dict(), "t_s": round(e.t_s - start_s, 4)} for e in shadow.divergences]}
@@ -206,6 +214,37 @@ def run_shadow_command(args: argparse.Namespace) -> int:
         print(f"cost {figures['cpu_per_frame_ms']:.2f} ms CPU a frame ({figures['realtime_load']:.2f} of the 25 ms "
               f"period){'; fell behind ' + str(shadow.behind) + ' times' if shadow.behind else ''}")
     return 0
+
+
+def _publish_divergences(args: argparse.Namespace, shadow, stack: contextlib.ExitStack) -> None:
+    """``--igtl PORT``: an OpenIGTLink server sending each divergence as a STRING message."""
+    if args.igtl is None:
+        return
+    from twin.cliargs import UsageError
+    from twin.device.igtl_server import OpenIGTLinkServer
+    from twin.shadow.device import divergence_message
+
+    try:
+        server = stack.enter_context(OpenIGTLinkServer(port=args.igtl))
+    except OSError as exc:
+        raise UsageError(f"--igtl {args.igtl}: cannot listen ({exc.strerror or exc})") from None
+    print(f"twin shadow: divergences over OpenIGTLink on {server.host}:{server.port} (STRING 'ShadowEvent')",
+          file=sys.stderr, flush=True)
+    shadow.subscribe(lambda event: server.send([divergence_message(event, timestamp_s=time.time())]))
+
+
+@contextlib.contextmanager
+def _live(args: argparse.Namespace, shadow, params: Params):
+    """``--live [PORT]``: the device as the live view shows it, the divergences listed there."""
+    from twin.live import LiveDevice, live_view_from_args
+
+    view = live_view_from_args(args, params, base_rotation=shadow.base_rotation, command="shadow")
+    if view is None:
+        yield shadow
+        return
+    with view:
+        view.follow_shadow(shadow)
+        yield LiveDevice(shadow, view)
 
 
 def summary(shadow, start_s: float, wall_s: float) -> dict:

@@ -93,8 +93,12 @@ def learn_noise(params: Params, *, warmup_s: float, clean_s: float, seed: int = 
     Returns:
         (the noise model, the divergences raised after the warm-up, frames compared, shadow CPU s)
     """
+    from twin.device.sim_url import SHADOW_TWIN_SEED
     from twin.dynamics.shadow import run_motion, standard_motion
 
+    if seed == SHADOW_TWIN_SEED:
+        # The same noise on both sides: the noise learned would be the floors alone.
+        raise ValueError(f"seed {seed}: the twin's own noise seed; the device's noise must be another draw")
     shadow = _shadow(f"sim://?seed={seed}", params, warmup_s=warmup_s)
     shadow.warm_rod()
     with shadow:
@@ -108,6 +112,7 @@ def learn_noise(params: Params, *, warmup_s: float, clean_s: float, seed: int = 
 def run_trial(params: Params, noise, kind: str, size: float, *, robot: str, rng: np.random.Generator,
               folder: Path, after_s: float = 3.0) -> Trial:
     """One hidden event of ``kind`` and ``size`` at a random time of the first period of the motion."""
+    from twin.device.sim_url import SHADOW_TWIN_SEED
     from twin.dynamics.shadow import run_motion, standard_motion
 
     expected, _, _, make = EVENT_KINDS[kind]
@@ -116,6 +121,8 @@ def run_trial(params: Params, noise, kind: str, size: float, *, robot: str, rng:
     offset_s = float(rng.uniform(3.0, min(motion.period_s, 15.0)))
     tendon = int(rng.integers(n))
     seed = int(rng.integers(1 << 16))
+    if seed == SHADOW_TWIN_SEED:
+        seed += 1
     # The motion starts after the pretension; the event's time is the plant's, which starts with it.
     start_s = _motion_start_s(params)
     event_s = start_s + offset_s

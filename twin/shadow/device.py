@@ -30,7 +30,10 @@ from twin.params import Params
 from twin.shadow.monitor import Divergence, FrameValues, Monitor
 from twin.tracking import fuse_frame
 
-__all__ = ["BEHIND_FRAMES", "ShadowDevice"]
+__all__ = ["BEHIND_FRAMES", "IGTL_DEVICE", "ShadowDevice", "divergence_message"]
+
+# OpenIGTLink device name of the divergences' STRING messages (Slicer: a text node of this name).
+IGTL_DEVICE = "ShadowEvent"
 
 # Longest a wall-clock shadow works in one of the host's calls (s): a fifth of the board's 0.25 s watchdog.
 SYNC_BUDGET_S = 0.05
@@ -44,6 +47,16 @@ SETTLE_FRAMES = 2
 # Device commands the twin hears too.
 COMMANDS = ("enable", "disable", "tare", "set_mode", "set_gains", "set_calibration", "set_limits", "set_lengths",
             "set_pairs", "set_tensions")
+
+
+def divergence_message(event: Divergence, *, timestamp_s: float, version: int = 1) -> bytes:
+    """A divergence as an OpenIGTLink STRING message (device :data:`IGTL_DEVICE`): its console
+    line, which Slicer shows as a text node; with header version 2 its fields as metadata too."""
+    from twin.driver import igtl
+
+    metadata = {k: json.dumps(v) if not isinstance(v, str) else v for k, v in event.to_dict().items()}
+    return igtl.pack("STRING", IGTL_DEVICE, igtl.encode_string(event.line().strip()), timestamp_s=timestamp_s,
+                     version=version, metadata=metadata if version == 2 else None)
 
 
 class _FixturePair:
@@ -98,7 +111,7 @@ class ShadowDevice:
         self.monitor = Monitor(params, warmup_s=warmup_s, jacobian=self._jacobian if use_rod else None, noise=noise)
         self._log_path = Path(log_path) if log_path is not None else None
         self._console = console
-        self._on_divergence = on_divergence
+        self._listeners: list[Callable[[Divergence], None]] = [] if on_divergence is None else [on_divergence]
         self._recalibrate_on = recalibrate
         self._offset_s: float | None = None
         self._rod: Any = None  # the twin.rod.RodModel, built with the first Jacobian
@@ -148,6 +161,11 @@ class ShadowDevice:
                 self._twin.set_mode(device.mode)
                 self._twin.enable()
         getattr(self._twin, name)(*args, **kwargs)
+
+    def subscribe(self, listener: Callable[[Divergence], None]) -> None:
+        """Call ``listener`` with each :class:`Divergence` raised from now on (a live view's
+        :meth:`twin.live.LiveView.show_divergence`, an OpenIGTLink server's send)."""
+        self._listeners.append(listener)
 
     @property
     def twin_device(self):
@@ -293,8 +311,8 @@ class ShadowDevice:
         if self._log_path is not None:
             with self._log_path.open("a") as log:
                 log.write(json.dumps(event.to_dict()) + "\n")
-        if self._on_divergence is not None:
-            self._on_divergence(event)
+        for listener in self._listeners:
+            listener(event)
         if self._recalibrate_on:
             self._recalibrate(event)
 

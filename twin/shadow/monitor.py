@@ -5,11 +5,15 @@ Each telemetry frame gives a residual ``r = device − twin`` per channel: tendo
 tensions (N), motor duty (1) and tracked tip position (m). During a warm-up the monitor learns, per
 channel, the residual's bias and noise as the two run side by side on the same commands: the load
 cells' and tracker's noise, the twin's own sensor noise and what the calibrated twin still gets
-wrong at this motion. Afterwards a channel diverges when the exponentially weighted mean of its
-bias-free residual leaves the band the warm-up saw (:data:`ALARM_SIGMAS` of its spread, and never
-less than the sensor noise of the parameter set allows). The frames after the first crossing
-(:data:`NAMING_FRAMES`) are then averaged into a residual pattern and named by what could cause it
-(:func:`name_divergence`), the twin re-calibrated where the cause has a parameter, and the bias
+wrong at this motion. Afterwards a channel diverges when the running median of its bias-free
+residual stays out of the band the warm-up saw for :data:`MIN_PERSIST_FRAMES` frames (longer for
+the length loop's own encoders and duties where their warm-up excursions lasted longer). The band
+is :data:`ALARM_SIGMAS` robust spreads, or 1.5 times the warm-up's largest excursion, or the level
+the warm-up's excursions reach once extrapolated to a run of :data:`WATCH_S` (peaks over a
+threshold), whichever is widest. A slack tendon's encoder and duty are not compared (the loop
+parts from the twin's as the slack is taken up). The frames after the first crossing
+(:data:`NAMING_FRAMES`) are then named by what could cause them (:meth:`Monitor._name`), the twin
+re-calibrated where the cause has a parameter, and the bias
 learned again over :data:`RESYNC_S` before the monitor watches on.
 """
 
@@ -17,13 +21,14 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import warnings
 from typing import Callable
 
 import numpy as np
 
 from twin.params import Params
 
-__all__ = ["ALARM_SIGMAS", "KINDS", "Divergence", "FrameValues", "Monitor", "NoiseModel"]
+__all__ = ["ALARM_SIGMAS", "FALSE_ALARM_RATE", "KINDS", "Divergence", "FrameValues", "Monitor", "NoiseModel"]
 
 # The divergences the monitor names, and what each is.
 KINDS = {
@@ -44,15 +49,41 @@ KINDS = {
 MEDIAN_FRAMES = 7
 # Alarm band: this many robust spreads of the running median seen in the warm-up ...
 ALARM_SIGMAS = 7.0
+# ... and never less than the level the warm-up's excursions reach, extrapolated (peaks over a
+# threshold, exponential tail) to at most :data:`FALSE_ALARM_RATE` over :data:`WATCH_S`: a motion's
+# transients (a slack tendon snapping taut) part device and twin for a few frames at a time, by
+# how the noise times them, and a warm-up sees a few of those, not their largest.
+WATCH_S = 3600.0
+FALSE_ALARM_RATE = 0.05
 # ... and never less than this multiple of the largest running median the warm-up saw.
 PEAK_MARGIN = 1.5
+# Excursions start above this many robust spreads of the running median (the tail's threshold).
+TAIL_SIGMAS = 3.0
+# Fewest warm-up excursions a tail's scale is fitted from; fewer take the largest excursion's
+# excess over the threshold as the scale.
+TAIL_MIN_EXCURSIONS = 3
+# Frames out of band in a row that start a divergence: one frame's crossing is the tail of the noise.
+MIN_PERSIST_FRAMES = 2
+# A tendon whose tension on the twin is below this many load-cell noise levels is slack: where
+# it goes slack or takes its slack up, the rig's length loop and the twin's part for a few frames
+# by when in a tick the load came or went (the noise times it), so its encoder and duty are not
+# compared while slack and for a running median's window after.
+SLACK_NOISE = 5.0
 # Frames averaged after the first crossing to name the divergence (75 ms at 40 Hz).
 NAMING_FRAMES = 3
+# Frames kept for the fits that name a divergence (400 ms at 40 Hz): the change, which the
+# running median sees about half a window late, lies within them.
+HISTORY_FRAMES = 16
+# Frames the friction and latency fits take, the last of the history.
+FIT_FRAMES = 8
 # Time over which the bias is learned again after a divergence (s), alarms held meanwhile.
 RESYNC_S = 1.0
 # A load cell alone explains a tensions' change it leaves less than this fraction of unexplained
 # (in units of the bands).
 SINGLE_MISFIT = 0.35
+# How much better (χ², the residuals in units of the cell's noise) a gain must fit a load cell's
+# change than an offset to be named: two standard deviations.
+GAIN_CHI2 = 4.0
 # The tip's move is the tensions' doing when the rod model leaves less than this fraction of it.
 EXPLAINED_FRACTION = 0.5
 # A friction change or a latency is named only where its model explains this fraction of the
@@ -144,6 +175,13 @@ class NoiseModel:
             channels as they are.
         stiffness_n_per_m: (n,) how much each tendon's tension falls per metre it is paid out on
             the twin in this motion (the backbone's compliance included): what sizes a slip.
+        persist: (C,) frames in a row a channel's running median must stay out of band to start a
+            divergence: :data:`MIN_PERSIST_FRAMES`, and for the length loop's own channels (the
+            encoders and duties, which the loop drives back to the setpoints) one frame longer
+            than their excursions beyond half the band lasted in the warm-up.
+        ring_band_n: the tensions' frame-to-frame change (N, the norm over the cells, a median
+            over :data:`FIT_FRAMES`) beyond which they ring: :data:`PEAK_MARGIN` times the
+            largest the warm-up saw.
     """
 
     bias: np.ndarray
@@ -151,6 +189,8 @@ class NoiseModel:
     band: np.ndarray
     mix: np.ndarray
     stiffness_n_per_m: np.ndarray
+    persist: np.ndarray
+    ring_band_n: float = math.inf
 
 
 class Monitor:
@@ -182,6 +222,8 @@ class Monitor:
         floor = np.concatenate([np.full(n, 2 * count_m), np.full(n, math.sqrt(2) * params.sensors.loadcell_noise_n),
                                 np.full(n, 1e-3), np.full(3, params.sensors.tracker_noise_m)])
         self._floor = floor
+        self._slack_n = SLACK_NOISE * params.sensors.loadcell_noise_n
+        self._since_slack = np.full(n, MEDIAN_FRAMES)
         self.names = ([f"length[{i}]" for i in range(n)] + [f"tension[{i}]" for i in range(n)]
                       + [f"duty[{i}]" for i in range(n)] + ["tip.x", "tip.y", "tip.z"])
         self.noise: NoiseModel | None = None if noise is None else dataclasses.replace(noise, bias=noise.bias.copy())
@@ -199,8 +241,10 @@ class Monitor:
         self._dropout = False
         self._fault_raised = False
         self._fault_frames = 0
-        self._out_frames = 0
+        self._out_frames = np.zeros(3 * n + 3, dtype=int)
         self._history: list[tuple[FrameValues, FrameValues]] = []
+        # (watched residual, the twin's tensions) of the last frames compared.
+        self._watched: list[tuple[np.ndarray, np.ndarray]] = []
         self.frames = 0
         self.events: list[Divergence] = []
 
@@ -231,10 +275,14 @@ class Monitor:
         if settling:
             return raised
         residual = device.vector() - twin.vector()
+        self._since_slack = np.where(twin.tensions_n < self._slack_n, 0, self._since_slack + 1)
+        loose = np.flatnonzero(self._since_slack < MEDIAN_FRAMES)
+        residual[loose] = np.nan
+        residual[2 * self.n + loose] = np.nan
         if self._start_s is None:
             self._start_s = device.time_s
         self._history.append((device, twin))
-        if len(self._history) > 8:
+        if len(self._history) > HISTORY_FRAMES:
             del self._history[0]
         dropout = self._watch_tracker(device.time_s, tip_frame_time_s)
         if dropout is not None:
@@ -269,6 +317,9 @@ class Monitor:
             deviation[-3:] = 0.0
         self._raw_window.append(deviation)
         self._window.append(noise.mix @ deviation)
+        self._watched.append((self._window[-1], twin.tensions_n))
+        if len(self._watched) > HISTORY_FRAMES:
+            del self._watched[0]
         if len(self._window) > MEDIAN_FRAMES:
             del self._window[0]
             del self._raw_window[0]
@@ -277,9 +328,9 @@ class Monitor:
             return raised
         self._statistic = np.median(np.array(self._window), axis=0)
         out = np.abs(self._statistic) > noise.band
-        # Two frames out of band in a row start a divergence: one frame's crossing is the tail of the noise.
-        self._out_frames = self._out_frames + 1 if out.any() else 0
-        if self._onset is None and self._out_frames >= 2:
+        # A channel out of band for longer than the warm-up's excursions lasted starts a divergence.
+        self._out_frames = np.where(out, self._out_frames + 1, 0)
+        if self._onset is None and (self._out_frames >= noise.persist).any():
             self._onset = (device.time_s, [])
         if self._onset is not None:
             onset_s, frames = self._onset
@@ -297,7 +348,7 @@ class Monitor:
     def _learn(self) -> None:
         warm = np.array(self._warm)
         self._warm = []
-        bias = np.nanmedian(warm, axis=0)
+        bias = _nanmedian(warm)
         n = self.n
         # The twin and the device part ways a little through the sensors' noise alone (the same
         # commands, another noise), mostly as all tendons' tensions shifting together; each cell is
@@ -312,7 +363,7 @@ class Monitor:
         centred = (np.nan_to_num(warm - bias) @ mix.T)
         centred[~np.isfinite(warm)] = np.nan
         # The spread from the median absolute deviation: a glitch in the warm-up does not widen it.
-        sigma = np.maximum(1.4826 * np.nanmedian(np.abs(centred), axis=0), self._floor)
+        sigma = np.fmax(1.4826 * _nanmedian(np.abs(centred)), self._floor)
         rows = np.nan_to_num(centred)
         medians = np.array([np.median(rows[k - MEDIAN_FRAMES:k], axis=0) for k in range(MEDIAN_FRAMES, len(rows) + 1)])
         medians_abs = np.abs(medians)
@@ -321,16 +372,25 @@ class Monitor:
         median_sigma = 1.4826 * np.median(medians_abs, axis=0)
         # A median of k Gaussian frames spreads about 1.25/sqrt(k) of one frame.
         steady = sigma * 1.25 / math.sqrt(MEDIAN_FRAMES)
-        band = np.maximum(ALARM_SIGMAS * np.maximum(median_sigma, steady), PEAK_MARGIN * medians_abs.max(axis=0))
+        spread = np.maximum(median_sigma, steady)
+        warm_s = max(float(len(rows)) * self.period_s, self.period_s)
+        groups = [slice(0, n), slice(n, 2 * n), slice(2 * n, 3 * n), slice(3 * n, 3 * n + 3)]
+        band = np.maximum.reduce([ALARM_SIGMAS * spread, PEAK_MARGIN * medians_abs.max(axis=0),
+                                  _tail_band(medians_abs, spread, warm_s, groups)])
         twin_rows = np.array(self._warm_twin)
         self._warm_twin = []
-        self.noise = NoiseModel(np.nan_to_num(bias), sigma, band, mix, _loop_stiffness(twin_rows, n))
+        persist = np.full(len(band), MIN_PERSIST_FRAMES, dtype=int)
+        for group in groups[:3:2]:
+            persist[group] = max(MIN_PERSIST_FRAMES, _longest_excursion(medians_abs[:, group], band[group] / 2) + 1)
+        self.noise = NoiseModel(np.nan_to_num(bias), sigma, band, mix, _loop_stiffness(twin_rows, n), persist,
+                                PEAK_MARGIN * _ringing(np.nan_to_num(warm[:, n:2 * n] - bias[n:2 * n])).max(initial=0.0))
         self._window = []
         self._raw_window = []
 
     def _start_resync(self, now_s: float) -> None:
         self._resync_until_s = now_s + RESYNC_S
         self._resync = []
+        self._watched = []
         self._window = []
         self._raw_window = []
 
@@ -338,7 +398,7 @@ class Monitor:
         rows = np.array(self._resync)
         self._resync = []
         if len(rows):
-            new = np.nanmedian(rows, axis=0)
+            new = _nanmedian(rows)
             model = self._model()
             model.bias = np.where(np.isfinite(new), new, model.bias)
 
@@ -394,6 +454,20 @@ class Monitor:
                               float(np.linalg.norm(noise.sigma[3 * n:])), "m", where, {"jump_m": d_tip, **debug})
         if ten_sig and not tip_sig and single_misfit < SINGLE_MISFIT:
             return self._loadcell(now_s, onset_s, frames, channel, where)
+        if ten_sig or len_sig:
+            # Tensions that swing from frame to frame more than they shift: the loop rings where
+            # the twin's does not, as a loop whose motors answer late does (or one that friction
+            # makes hunt: that is named friction where the friction model fits).
+            recent = np.array([h[0].tensions_n - h[1].tensions_n for h in self._history[-FIT_FRAMES:]]) - noise.bias[n:2 * n]
+            swing = float(_ringing(recent)[-1]) if len(recent) > FIT_FRAMES // 2 else 0.0
+            shift = float(np.linalg.norm(np.median(recent, axis=0)))
+            debug["ringing_n"] = swing
+            if swing > noise.ring_band_n and swing / 2 > shift:
+                hunting = self._friction(now_s, onset_s, frames, where)
+                if hunting.size > 2 * hunting.std and hunting.detail["fit"] >= MIN_FIT:
+                    return hunting
+                latency = self._latency(now_s, onset_s, where)
+                return dataclasses.replace(latency, detail={**latency.detail, **debug})
         explained = math.inf
         force: np.ndarray | None = None
         cov = np.zeros((3, 3))
@@ -450,28 +524,48 @@ class Monitor:
                           {"tendon": i, "tension_change_n": float(d_ten[i]), **debug})
 
     def _loadcell(self, now_s, onset_s, frames, i, where) -> Divergence:
+        """Cell ``i``'s offset δ or gain error g, whichever fits its residual since the change
+        better (least squares with the change's frame free: a gain drift scales with the twin's
+        tension, an offset does not), with the other's size in ``detail``."""
         n = self.n
-        d = np.array([f[0][n + i] for f in frames])
-        tau = np.array([f[1].tensions_n[i] for f in frames])
+        # The watched residual: what cell i reads beyond what the other cells' noise predicts.
+        d = np.array([w[0][n + i] for w in self._watched])
+        tau = np.array([w[1][i] for w in self._watched])
         sigma = float(self._model().sigma[n + i])
-        offset = float(d.mean())
-        sse_offset = float(np.sum((d - offset) ** 2))
-        gain = float(np.dot(d, tau) / max(np.dot(tau, tau), 1e-12))
-        sse_gain = float(np.sum((d - gain * tau) ** 2))
-        # A gain drift scales with the tension: named so only where the frames' tensions tell it
-        # from an offset (the gain model fits clearly better).
-        if sse_gain < 0.5 * sse_offset and np.ptp(tau) > 3 * sigma:
-            return Divergence(now_s, onset_s, "loadcell_gain", f"effects.tension_gain_error[{i}]", gain,
-                              sigma / max(float(np.sqrt(np.dot(tau, tau))), 1e-12), "1", where, {"channel": i})
-        return Divergence(now_s, onset_s, "loadcell_offset", f"effects.tension_offset_error_n[{i}]", offset,
-                          sigma / math.sqrt(len(d)), "N", where, {"channel": i, "gain_if_gain": gain})
+        fits: dict[str, tuple[float, float, float]] = {"loadcell_offset": (math.inf, math.nan, math.nan),
+                                                        "loadcell_gain": (math.inf, math.nan, math.nan)}
+        # The change lies at least the naming frames before the end (it crossed the band since);
+        # each model takes its best change frame.
+        for start in range(0, max(len(d) - NAMING_FRAMES, 1)):
+            before = float(d[:start] @ d[:start])
+            after, level = d[start:], tau[start:]
+            offset = float(after.mean())
+            sse = before + float(np.sum((after - offset) ** 2))
+            if sse < fits["loadcell_offset"][0]:
+                fits["loadcell_offset"] = (sse, offset, sigma / math.sqrt(len(after)))
+            gain = float(after @ level / max(level @ level, 1e-12))
+            sse = before + float(np.sum((after - gain * level) ** 2))
+            if sse < fits["loadcell_gain"][0]:
+                fits["loadcell_gain"] = (sse, gain, sigma / max(math.sqrt(level @ level), 1e-12))
+        # A gain is told from an offset only where it fits the frames significantly better (χ² by
+        # more than GAIN_CHI2): a held tension scales to the same step either way, and a drifting
+        # zero is the commoner fault of a load cell.
+        better = (fits["loadcell_offset"][0] - fits["loadcell_gain"][0]) / sigma ** 2 > GAIN_CHI2
+        kind = "loadcell_gain" if better else "loadcell_offset"
+        _, size, std = fits[kind]
+        other = fits["loadcell_offset" if better else "loadcell_gain"][1]
+        if kind == "loadcell_gain":
+            return Divergence(now_s, onset_s, kind, f"effects.tension_gain_error[{i}]", size, std, "1", where,
+                              {"channel": i, "offset_if_offset_n": other})
+        return Divergence(now_s, onset_s, kind, f"effects.tension_offset_error_n[{i}]", size, std, "N", where,
+                          {"channel": i, "gain_if_gain": other})
 
     def _friction(self, now_s, onset_s, frames, where) -> Divergence:
         """Friction changes the tension a load cell reads against the tendon's sliding: pulled in
         (length falling) it reads more than the twin, released less; sized as the fraction of the
         tension lost per unit of that direction."""
         n = self.n
-        hist = self._history
+        hist = self._history[-FIT_FRAMES:]
         rows, xs = [], []
         for k in range(1, len(hist)):
             twin_now, twin_before = hist[k][1], hist[k - 1][1]
@@ -489,7 +583,7 @@ class Monitor:
         """Encoders lagging the twin's: the residual length against the twin's length rate, the lag
         the slope."""
         n = self.n
-        hist = self._history
+        hist = self._history[-FIT_FRAMES:]
         ys, xs = [], []
         for k in range(1, len(hist)):
             rate = (hist[k][1].lengths_m - hist[k - 1][1].lengths_m) / max(hist[k][1].time_s - hist[k - 1][1].time_s,
@@ -535,3 +629,58 @@ def _loop_stiffness(twin_rows: np.ndarray, n: int) -> np.ndarray:
         var = float(lengths[:, i] @ lengths[:, i])
         out[i] = -float(lengths[:, i] @ tensions[:, i]) / var if var > 0 else math.nan
     return out
+
+
+def _tail_band(medians_abs: np.ndarray, spread: np.ndarray, warm_s: float, groups: list[slice]) -> np.ndarray:
+    """(C,) the level each channel's running median exceeds at a rate of :data:`FALSE_ALARM_RATE`
+    over :data:`WATCH_S`, from the warm-up's excursions above :data:`TAIL_SIGMAS` spreads (peaks
+    over a threshold: the excursions' rate λ per channel and their peaks' mean excess s over the
+    threshold u, an exponential tail, give u + s ln(λ T / α)). The channels of a group (the
+    tendons' lengths, their tensions, their duties, the tip's axes) share their motors, loop and
+    sensors, so their excursions, in units of each channel's spread, are pooled: a warm-up sees
+    one tendon's transient where it may miss the same on another."""
+    normal = medians_abs / spread
+    out = TAIL_SIGMAS * spread.astype(float)
+    for group in groups:
+        peaks: list[float] = []
+        for column in normal[:, group].T:
+            above = column > TAIL_SIGMAS
+            # Excursions: runs of frames above the threshold, each one peak.
+            edges = np.flatnonzero(np.diff(np.concatenate([[0], above.astype(np.int8), [0]])))
+            peaks += [float(column[a:b].max()) for a, b in zip(edges[::2], edges[1::2])]
+        if not peaks:
+            continue
+        excess = np.array(peaks) - TAIL_SIGMAS
+        scale = float(excess.mean()) if len(peaks) >= TAIL_MIN_EXCURSIONS else float(excess.max())
+        channels = len(range(*group.indices(normal.shape[1])))
+        expected = len(peaks) / channels / warm_s * WATCH_S / FALSE_ALARM_RATE
+        out[group] = spread[group] * (TAIL_SIGMAS + scale * math.log(max(expected, 1.0)))
+    return out
+
+
+
+def _longest_excursion(medians_abs: np.ndarray, level: np.ndarray) -> int:
+    """The longest run of frames (rows) any column spent above its ``level``."""
+    longest = 0
+    for column, threshold in zip(medians_abs.T, level):
+        edges = np.flatnonzero(np.diff(np.concatenate([[0], (column > threshold).astype(np.int8), [0]])))
+        if len(edges):
+            longest = max(longest, int((edges[1::2] - edges[::2]).max()))
+    return longest
+
+
+def _ringing(tensions_n: np.ndarray) -> np.ndarray:
+    """The running median over :data:`FIT_FRAMES` of the tensions' frame-to-frame change (N, the
+    norm over the cells), one value per window of rows (T, n)."""
+    steps = np.linalg.norm(np.diff(tensions_n, axis=0), axis=1)
+    if len(steps) == 0:
+        return np.zeros(1)
+    width = min(FIT_FRAMES - 1, len(steps))
+    return np.array([np.median(steps[k - width:k]) for k in range(width, len(steps) + 1)])
+
+
+def _nanmedian(rows: np.ndarray) -> np.ndarray:
+    """Column medians of the finite values; NaN where a column has none (a tendon slack all along)."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        return np.nanmedian(rows, axis=0)
