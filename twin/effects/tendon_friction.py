@@ -22,12 +22,13 @@ directions at rest (pulled / backed off), the better kept.
 from __future__ import annotations
 
 import dataclasses
+import math
 
 import numpy as np
 
 from twin.effects.base import BodySpec, Candidate, Effect, FitParameter, Key, Params
 
-__all__ = ["EFFECT", "FRICTION_MAX_STEP_S", "FRICTION_TENSION_LAG_S", "FRICTION_TRAVEL_LAG_S", "PRESLIDING_M", "SlidingState", "TendonFriction", "friction_direction",
+__all__ = ["EFFECT", "FRICTION_MAX_STEP_S", "FRICTION_TENSION_CAP_LIMITS", "FRICTION_TENSION_LAG_S", "FRICTION_TRAVEL_LAG_S", "PRESLIDING_M", "SlidingState", "TendonFriction", "friction_direction",
            "slide", "slide_path"]
 
 # Tendon travel over which the friction turns from one direction to the other (m): the
@@ -57,6 +58,15 @@ FRICTION_TENSION_LAG_S = 2e-3
 # complete more of the μ = 0.6 sweep (100 ms all of it on the endoscope and three-tendon, with a
 # 50 ms lag on the tension loop's proportional term) but let held tensions ring at 0.12-0.33 N.
 FRICTION_TRAVEL_LAG_S = 20e-3
+# The highest spool tension the twin's friction follows, as a multiple of the rig's tension limit
+# (``rig.tension_limit_n``). A slack tendon that a dead weight or a motor snaps taut spikes for a
+# step to 100-300 N on the twin's practically inextensible line (seen at the calibration weights
+# of a pretension, after a bend at κ = 26.2 1/m that the friction held 29 mm off straight); a
+# rig's board trips at its limit, so no held tension reaches that. Followed in full, such a spike
+# came back within a step as friction forces of e^(μθ) − 1 times it on the bent rod, and the
+# twin diverged (the compensation grid at μ = 0.3, κ = 26.2 1/m: mjWARN_BADQACC 29 ms after the
+# weights went on). Twice the limit leaves every tension the board can hold or trip on followed.
+FRICTION_TENSION_CAP_LIMITS = 2.0
 # Starting value of μ for a fit when it is off (0) in the parameter set: log(0) cannot start one.
 _FIT_START = 0.02
 
@@ -151,8 +161,9 @@ class TendonFriction:
     tendon stops, so a static state remembers how it was reached. The difference between the
     friction profile and MuJoCo's uniform one is added at each disc site as a force (and its
     moment about the body's centre of mass) through ``xfrc_applied``; the forces include the
-    friction on the disc, so momentum balances. T₀ is the spool's tension through a first-order
-    lag of :data:`FRICTION_TENSION_LAG_S`, and σ follows the spool's travel through one of
+    friction on the disc, so momentum balances. T₀ is the spool's tension, at most
+    ``tension_cap_n`` (:data:`FRICTION_TENSION_CAP_LIMITS`), through a first-order lag of
+    :data:`FRICTION_TENSION_LAG_S`, and σ follows the spool's travel through one of
     :data:`FRICTION_TRAVEL_LAG_S`.
 
     A :class:`twin.effects.StepHook` that the plant loop (``twin/sim/native/loop.cpp``,
@@ -162,10 +173,13 @@ class TendonFriction:
 
     max_step_s = FRICTION_MAX_STEP_S
 
-    def __init__(self, model, coeff: float, spool_dofs: np.ndarray, sites: np.ndarray, passed=None):
+    def __init__(self, model, coeff: float, spool_dofs: np.ndarray, sites: np.ndarray, passed=None,
+                 tension_cap_n: float = math.inf):
         """Args:
             model: the compiled twin (``mujoco.MjModel``).
             coeff: μ per radian of wrap.
+            tension_cap_n: the highest spool tension the friction follows (N; default none):
+                :data:`FRICTION_TENSION_CAP_LIMITS` times the rig's tension limit in a twin.
             spool_dofs: (n,) dof index of each spool.
             sites: (n, S) site ids along each tendon's path, spool first, tip last.
             passed: (n,) how many of its S sites each tendon passes up to its anchor (default all):
@@ -173,6 +187,7 @@ class TendonFriction:
                 anchor carry none of its friction.
         """
         self.coeff = float(coeff)
+        self.tension_cap_n = float(tension_cap_n)
         sites = np.array(sites)
         if passed is not None:
             # The sites beyond a tendon's anchor repeat the anchor, so that the paths stay
@@ -186,11 +201,12 @@ class TendonFriction:
         self._loop_state = None
 
     @classmethod
-    def in_model(cls, model, coeff: float, tendons: int, passed=None) -> "TendonFriction":
+    def in_model(cls, model, coeff: float, tendons: int, passed=None, tension_cap_n: float = math.inf) -> "TendonFriction":
         """The friction of the ``tendons`` tendons of a twin built by :mod:`twin.sim.model`,
         found by the names it gives them: spool joint and site ``spool{i}``, base hole
         ``hole{i}``, then sites ``t{i}_s1`` … towards the tip; ``passed`` (n,) the number of
-        ``t{i}_s…`` sites up to each tendon's anchor (default all)."""
+        ``t{i}_s…`` sites up to each tendon's anchor (default all); ``tension_cap_n`` as in the
+        constructor."""
         names = {model.site(k).name for k in range(model.nsite)}
         along = 0
         while f"t0_s{along + 1}" in names:
@@ -198,7 +214,8 @@ class TendonFriction:
         sites = [[model.site(f"spool{i}").id, model.site(f"hole{i}").id]
                  + [model.site(f"t{i}_s{j}").id for j in range(1, along + 1)] for i in range(tendons)]
         dofs = [model.jnt_dofadr[model.joint(f"spool{i}").id] for i in range(tendons)]
-        return cls(model, coeff, np.array(dofs), np.array(sites), None if passed is None else np.asarray(passed) + 2)
+        return cls(model, coeff, np.array(dofs), np.array(sites), None if passed is None else np.asarray(passed) + 2,
+                   tension_cap_n=tension_cap_n)
 
     def attach(self, state) -> None:
         """Have the plant loop whose state (:class:`twin.sim.native_loop.LoopState`) is ``state``
@@ -213,6 +230,7 @@ class TendonFriction:
         state.friction_lag_s = FRICTION_TENSION_LAG_S
         state.friction_travel_lag_s = FRICTION_TRAVEL_LAG_S
         state.friction_coeff = self.coeff
+        state.friction_tension_cap_n = self.tension_cap_n
 
     @property
     def state(self) -> np.ndarray:
@@ -278,7 +296,8 @@ class TendonFrictionEffect(Effect):
         passed = None
         if min(params.tendon_ends_m()) < params.backbone.length_m:
             passed = _sites_to_anchor(model, params)
-        return TendonFriction.in_model(model, coeff, params.tendons.count, passed)
+        return TendonFriction.in_model(model, coeff, params.tendons.count, passed,
+                                       tension_cap_n=FRICTION_TENSION_CAP_LIMITS * params.rig.tension_limit_n)
 
     def candidate(self, params: Params) -> Candidate:
         coeff = FitParameter("effects.tendon_friction_coeff", log=True, bounds=(1e-3, 1.0))

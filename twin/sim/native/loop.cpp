@@ -92,6 +92,7 @@ enum { BL_DRIVE_COAST = 0, BL_DRIVE_ON = 1 };
   S(f64, presliding_m)          /* spool travel over which the friction turns round (m) */              \
   S(f64, friction_lag_s)        /* time constant of the tension the friction follows (s) */             \
   S(f64, friction_travel_lag_s) /* ... and of the spool travel that moves σ (s) */                      \
+  S(f64, friction_tension_cap_n) /* highest spool tension the friction follows (N) */                  \
   A(f64, slack_length_m, BL_MAX_CHANNELS)       /* slack edge of each tendon's spring now (m) */       \
   A(f64, taut_length_m, BL_MAX_CHANNELS)        /* ... in the straight pose (m) */                     \
   A(f64, loadcell_offset_counts, BL_MAX_CHANNELS)                                                       \
@@ -463,11 +464,14 @@ static void tendon_friction(const mjModel* m, mjData* d, bl_state* s) {
   for (int i = 0; i < n; ++i) {
     double tension = spring_tension_n(d, s, i), spool_m = d->qpos[s->spool_qpos[i]];
     if (!s->friction_primed) {
-      s->friction_tension_n[i] = tension;
+      s->friction_tension_n[i] = tension < s->friction_tension_cap_n ? tension : s->friction_tension_cap_n;
       s->friction_spool_m[i] = spool_m;
       continue;
     }
-    s->friction_tension_n[i] += (tension - s->friction_tension_n[i]) * (dt / (s->friction_lag_s + dt));
+    // A tendon snapping taut spikes for a step far beyond anything the rig holds: not followed
+    // (twin.effects.tendon_friction.FRICTION_TENSION_CAP_LIMITS says why).
+    double followed = tension < s->friction_tension_cap_n ? tension : s->friction_tension_cap_n;
+    s->friction_tension_n[i] += (followed - s->friction_tension_n[i]) * (dt / (s->friction_lag_s + dt));
     // The spool pulls tendon in while its position (tendon paid out) falls.
     double moved_m = (spool_m - s->friction_spool_m[i]) * (dt / (s->friction_travel_lag_s + dt));
     s->friction_spool_m[i] += moved_m;
