@@ -29,7 +29,8 @@ class _TickSample(_Sample):
 
 
 def test_the_sliding_state_moves_over_the_presliding_travel_and_holds_when_the_tendon_stands():
-    state = SlidingState(tendon_m_per_count=PRESLIDING_M / 10)
+    # Followed through a lag (the twin's on an ideal source): the motor-driven default has none.
+    state = SlidingState(tendon_m_per_count=PRESLIDING_M / 10, travel_lag_s=FRICTION_TRAVEL_LAG_S)
     assert state.follow([_Sample([0, 0])]).tolist() == [0.0, 0.0]
     # Tendon 1 paid out 5 counts (half the presliding travel), tendon 2 pulled in 30: in one tick
     # σ moves by the share of the travel the friction's lag lets through (5 ms of the lag plus 5 ms).
@@ -39,6 +40,10 @@ def test_the_sliding_state_moves_over_the_presliding_travel_and_holds_when_the_t
     assert state.follow([_Sample([5, -30])] * 800).tolist() == pytest.approx([-0.5, 1.0], abs=1e-6)
     assert state.follow([_Sample([5, -30])] * 3).tolist() == pytest.approx([-0.5, 1.0], abs=1e-6)
     assert slide([1.0, -1.0], [-PRESLIDING_M, 3 * PRESLIDING_M]).tolist() == pytest.approx([0.0, 1.0])
+    # Without a lag (the default: motors drive the spools) a tick moves σ by all of its travel.
+    direct = SlidingState(tendon_m_per_count=PRESLIDING_M / 10)
+    direct.follow([_Sample([0, 0])])
+    assert direct.follow([_Sample([5, -30])]).tolist() == pytest.approx([-0.5, 1.0])
 
 
 def test_the_sliding_state_follows_every_tick_a_sample_carries():
@@ -50,7 +55,7 @@ def test_the_sliding_state_follows_every_tick_a_sample_carries():
     b = 5e-3 / (FRICTION_TRAVEL_LAG_S + 5e-3)
     travel = 40 * (1 - (1 - b) ** 4)
     ticks = [[-40, 0], [-40, 0], [-40, 0], [-40, 0], [0, 0]]
-    state = SlidingState(tendon_m_per_count=PRESLIDING_M / 10)
+    state = SlidingState(tendon_m_per_count=PRESLIDING_M / 10, travel_lag_s=FRICTION_TRAVEL_LAG_S)
     expected = min(1.0, travel / 10) - b * travel / 10
     assert state.follow([_TickSample([[0, 0]] * 5), _TickSample(ticks)]).tolist() == pytest.approx([expected, 0.0])
     coarse = SlidingState(tendon_m_per_count=PRESLIDING_M / 10)

@@ -163,6 +163,24 @@ def test_friction_makes_loading_and_unloading_differ():
     assert unloaded[2] < loaded[2] - 1e-3
 
 
+def test_friction_follows_the_spool_tension_only_up_to_twice_the_rig_limit():
+    # A snap-taut spike far beyond the rig's limit, fed back as friction forces on a bent rod,
+    # diverged the twin; tensions the board can hold or trip on are followed in full.
+    def tip_z(*overrides):
+        plant = _plant(*overrides)
+        plant.set_tensions([1.35] * 4)
+        plant.settle(tol_m=1e-5)
+        plant.set_tensions([3.5, 1.35, 1.35, 1.35])
+        assert plant.settle(tol_m=1e-5).settled
+        return plant.tip_pose()[0][2]
+
+    followed = tip_z("effects.tendon_friction_coeff=0.3", "rig.tension_limit_n=6")
+    assert tip_z("effects.tendon_friction_coeff=0.3", "rig.tension_limit_n=1.8") == pytest.approx(followed, abs=1e-9)
+    capped = tip_z("effects.tendon_friction_coeff=0.3", "rig.tension_limit_n=1")
+    # Pulled in, tendon 0 loses less tension to the holes when the friction follows 2 N, not 3.5 N.
+    assert tip_z() < capped < followed - 1e-3
+
+
 def test_sensor_effects_change_only_what_the_sensor_reports():
     base = _plant("sensors.loadcell_noise_n=0.0", "sensors.tracker_noise_m=0.0", "sensors.tracker_noise_rad=0.0")
     off = _plant("sensors.loadcell_noise_n=0.0", "sensors.tracker_noise_m=0.0", "sensors.tracker_noise_rad=0.0",

@@ -27,7 +27,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--ceiling", type=float, default=None,
                    help="highest tendon tension of the compensation (N); default what the tension loop can hold "
                         "at its duty clamp, with headroom (5.12 N for the tuned gains)")
-    p.add_argument("--corrections", type=count, default=2,
+    p.add_argument("--corrections", type=count, default=4,
                    help="most closed-loop corrections from the tracker per mass (0: feed-forward only)")
     add_twin_set_arg(p)
     p.add_argument("--unknown-load", action="store_true",

@@ -22,12 +22,13 @@ directions at rest (pulled / backed off), the better kept.
 from __future__ import annotations
 
 import dataclasses
+import math
 
 import numpy as np
 
 from twin.effects.base import BodySpec, Candidate, Effect, FitParameter, Key, Params
 
-__all__ = ["EFFECT", "FRICTION_MAX_STEP_S", "FRICTION_TENSION_LAG_S", "FRICTION_TRAVEL_LAG_S", "PRESLIDING_M", "SlidingState", "TendonFriction", "friction_direction",
+__all__ = ["EFFECT", "FRICTION_MAX_STEP_S", "FRICTION_TENSION_CAP_LIMITS", "FRICTION_MOTOR_TRAVEL_LAG_S", "FRICTION_TENSION_LAG_S", "FRICTION_TRAVEL_LAG_S", "PRESLIDING_M", "SlidingState", "TendonFriction", "friction_direction",
            "slide", "slide_path"]
 
 # Tendon travel over which the friction turns from one direction to the other (m): the
@@ -45,18 +46,30 @@ FRICTION_MAX_STEP_S = 5e-3
 # μ = 0.15, κ = 26.2 1/m: 100 N within 2 ms, then NaN). A few milliseconds of lag damp that and
 # change nothing at rest nor in motions slower than the board's 5 ms tick.
 FRICTION_TENSION_LAG_S = 2e-3
-# Time constant (s) of the spool travel that moves the sliding state. A spool on an ideal tension
-# source is a light carriage on a 200 kN/m tendon: it chatters by tens of µm from one 5 ms step
-# to the next, beyond the presliding travel, and each flip of σ swings the friction forces by
-# 2 T₀ sinh(μθ) (7 N at μ = 0.6 over a quarter turn), which an explicit step cannot follow. The
-# rig's sliding is the spool's slower motion, followed through 20 ms of lag (4 board ticks).
-# Measured together with the tension loop (twin bench hold, the quick validation sweep at
-# μ = 0.6, the dynamics replay of a clean run): at 20 ms held tensions settle within 0.04 N on
-# the endoscope at μ = 0.3 and a clean dynamics run replays to the count, but at μ = 0.6 the
-# endoscope's quick sweep hunts at ~20 Hz in row 17 and never comes to rest; 50 and 100 ms
-# complete more of the μ = 0.6 sweep (100 ms all of it on the endoscope and three-tendon, with a
-# 50 ms lag on the tension loop's proportional term) but let held tensions ring at 0.12-0.33 N.
+# Time constant (s) of the spool travel that moves the sliding state while the spool is on an
+# ideal source (the plant's tension and length modes: the fixture's dead weights, `twin sim`). A
+# spool on an ideal tension source is a light carriage on a 200 kN/m tendon: it chatters by tens
+# of µm from one 5 ms step to the next, beyond the presliding travel, and each flip of σ swings
+# the friction forces by 2 T₀ sinh(μθ) (7 N at μ = 0.6 over a quarter turn), which an explicit
+# step cannot follow; 20 ms of lag (4 board ticks) follows its slower motion.
 FRICTION_TRAVEL_LAG_S = 20e-3
+# ... and while the motor drives the spool (the board's every mode, so every rig measurement):
+# none. That spool carries the rotor (2.66 kg at the tendon on the thesis rig) and does not
+# chatter, and a lag there is a delay in a loop: in tension mode the rod's swing moves the
+# spool through the tension loop, the spool's travel flips σ, σ swings the holes' tensions, and
+# those push the rod. With 5, 20 and 60 ms of lag that loop cycled at 15, 11 and 7 Hz (the
+# endoscope at μ = 0.3, κ = 26.2 1/m, φ 0 and 30, a 5 g hold in tension mode: 2-5 N peak to
+# peak, the tip never at rest or the tension limit tripped); without, those rows come to rest.
+FRICTION_MOTOR_TRAVEL_LAG_S = 0.0
+# The highest spool tension the twin's friction follows, as a multiple of the rig's tension limit
+# (``rig.tension_limit_n``). A slack tendon that a dead weight or a motor snaps taut spikes for a
+# step to 100-300 N on the twin's practically inextensible line (seen at the calibration weights
+# of a pretension, after a bend at κ = 26.2 1/m that the friction held 29 mm off straight); a
+# rig's board trips at its limit, so no held tension reaches that. Followed in full, such a spike
+# came back within a step as friction forces of e^(μθ) − 1 times it on the bent rod, and the
+# twin diverged (the compensation grid at μ = 0.3, κ = 26.2 1/m: mjWARN_BADQACC 29 ms after the
+# weights went on). Twice the limit leaves every tension the board can hold or trip on followed.
+FRICTION_TENSION_CAP_LIMITS = 2.0
 # Starting value of μ for a fit when it is off (0) in the parameter set: log(0) cannot start one.
 _FIT_START = 0.02
 
@@ -89,7 +102,8 @@ class SlidingState:
 
     Feed it every telemetry sample in order (:meth:`follow`); it starts at 0 (unknown), as the
     twin's friction does, and the first move of more than :data:`PRESLIDING_M` sets it. The
-    travel moves σ through the friction's lag (:data:`FRICTION_TRAVEL_LAG_S`), as in the twin.
+    travel moves σ through the friction's lag while the motors drive the spools
+    (:data:`FRICTION_MOTOR_TRAVEL_LAG_S`), as in the twin.
 
     Example:
         >>> state = SlidingState(device.info.tendon_m_per_count)
@@ -97,18 +111,21 @@ class SlidingState:
         >>> state.state
     """
 
-    def __init__(self, tendon_m_per_count: float, tick_s: float = 5e-3):
+    def __init__(self, tendon_m_per_count: float, tick_s: float = 5e-3,
+                 travel_lag_s: float = FRICTION_MOTOR_TRAVEL_LAG_S):
         """Args:
             tendon_m_per_count: tendon length per encoder count (m; positive = paid out), the
                 handshake's :attr:`twin.driver.DeviceInfo.tendon_m_per_count`.
             tick_s: the board's tick (s), the period of the counts a sample carries (the
                 firmware's 5 ms IntervalTimer).
+            travel_lag_s: time constant (s) of the travel that moves σ: the twin's while its
+                motors drive the spools, as the board's do whenever it reports.
         """
         self.tendon_m_per_count = float(tendon_m_per_count)
         self.state: np.ndarray | None = None
         self._lagged_m: np.ndarray | None = None
-        # The friction's travel lag (FRICTION_TRAVEL_LAG_S) over one tick, as the twin's at 5 ms steps.
-        self._blend = tick_s / (FRICTION_TRAVEL_LAG_S + tick_s)
+        # The lag over one tick, as the twin's at 5 ms steps.
+        self._blend = tick_s / (travel_lag_s + tick_s)
 
     def follow(self, samples, *, mean_from_s: float | None = None) -> np.ndarray | None:
         """Advance over telemetry samples (oldest first) and, within each, over the counts of
@@ -175,9 +192,11 @@ class TendonFriction:
     tendon stops, so a static state remembers how it was reached. The difference between the
     friction profile and MuJoCo's uniform one is added at each disc site as a force (and its
     moment about the body's centre of mass) through ``xfrc_applied``; the forces include the
-    friction on the disc, so momentum balances. T₀ is the spool's tension through a first-order
-    lag of :data:`FRICTION_TENSION_LAG_S`, and σ follows the spool's travel through one of
-    :data:`FRICTION_TRAVEL_LAG_S`.
+    friction on the disc, so momentum balances. T₀ is the spool's tension, at most
+    ``tension_cap_n`` (:data:`FRICTION_TENSION_CAP_LIMITS`), through a first-order lag of
+    :data:`FRICTION_TENSION_LAG_S`, and σ follows the spool's travel through one of
+    :data:`FRICTION_TRAVEL_LAG_S` on an ideal source, of :data:`FRICTION_MOTOR_TRAVEL_LAG_S`
+    while the motor drives it.
 
     A :class:`twin.effects.StepHook` that the plant loop (``twin/sim/native/loop.cpp``,
     ``tendon_friction``) applies itself before every physics step: :meth:`attach` hands it the
@@ -187,10 +206,12 @@ class TendonFriction:
     max_step_s = FRICTION_MAX_STEP_S
 
     def __init__(self, model, coeff: float, spool_dofs: np.ndarray, sites: np.ndarray, passed=None,
-                 turn_beyond: float = 0.0):
+                 turn_beyond: float = 0.0, tension_cap_n: float = math.inf):
         """Args:
             model: the compiled twin (``mujoco.MjModel``).
             coeff: μ per radian of wrap.
+            tension_cap_n: the highest spool tension the friction follows (N; default none):
+                :data:`FRICTION_TENSION_CAP_LIMITS` times the rig's tension limit in a twin.
             spool_dofs: (n,) dof index of each spool.
             sites: (n, S) site ids along each tendon's path, spool first, tip last.
             passed: (n,) how many of its S sites each tendon passes up to its anchor (default all):
@@ -210,6 +231,7 @@ class TendonFriction:
         if not 0.0 <= turn_beyond <= 1.0:
             raise ValueError(f"turn_beyond = {turn_beyond!r}: must be within 0 … 1")
         self.turn_beyond = float(turn_beyond)
+        self.tension_cap_n = float(tension_cap_n)
         sites = np.array(sites)
         if passed is not None:
             # The sites beyond a tendon's anchor repeat the anchor, so that the paths stay
@@ -223,11 +245,12 @@ class TendonFriction:
         self._loop_state = None
 
     @classmethod
-    def in_model(cls, model, coeff: float, tendons: int, passed=None) -> "TendonFriction":
+    def in_model(cls, model, coeff: float, tendons: int, passed=None, tension_cap_n: float = math.inf) -> "TendonFriction":
         """The friction of the ``tendons`` tendons of a twin built by :mod:`twin.sim.model`,
         found by the names it gives them: spool joint and site ``spool{i}``, base hole
         ``hole{i}``, then sites ``t{i}_s1`` … towards the tip; ``passed`` (n,) the number of
-        ``t{i}_s…`` sites up to each tendon's anchor (default all)."""
+        ``t{i}_s…`` sites up to each tendon's anchor (default all); ``tension_cap_n`` as in the
+        constructor."""
         names = {model.site(k).name for k in range(model.nsite)}
         along = 0
         while f"t0_s{along + 1}" in names:
@@ -241,7 +264,7 @@ class TendonFriction:
 
         fixed = int(model.wrap_type[model.tendon_adr[model.tendon("tendon0").id]]) == int(mujoco.mjtWrap.mjWRAP_JOINT)
         return cls(model, coeff, np.array(dofs), np.array(sites), None if passed is None else np.asarray(passed) + 2,
-                   turn_beyond=0.5 if fixed else 0.0)
+                   turn_beyond=0.5 if fixed else 0.0, tension_cap_n=tension_cap_n)
 
     def attach(self, state) -> None:
         """Have the plant loop whose state (:class:`twin.sim.native_loop.LoopState`) is ``state``
@@ -255,8 +278,10 @@ class TendonFriction:
         state.presliding_m = PRESLIDING_M
         state.friction_lag_s = FRICTION_TENSION_LAG_S
         state.friction_travel_lag_s = FRICTION_TRAVEL_LAG_S
+        state.friction_motor_travel_lag_s = FRICTION_MOTOR_TRAVEL_LAG_S
         state.friction_coeff = self.coeff
         state.friction_turn_beyond = self.turn_beyond
+        state.friction_tension_cap_n = self.tension_cap_n
 
     @property
     def state(self) -> np.ndarray:
@@ -322,7 +347,8 @@ class TendonFrictionEffect(Effect):
         passed = None
         if min(params.tendon_ends_m()) < params.backbone.length_m:
             passed = _sites_to_anchor(model, params)
-        return TendonFriction.in_model(model, coeff, params.tendons.count, passed)
+        return TendonFriction.in_model(model, coeff, params.tendons.count, passed,
+                                       tension_cap_n=FRICTION_TENSION_CAP_LIMITS * params.rig.tension_limit_n)
 
     def candidate(self, params: Params) -> Candidate:
         coeff = FitParameter("effects.tendon_friction_coeff", log=True, bounds=(1e-3, 1.0))
