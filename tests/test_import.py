@@ -35,8 +35,11 @@ def test_the_worked_example_imports_free_poses_and_the_workflow_names_the_hidden
     assert main(["discrepancy", str(out), "--report", str(tmp_path / "report")]) == 0
     text = capsys.readouterr().out
     assert "named: base_tilt" in text
-    tilt = float(text.split("effects.base_tilt_deg[0] = ")[1].split()[0])
+    line = text.split("effects.base_tilt_deg[0] = ")[1].splitlines()[0]
+    tilt = float(line.split(",")[0])
+    low, high = (float(v) for v in line.split("95 % interval ")[1].split(" (")[0].split(" … "))
     assert tilt == pytest.approx(2.0, abs=0.2)
+    assert low <= 2.0 <= high, line
     assert "nan" not in (tmp_path / "report" / "report.md").read_text()
 
 
