@@ -71,8 +71,9 @@ class _TimedSample(_TickSample):
 def test_the_window_mean_is_the_state_averaged_over_the_ticks_of_the_window():
     """A measurement averages the tip over its window: the state it saw is σ's mean over the
     window's ticks, not σ at its end; the state itself moves as without a window."""
-    pull = [[-40, 0]] * 5
-    samples = [_TimedSample([[0, 0]] * 5, 0.0), _TimedSample(pull, 0.025), _TimedSample(pull, 0.05)]
+    # Tendon 1 winds in 2 counts a tick, past its presliding travel (10 counts) within the window.
+    first, second = [[-2 * k, 0] for k in range(1, 6)], [[-2 * k, 0] for k in range(6, 11)]
+    samples = [_TimedSample([[0, 0]] * 5, 0.0), _TimedSample(first, 0.025), _TimedSample(second, 0.05)]
     plain = SlidingState(tendon_m_per_count=PRESLIDING_M / 10)
     end = plain.follow(samples).tolist()
     assert plain.window_mean is None
@@ -81,7 +82,7 @@ def test_the_window_mean_is_the_state_averaged_over_the_ticks_of_the_window():
     # Tick by tick over the last two samples' ten ticks.
     ticks = SlidingState(tendon_m_per_count=PRESLIDING_M / 10)
     ticks.follow(samples[:1])
-    seen = [ticks.follow([_Sample(row)]).copy() for row in pull + pull]
+    seen = [ticks.follow([_Sample(row)]).copy() for row in first + second]
     assert timed.window_mean.tolist() == pytest.approx(np.mean(seen, axis=0).tolist())
     assert 0 < timed.window_mean[0] < end[0]
 
