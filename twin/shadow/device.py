@@ -30,10 +30,13 @@ from twin.params import Params
 from twin.shadow.monitor import Divergence, FrameValues, Monitor
 from twin.tracking import fuse_frame
 
-__all__ = ["BEHIND_FRAMES", "IGTL_DEVICE", "ShadowDevice", "divergence_message"]
+__all__ = ["BEHIND_FRAMES", "DEFAULT_WARMUP_S", "IGTL_DEVICE", "ShadowDevice", "divergence_message"]
 
 # OpenIGTLink device name of the divergences' STRING messages (Slicer: a text node of this name).
 IGTL_DEVICE = "ShadowEvent"
+# Device time the noise is learnt over by default (s): a minute of motion holds the tails that a
+# clean half hour showed (twin shadow caps its own warm-up there for the same reason).
+DEFAULT_WARMUP_S = 60.0
 
 # Longest a wall-clock shadow works in one of the host's calls (s): a fifth of the board's 0.25 s watchdog.
 SYNC_BUDGET_S = 0.05
@@ -99,7 +102,7 @@ class ShadowDevice:
             (no warm-up then).
     """
 
-    def __init__(self, device, twin, params: Params, *, warmup_s: float = 60.0, log_path: str | Path | None = None,
+    def __init__(self, device, twin, params: Params, *, warmup_s: float = DEFAULT_WARMUP_S, log_path: str | Path | None = None,
                  console: IO[str] | None = sys.stderr, on_divergence: Callable[[Divergence], None] | None = None,
                  use_rod: bool = True, recalibrate: bool = True, noise=None):
         self._device = device
@@ -186,19 +189,22 @@ class ShadowDevice:
     def connect(self, **kwargs):
         info = self._device.connect(**kwargs)
         self._twin.connect()
-        self._queue.clear()
-        period = info.telemetry_period_s
-        # Whole telemetry periods apart, so that the two sides' frames fall at the same instants.
-        self._offset_s = round((self._device.time_s - self._twin.time_s) / period) * period
+        self._align(info)
         return info
 
     def reconnect(self, **kwargs):
         info = self._device.reconnect(**kwargs)
         self._twin.reconnect()
+        self._align(info)
+        return info
+
+    def _align(self, info) -> None:
+        """Start the lockstep afresh after a (re)connect: no frame of before is compared, and the
+        twin's clock is offset from the device's by whole telemetry periods, so that the two
+        sides' frames fall at the same instants."""
         self._queue.clear()
         period = info.telemetry_period_s
         self._offset_s = round((self._device.time_s - self._twin.time_s) / period) * period
-        return info
 
     def close(self) -> None:
         try:
