@@ -7,8 +7,6 @@ import math
 import os
 import sys
 import urllib.parse
-from typing import Any
-
 from typing import TYPE_CHECKING, Any
 
 import gymnasium as gym

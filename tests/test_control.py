@@ -1,7 +1,5 @@
 """Load compensation, the length-vs-tension study and the tuning example, on the predictor and the twin."""
 
-from pathlib import Path
-
 import numpy as np
 import pytest
 

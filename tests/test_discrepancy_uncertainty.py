@@ -3,7 +3,6 @@ model-form term scales, and where it covers what the statistical interval misses
 
 import math
 
-import numpy as np
 import pytest
 
 from twin import load_params

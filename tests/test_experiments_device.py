@@ -1,7 +1,6 @@
 """Experiments run through a device on the twin: calibration recovers the simulated load cells."""
 
 import numpy as np
-import pytest
 
 from twin import load_params
 from twin.driver import open_device

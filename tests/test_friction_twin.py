@@ -7,8 +7,6 @@ import subprocess
 import sys
 import time
 
-import pytest
-
 from twin.data.dataset import RUN_DATASET, MEASUREMENTS
 
 

@@ -7,7 +7,6 @@ import pytest
 
 from twin.cli import main
 from twin.params import load_params
-from twin.pose import HORIZONTAL
 from twin.sim import Plant
 
 FAST = ["sim.elements=10"]

@@ -43,7 +43,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import threading
-from typing import TYPE_CHECKING, Any, ContextManager, Iterable, Sequence
+from typing import TYPE_CHECKING, Any, ContextManager, Iterable
 
 import numpy as np
 import numpy.typing as npt

@@ -27,7 +27,7 @@ import contextlib
 import json
 import math
 import socket
-from typing import TYPE_CHECKING, BinaryIO, Callable, ContextManager, Iterable
+from typing import BinaryIO, Callable, ContextManager, Iterable
 
 import numpy as np
 

@@ -47,7 +47,7 @@ import time
 from typing import Any
 
 import numpy as np
-from scipy import optimize, stats
+from scipy import optimize
 from tqdm import tqdm
 
 from twin import effects

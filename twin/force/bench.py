@@ -9,7 +9,6 @@ the hidden force in the directions the estimator calls observable.
 from __future__ import annotations
 
 import dataclasses
-import time
 
 import numpy as np
 from scipy.stats import chi2
