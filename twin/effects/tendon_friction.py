@@ -206,7 +206,7 @@ class TendonFriction:
     max_step_s = FRICTION_MAX_STEP_S
 
     def __init__(self, model, coeff: float, spool_dofs: np.ndarray, sites: np.ndarray, passed=None,
-                 turn_beyond: float = 0.0, tension_cap_n: float = math.inf):
+                 turn_beyond: float = 0.0, tension_cap_n: float = math.inf, joint_turns: bool = False):
         """Args:
             model: the compiled twin (``mujoco.MjModel``).
             coeff: μ per radian of wrap.
@@ -226,12 +226,20 @@ class TendonFriction:
                 turn's loss at the joint put the loss half an element early and made the friction's
                 effect on the tip larger than the predictor's by ~1.5/N (9 % at N = 10 elements,
                 5 % at N = 20, 16 % at N = 5; endoscope, μ = 0.3, κ = 26.2 1/m).
+            joint_turns: the turn at a site is the rotation of the joint between its body and the
+                next site's across the tendon, |φ × t|, the predictor's wrap over that joint
+                (continuous routing: the sites only trace a path the rod bends at its joints); not
+                the angle between the chords through the sites (a line running straight between
+                discs), which a twist hinge tilts by r·φ/h without bending the tendon: with G·J
+                torsion and a 10 g tip that counted ~4 % more wrap than the predictor on a
+                100 mm rod (long, μ = 0.2).
         """
         self.coeff = float(coeff)
         if not 0.0 <= turn_beyond <= 1.0:
             raise ValueError(f"turn_beyond = {turn_beyond!r}: must be within 0 … 1")
         self.turn_beyond = float(turn_beyond)
         self.tension_cap_n = float(tension_cap_n)
+        self.joint_turns = bool(joint_turns)
         sites = np.array(sites)
         if passed is not None:
             # The sites beyond a tendon's anchor repeat the anchor, so that the paths stay
@@ -260,11 +268,9 @@ class TendonFriction:
         dofs = [model.jnt_dofadr[model.joint(f"spool{i}").id] for i in range(tendons)]
         # A fixed tendon (continuous routing: it wraps the joints, its sites only trace the path)
         # bends at the joints' planes, where its sites are; a spatial one turns at its sites.
-        import mujoco
-
-        fixed = int(model.wrap_type[model.tendon_adr[model.tendon("tendon0").id]]) == int(mujoco.mjtWrap.mjWRAP_JOINT)
+        fixed = _wraps_joints(model)
         return cls(model, coeff, np.array(dofs), np.array(sites), None if passed is None else np.asarray(passed) + 2,
-                   turn_beyond=0.5 if fixed else 0.0, tension_cap_n=tension_cap_n)
+                   turn_beyond=0.5 if fixed else 0.0, tension_cap_n=tension_cap_n, joint_turns=fixed)
 
     def attach(self, state) -> None:
         """Have the plant loop whose state (:class:`twin.sim.native_loop.LoopState`) is ``state``
@@ -281,6 +287,7 @@ class TendonFriction:
         state.friction_motor_travel_lag_s = FRICTION_MOTOR_TRAVEL_LAG_S
         state.friction_coeff = self.coeff
         state.friction_turn_beyond = self.turn_beyond
+        state.friction_joint_turns = int(self.joint_turns)
         state.friction_tension_cap_n = self.tension_cap_n
 
     @property
@@ -310,22 +317,43 @@ def friction_direction(relative_lengths_m, sense: float = 1.0, sliding_state=Non
     return sense * np.where(lengths > 0, -1.0, 1.0)
 
 
+def _wraps_joints(model) -> bool:
+    """Whether the twin's tendons are fixed tendons over the joints (continuous routing), whose
+    sites only trace the path, rather than spatial ones through their sites."""
+    import mujoco
+
+    return int(model.wrap_type[model.tendon_adr[model.tendon("tendon0").id]]) == int(mujoco.mjtWrap.mjWRAP_JOINT)
+
+
 def _sites_to_anchor(model, params: Params) -> np.ndarray:
-    """(n,) how many of the sites ``t{i}_s1`` … each tendon passes up to its anchor
-    (:meth:`Params.tendon_ends_m`): those at an arc length, measured along the clamp's axis in the
-    straight pose (``qpos0``), not beyond the anchor."""
+    """(n,) how many of the sites ``t{i}_s1`` … each tendon's friction path runs through up to its
+    anchor (:meth:`Params.tendon_ends_m`), by their arc length along the clamp's axis in the
+    straight pose (``qpos0``).
+
+    A spatial tendon ends at the site of its anchor's disc: the sites not beyond the anchor. A
+    fixed one (continuous routing) pulls every joint whose plane lies before its anchor, and its
+    sites stand in those planes, each on the body before the joint: the path runs on to the next
+    site, on the anchor's body, as a tendon to the tip runs on to the tip, so that the segment
+    across the last joint it pulls carries that joint's friction loss. Ended at the last plane,
+    that joint kept the spool's tension (two-segment, μ = 0.3, κ 15 1/m: the tip 0.7 mm from the
+    predictor)."""
     import mujoco
 
     data = mujoco.MjData(model)
     mujoco.mj_kinematics(model, data)
     names = {model.site(k).name for k in range(model.nsite)}
     along = sum(1 for j in range(1, model.nsite + 1) if f"t0_s{j}" in names)
+    fixed = _wraps_joints(model)
     passed = []
     for i, end_m in enumerate(params.tendon_ends_m()):
         hole = model.site(f"hole{i}").id
         axis = data.xmat[model.site_bodyid[hole]].reshape(3, 3)[:, 2]
         s_m = [(data.site_xpos[model.site(f"t{i}_s{j}").id] - data.site_xpos[hole]) @ axis for j in range(1, along + 1)]
-        passed.append(int(np.count_nonzero(np.asarray(s_m) <= end_m + 1e-7)))
+        if fixed:
+            # The joints pulled are those of elements centred before the anchor (twin.sim.model.TendonLength).
+            passed.append(min(along, int(np.count_nonzero(np.asarray(s_m) < end_m - 1e-7)) + 1))
+        else:
+            passed.append(int(np.count_nonzero(np.asarray(s_m) <= end_m + 1e-7)))
     return np.array(passed)
 
 

@@ -130,6 +130,7 @@ enum { BL_DRIVE_COAST = 0, BL_DRIVE_ON = 1 };
   S(i32, coupled_pairs)         /* ... then pairs of joints it couples */                              \
   S(i32, friction_sites_per_tendon)  /* sites of each path: spool, base hole, then towards the tip */   \
   S(i32, friction_primed)       /* 0 until friction_tension_n holds a tension */                        \
+  S(i32, friction_joint_turns)  /* 1: a site's turn is its joint's rotation across the tendon, 0: chords' */ \
   S(i32, base_substeps)         /* physics steps each step is cut into always (effects' stability) */  \
   S(i32, engage_substeps)       /* ... while a tendon could engage */                                   \
   S(i32, current_substeps)      /* what mjModel.opt.timestep is cut to now */                           \
@@ -459,6 +460,36 @@ static void dynamics_reset(const mjData* d, bl_state* s) {
 // forces (and their moments about each body's centre of mass) through xfrc_applied. Computed
 // here, before every physics step, so that a twin with friction steps at the speed of one without
 // and a Ctrl-C reaches Python between the loop's calls.
+// The angle between two unit chords (rad): the turn of a line that runs straight between sites.
+static double chord_turn(const double* before, const double* after) {
+  double c = before[0] * after[0] + before[1] * after[1] + before[2] * after[2];
+  return acos(c > 1.0 ? 1.0 : c < -1.0 ? -1.0 : c);
+}
+
+// The turn (rad) of a continuously routed tendon across the joint between bodies a and b, whose
+// chords before and after it are unit vectors: |φ × t| with φ the rotation vector of b relative
+// to a and t the tendon's direction there, the joint's share of the predictor's wrap ∫|u × t| ds
+// (twin.rod.kernel). The angle between the chords is not: a twist hinge moves the next site
+// sideways by r·φz, which tilts the chord by r·φz/h without bending the tendon (a 100 mm rod with
+// G·J torsion under a 10 g tip counted 4 % more wrap so than the predictor).
+static double joint_turn(const mjData* d, int a, int b, const double* before, const double* after) {
+  if (a == b) return 0.0;
+  const double* ra = d->xmat + 9 * a;
+  const double* rb = d->xmat + 9 * b;
+  double r[3][3];  // rb · raᵀ: b's orientation relative to a's, in the world frame
+  for (int i = 0; i < 3; ++i)
+    for (int j = 0; j < 3; ++j) r[i][j] = rb[3 * i] * ra[3 * j] + rb[3 * i + 1] * ra[3 * j + 1] + rb[3 * i + 2] * ra[3 * j + 2];
+  double w[3] = {0.5 * (r[2][1] - r[1][2]), 0.5 * (r[0][2] - r[2][0]), 0.5 * (r[1][0] - r[0][1])};
+  double sine = sqrt(w[0] * w[0] + w[1] * w[1] + w[2] * w[2]);
+  double angle = atan2(sine, 0.5 * (r[0][0] + r[1][1] + r[2][2] - 1.0));
+  double scale = sine > 1e-300 ? angle / sine : 1.0;
+  double t[3] = {before[0] + after[0], before[1] + after[1], before[2] + after[2]};
+  double norm = sqrt(t[0] * t[0] + t[1] * t[1] + t[2] * t[2]);
+  if (norm <= 0.0) return 0.0;
+  double c[3] = {w[1] * t[2] - w[2] * t[1], w[2] * t[0] - w[0] * t[2], w[0] * t[1] - w[1] * t[0]};
+  return scale * sqrt(c[0] * c[0] + c[1] * c[1] + c[2] * c[2]) / norm;
+}
+
 static void tendon_friction(const mjModel* m, mjData* d, bl_state* s) {
   int n = s->channels, sites = s->friction_sites_per_tendon;
   const int32_t* path = (const int32_t*)s->friction_sites;
@@ -502,8 +533,8 @@ static void tendon_friction(const mjModel* m, mjData* d, bl_state* s) {
       if (norm <= 0.0) break;  // past the tendon's anchor: its path repeats the anchor site
       u[0] /= norm, u[1] /= norm, u[2] /= norm;
       if (k > 0) {
-        double c = before[0] * u[0] + before[1] * u[1] + before[2] * u[2];
-        double turn = acos(c > 1.0 ? 1.0 : c < -1.0 ? -1.0 : c);
+        double turn = s->friction_joint_turns ? joint_turn(d, m->site_bodyid[row[k]], m->site_bodyid[row[k + 1]], before, u)
+                                              : chord_turn(before, u);
         wrap += turn;
         // Segment k pulls site k towards site k + 1 and site k + 1 back, with T_k − T0. Where a
         // site stands for a bend spread over the bodies on both sides of it (a joint's plane),
