@@ -112,8 +112,9 @@ def test_a_twin_cross_check_that_diverges_after_the_sweep_is_a_warning_not_a_los
 
 def test_a_twisted_rods_friction_moves_the_tip_as_the_predictor_says():
     # The long robot's G·J torsion lets a 10 g tip twist the rod under a bend out of the
-    # vertical plane. The twin's wrap is each joint's rotation across the tendon, as the
-    # predictor's ∫|u × t| ds; the angle between the chords through the sites, which a twist
+    # vertical plane. The twin's wrap is each joint's rotation across the tendon and its loss
+    # pulls the joints through the fixed tendon's coefficients, as the predictor's ∫|u × t| ds
+    # and τ(s) r × t; turning by the angle between the chords through the sites, which a twist
     # hinge tilts sideways, made the friction's effect on the tip 4 % larger (0.75 mm off).
     import numpy as np
 
@@ -143,5 +144,5 @@ def test_a_twisted_rods_friction_moves_the_tip_as_the_predictor_says():
     shift = predicted[0.2] - predicted[0.0]
     assert np.linalg.norm(shift) > 0.01  # friction moves this tip by centimetres
     ratio = (tip - predicted[0.0]) @ shift / (shift @ shift)
-    assert abs(ratio - 1.0) < 0.025, ratio
-    assert np.linalg.norm(tip - predicted[0.2]) < 4e-4
+    assert abs(ratio - 1.0) < 0.015, ratio
+    assert np.linalg.norm(tip - predicted[0.2]) < 3e-4

@@ -206,7 +206,7 @@ class TendonFriction:
     max_step_s = FRICTION_MAX_STEP_S
 
     def __init__(self, model, coeff: float, spool_dofs: np.ndarray, sites: np.ndarray, passed=None,
-                 turn_beyond: float = 0.0, tension_cap_n: float = math.inf, joint_turns: bool = False):
+                 turn_beyond: float = 0.0, tension_cap_n: float = math.inf, joint_pulls=None):
         """Args:
             model: the compiled twin (``mujoco.MjModel``).
             coeff: μ per radian of wrap.
@@ -226,20 +226,30 @@ class TendonFriction:
                 turn's loss at the joint put the loss half an element early and made the friction's
                 effect on the tip larger than the predictor's by ~1.5/N (9 % at N = 10 elements,
                 5 % at N = 20, 16 % at N = 5; endoscope, μ = 0.3, κ = 26.2 1/m).
-            joint_turns: the turn at a site is the rotation of the joint between its body and the
-                next site's across the tendon, |φ × t|, the predictor's wrap over that joint
-                (continuous routing: the sites only trace a path the rod bends at its joints); not
-                the angle between the chords through the sites (a line running straight between
-                discs), which a twist hinge tilts by r·φ/h without bending the tendon: with G·J
-                torsion and a 10 g tip that counted ~4 % more wrap than the predictor on a
-                100 mm rod (long, μ = 0.2).
+            joint_pulls: for fixed tendons over the joints (continuous routing), a pair of
+                (n, S, 6) arrays, the dof index (−1: none) and the tendon's length coefficient
+                ∂ℓ/∂ξ on it (:func:`_joint_pulls`), of the joints in the plane of each site. The
+                friction then pulls those joints through the fixed tendon's own coefficients, with
+                the tension lost up to half the joint's turn, as the predictor's moment τ(s) r × t
+                at the joint: a force along the chord to the next site, which a bend of Δθ at the
+                joint tilts from the plane's normal, reaches the arm r·cos Δθ only (3 % of the
+                friction's effect at N = 10, κ = 26.2 1/m). And a site's turn is then its joint's
+                rotation across the tendon, |φ × t|, the predictor's wrap ∫|u × t| ds over the
+                joint; not the angle between the chords through the sites, which a twist hinge
+                tilts by r·φ/h without bending the tendon (with G·J torsion and a 10 g tip that
+                counted 4 % more wrap than the predictor on a 100 mm rod). None: forces along the
+                chords through the sites, turning at each by the angle between them (a line
+                running straight between discs, as the rig's).
         """
         self.coeff = float(coeff)
         if not 0.0 <= turn_beyond <= 1.0:
             raise ValueError(f"turn_beyond = {turn_beyond!r}: must be within 0 … 1")
         self.turn_beyond = float(turn_beyond)
         self.tension_cap_n = float(tension_cap_n)
-        self.joint_turns = bool(joint_turns)
+        self.joint_turns = joint_pulls is not None
+        if joint_pulls is not None:
+            self._joint_dofs = np.ascontiguousarray(joint_pulls[0], dtype=np.int32)
+            self._joint_coefficients = np.ascontiguousarray(joint_pulls[1], dtype=np.float64)
         sites = np.array(sites)
         if passed is not None:
             # The sites beyond a tendon's anchor repeat the anchor, so that the paths stay
@@ -270,7 +280,8 @@ class TendonFriction:
         # bends at the joints' planes, where its sites are; a spatial one turns at its sites.
         fixed = _wraps_joints(model)
         return cls(model, coeff, np.array(dofs), np.array(sites), None if passed is None else np.asarray(passed) + 2,
-                   turn_beyond=0.5 if fixed else 0.0, tension_cap_n=tension_cap_n, joint_turns=fixed)
+                   turn_beyond=0.5 if fixed else 0.0, tension_cap_n=tension_cap_n,
+                   joint_pulls=_joint_pulls(model, np.array(sites)) if fixed else None)
 
     def attach(self, state) -> None:
         """Have the plant loop whose state (:class:`twin.sim.native_loop.LoopState`) is ``state``
@@ -288,6 +299,9 @@ class TendonFriction:
         state.friction_coeff = self.coeff
         state.friction_turn_beyond = self.turn_beyond
         state.friction_joint_turns = int(self.joint_turns)
+        if self.joint_turns:
+            state.friction_joint_dofs = self._joint_dofs.ctypes.data
+            state.friction_joint_coefficients = self._joint_coefficients.ctypes.data
         state.friction_tension_cap_n = self.tension_cap_n
 
     @property
@@ -323,6 +337,35 @@ def _wraps_joints(model) -> bool:
     import mujoco
 
     return int(model.wrap_type[model.tendon_adr[model.tendon("tendon0").id]]) == int(mujoco.mjtWrap.mjWRAP_JOINT)
+
+
+def _joint_pulls(model, sites: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The joints each fixed tendon pulls, by the site in whose plane they lie: (n, S, 6) dof
+    indices (−1: none) and (n, S, 6) the tendon's length coefficients on them, for the paths
+    ``sites`` (n, S) of :meth:`TendonFriction.in_model` (spool, hole, then ``t{i}_s{k}`` in joint
+    k's plane). Station k's joints are named ``b{k}_…`` (:mod:`twin.sim.model`); a joint that
+    lumps the compliance of a block of elements (a slide, a twist hinge) is pulled with its
+    station's tension, the block's middle."""
+    import mujoco
+
+    n, count = sites.shape
+    dofs = np.full((n, count, 6), -1, dtype=np.int32)
+    coefficients = np.zeros((n, count, 6))
+    for i in range(n):
+        tendon = model.tendon(f"tendon{i}").id
+        used = np.zeros(count, dtype=int)
+        for w in range(model.tendon_adr[tendon], model.tendon_adr[tendon] + model.tendon_num[tendon]):
+            if int(model.wrap_type[w]) != int(mujoco.mjtWrap.mjWRAP_JOINT):
+                continue
+            joint = int(model.wrap_objid[w])
+            name = model.joint(joint).name
+            if not (name.startswith("b") and "_" in name):
+                continue  # the spool
+            k = int(name[1:name.index("_")]) + 1  # path: spool, hole, then t{i}_s1 at joint 1's plane
+            dofs[i, k, used[k]] = model.jnt_dofadr[joint]
+            coefficients[i, k, used[k]] = model.wrap_prm[w]
+            used[k] += 1
+    return dofs, coefficients
 
 
 def _sites_to_anchor(model, params: Params) -> np.ndarray:

@@ -67,6 +67,8 @@ enum { BL_DRIVE_COAST = 0, BL_DRIVE_ON = 1 };
   S(f64p, geometry)             /* tendons' second-order length (twin.sim.model.GeometricStiffness) */  \
   S(ptr, geometry_index)        /* int32: its joints' ids and addresses */                              \
   S(ptr, friction_sites)        /* int32 (channels × friction_sites_per_tendon): each tendon's path */  \
+  S(ptr, friction_joint_dofs)   /* int32 (channels × sites × 6): dofs in each site's plane (-1: none) */ \
+  S(f64p, friction_joint_coefficients) /* ... and the tendon's length coefficient on each */            \
   /* plant constants */                                                                                 \
   S(f64, step_s)                /* physics step sim.timestep_s (s) */                                   \
   S(f64, engage_stretch_m)      /* a tendon stretched less than this gets the engagement check */       \
@@ -130,7 +132,7 @@ enum { BL_DRIVE_COAST = 0, BL_DRIVE_ON = 1 };
   S(i32, coupled_pairs)         /* ... then pairs of joints it couples */                              \
   S(i32, friction_sites_per_tendon)  /* sites of each path: spool, base hole, then towards the tip */   \
   S(i32, friction_primed)       /* 0 until friction_tension_n holds a tension */                        \
-  S(i32, friction_joint_turns)  /* 1: a site's turn is its joint's rotation across the tendon, 0: chords' */ \
+  S(i32, friction_joint_turns)  /* 1: fixed tendons: turns and pulls at the joints, 0: along the chords */ \
   S(i32, base_substeps)         /* physics steps each step is cut into always (effects' stability) */  \
   S(i32, engage_substeps)       /* ... while a tendon could engage */                                   \
   S(i32, current_substeps)      /* what mjModel.opt.timestep is cut to now */                           \
@@ -490,6 +492,15 @@ static double joint_turn(const mjData* d, int a, int b, const double* before, co
   return scale * sqrt(c[0] * c[0] + c[1] * c[1] + c[2] * c[2]) / norm;
 }
 
+// Before the tendons' second order (which sets its coupled joints' qfrc_applied afresh): the
+// joints the friction pulls (fixed tendons), cleared for tendon_friction to add to.
+static void tendon_friction_clear(mjData* d, const bl_state* s) {
+  if (!s->friction_joint_turns) return;
+  const int32_t* dofs = (const int32_t*)s->friction_joint_dofs;
+  for (int k = 0; k < 6 * s->channels * s->friction_sites_per_tendon; ++k)
+    if (dofs[k] >= 0) d->qfrc_applied[dofs[k]] = 0.0;
+}
+
 static void tendon_friction(const mjModel* m, mjData* d, bl_state* s) {
   int n = s->channels, sites = s->friction_sites_per_tendon;
   const int32_t* path = (const int32_t*)s->friction_sites;
@@ -517,10 +528,13 @@ static void tendon_friction(const mjModel* m, mjData* d, bl_state* s) {
     }
   }
   s->friction_primed = 1;
-  for (int k = 0; k < n * sites; ++k) {
-    double* f = d->xfrc_applied + 6 * m->site_bodyid[path[k]];
-    for (int j = 0; j < 6; ++j) f[j] = 0.0;
+  if (!s->friction_joint_turns) {
+    for (int k = 0; k < n * sites; ++k) {
+      double* f = d->xfrc_applied + 6 * m->site_bodyid[path[k]];
+      for (int j = 0; j < 6; ++j) f[j] = 0.0;
+    }
   }
+  const int32_t* joint_dofs = (const int32_t*)s->friction_joint_dofs;
   for (int i = 0; i < n; ++i) {
     const int32_t* row = path + i * sites;
     double t0 = s->friction_tension_n[i], decay = -s->sliding_state[i] * s->friction_coeff;
@@ -540,6 +554,15 @@ static void tendon_friction(const mjModel* m, mjData* d, bl_state* s) {
         // site stands for a bend spread over the bodies on both sides of it (a joint's plane),
         // segment k carries the loss of half its turn, the next segment the rest.
         double excess = t0 * (exp(decay * (wrap - s->friction_turn_beyond * turn)) - 1.0);
+        if (s->friction_joint_turns) {
+          // The joints in site k's plane, pulled as the fixed tendon pulls them (−T ∂ℓ/∂ξ) with
+          // T_k − T0: the tension there is T_k.
+          int at = 6 * (i * sites + k);
+          for (int j = 0; j < 6 && joint_dofs[at + j] >= 0; ++j)
+            d->qfrc_applied[joint_dofs[at + j]] -= excess * s->friction_joint_coefficients[at + j];
+          before[0] = u[0], before[1] = u[1], before[2] = u[2];
+          continue;
+        }
         for (int end = 0; end < 2; ++end) {
           int site = row[k + end];
           double sign = end ? -excess : excess;
@@ -580,6 +603,7 @@ static int plant_chunk(mjModel* m, mjData* d, bl_state* s, int chunk) {
   bool dynamics = s->loadcell_lag_s > 0 || s->backlash_m > 0;
   bool friction = s->friction_coeff > 0;
   for (int k = 0; k < chunk * substeps; ++k) {
+    if (friction) tendon_friction_clear(d, s);
     if (geometry) tendon_geometry(m, d, s);
     if (friction) tendon_friction(m, d, s);
     if (hook) hook();
