@@ -190,9 +190,12 @@ class TendonFriction:
     the state of a Dahl model of the sliding direction: σ → +1 while the spool pulls tendon
     in, → −1 while it pays out, over :data:`PRESLIDING_M` of travel, and it holds when the
     tendon stops, so a static state remembers how it was reached. The difference between the
-    friction profile and MuJoCo's uniform one is added at each disc site as a force (and its
-    moment about the body's centre of mass) through ``xfrc_applied``; the forces include the
-    friction on the disc, so momentum balances. T₀ is the spool's tension, at most
+    friction profile and MuJoCo's uniform one is added, for a spatial tendon through the discs,
+    at each site as a force along the chords (and its moment about the body's centre of mass)
+    through ``xfrc_applied``, the forces including the friction on the disc so that momentum
+    balances; for a fixed tendon over the joints (continuous routing) as the fixed tendon's own
+    pull on each joint, −(T_k − T₀) ∂ℓ/∂ξ, through ``qfrc_applied`` (``joint_pulls`` in the
+    constructor says why). T₀ is the spool's tension, at most
     ``tension_cap_n`` (:data:`FRICTION_TENSION_CAP_LIMITS`), through a first-order lag of
     :data:`FRICTION_TENSION_LAG_S`, and σ follows the spool's travel through one of
     :data:`FRICTION_TRAVEL_LAG_S` on an ideal source, of :data:`FRICTION_MOTOR_TRAVEL_LAG_S`

@@ -459,7 +459,9 @@ static void dynamics_reset(const mjData* d, bl_state* s) {
 // which documents the model): MuJoCo's tendon carries the spool's tension T0 along its whole
 // path; with friction the tension in segment k is T0 exp(−σ μ θ_k), θ_k the wrap from the spool to
 // site k, σ each tendon's Dahl sliding state. The difference is applied at the path's sites as
-// forces (and their moments about each body's centre of mass) through xfrc_applied. Computed
+// forces along the chords (and their moments about each body's centre of mass) through
+// xfrc_applied, or, for fixed tendons, on the joints in each site's plane through qfrc_applied
+// as the fixed tendon pulls them. Computed
 // here, before every physics step, so that a twin with friction steps at the speed of one without
 // and a Ctrl-C reaches Python between the loop's calls.
 // The angle between two unit chords (rad): the turn of a line that runs straight between sites.
