@@ -146,3 +146,36 @@ def test_a_twisted_rods_friction_moves_the_tip_as_the_predictor_says():
     ratio = (tip - predicted[0.0]) @ shift / (shift @ shift)
     assert abs(ratio - 1.0) < 0.015, ratio
     assert np.linalg.norm(tip - predicted[0.2]) < 3e-4
+
+
+def test_a_helical_tendons_friction_moves_the_tip_as_the_predictor_says():
+    # A helically routed tendon's chords through the sites turn at every joint plane with the
+    # helix even where the rod is straight; counted as wrap, those turns made the twin's friction
+    # twice the predictor's (1.2 mm off at κ 10 1/m). Its wrap is the joints' rotation across it.
+    import numpy as np
+
+    from twin import effects
+    from twin.robots import load_robot
+    from twin.rod import RodModel, solve
+    from twin.rod.grid import pcc_tensions_n
+    from twin.sim.plant import Plant
+
+    runs = {}
+    for mu in (0.0, 0.15):
+        params = load_robot("helical").replace({"effects.tendon_friction_coeff": mu})
+        plant = Plant(params)
+        plant.set_tensions(pcc_tensions_n(10.0, 0.0, params))
+        plant.step_until(1.5)
+        runs[mu] = plant.tip_pose()[0], plant.true_tensions_n(), plant.sliding_state, plant.base_rotation
+    tip, held, state, rotation = runs[0.15]
+    predicted = {}
+    for mu in (0.0, 0.15):
+        params = load_robot("helical").replace({"effects.tendon_friction_coeff": mu})
+        predicted[mu] = solve(RodModel.from_params(params), held, base_rotation=rotation, friction_direction=state,
+                              tip_force_n=effects.tip_force_n(params, 0.0)).tip_position_m
+    # The friction's shift of the tip on each, so that their frictionless difference (0.09 mm)
+    # drops out of a shift of 1.5 mm.
+    shift = predicted[0.15] - predicted[0.0]
+    assert np.linalg.norm(shift) > 1e-3
+    ratio = (tip - runs[0.0][0]) @ shift / (shift @ shift)
+    assert abs(ratio - 1.0) < 0.03, ratio
