@@ -99,6 +99,17 @@ def test_friction_runs_inside_the_loop_at_the_twins_own_step():
     assert not free.hook_fn and free.friction_coeff == 0.0
 
 
+def test_friction_set_to_zero_at_run_time_leaves_no_force_behind():
+    # What twin.sim.events does to a running plant's μ: the loop keeps clearing what it applied.
+    plant = Plant(load_params().replace({"effects.tendon_friction_coeff": 0.1}))
+    plant.set_tensions([3.0, 1.0, 0.5, 1.0])
+    plant.step(0.2)
+    assert np.abs(plant.data.qfrc_applied).max() > 0.1
+    plant.loop.state.friction_coeff = 0.0
+    plant.step(0.05)
+    assert np.abs(plant.data.qfrc_applied).max() < 1e-9
+
+
 def test_a_plant_takes_any_tendon_count_the_loop_holds():
     params = load_params()
     n = native_loop.load().max_channels

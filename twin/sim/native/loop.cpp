@@ -603,7 +603,9 @@ static int plant_chunk(mjModel* m, mjData* d, bl_state* s, int chunk) {
   }
   bool geometry = s->stiffened_joints || s->coupled_pairs;
   bool dynamics = s->loadcell_lag_s > 0 || s->backlash_m > 0;
-  bool friction = s->friction_coeff > 0;
+  // Attached friction runs at any μ: one set to 0 at run time (twin.sim.events) then clears the
+  // forces it applied last instead of leaving them on.
+  bool friction = s->friction_sites != 0;
   for (int k = 0; k < chunk * substeps; ++k) {
     if (friction) tendon_friction_clear(d, s);
     if (geometry) tendon_geometry(m, d, s);
