@@ -37,7 +37,7 @@ the errors of a weight, a base tilt and a tracker offset stay within 2 f, the in
 every one, and so do friction's on the endoscope, three-tendon, stiff-long and two-segment
 robots (μ mostly within 2 %, up to 6 % at μ = 0.05); on the long robot μ lies 0-5 % low, the
 most at the smallest μ, where the frictionless model-form error weighs most, two cases in
-seventeen beyond 2 f; on the helical robot, whose frictionless error (0.16-0.22 mm) exceeds the
+eighteen beyond 2 f; on the helical robot, whose frictionless error (0.16-0.22 mm) exceeds the
 workflow's level, μ lies 4-12 % low and the interval misses (README).
 """
 
