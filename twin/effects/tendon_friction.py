@@ -235,12 +235,14 @@ class TendonFriction:
                 friction then pulls those joints through the fixed tendon's own coefficients, with
                 the tension lost up to half the joint's turn, as the predictor's moment τ(s) r × t
                 at the joint: a force along the chord to the next site, which a bend of Δθ at the
-                joint tilts from the plane's normal, reaches the arm r·cos Δθ only (3 % of the
-                friction's effect at N = 10, κ = 26.2 1/m). And a site's turn is then its joint's
-                rotation across the tendon, |φ × t|, the predictor's wrap ∫|u × t| ds over the
-                joint; not the angle between the chords through the sites, which a twist hinge
-                tilts by r·φ/h without bending the tendon (with G·J torsion and a 10 g tip that
-                counted 4 % more wrap than the predictor on a 100 mm rod). None: forces along the
+                joint tilts from the plane's normal, reaches the arm r·cos Δθ only (1 % of the
+                friction's effect on the endoscope at N = 10, κ = 20 1/m). And a site's turn is
+                then its joint's rotation across the tendon, |φ × t|, the predictor's wrap
+                ∫|u × t| ds over the joint; not the angle between the chords through the sites,
+                which a twist hinge tilts by r·φ/h without bending the tendon (with G·J torsion
+                and a 10 g tip that counted 4 % more wrap than the predictor on a 100 mm rod) and
+                a helix turns even on a straight rod (1.8 times the predictor's friction on the
+                helical robot). None: forces along the
                 chords through the sites, turning at each by the angle between them (a line
                 running straight between discs, as the rig's).
         """
