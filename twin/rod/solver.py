@@ -249,7 +249,7 @@ def rod_inputs(model: RodModel, load: LoadCase) -> RodInputs:
         intervals=a["intervals"], kse=a["kse"], kbt=a["kbt"], tendons=tendons, length_m=model.length_m,
         friction_coeff=model.friction_coeff, tip_force_n=load.tip_force_n, tip_moment_nm=load.tip_moment_nm,
         gravity_m_s2=a["grav"], line_mass_kg_per_m=model.line_mass_kg_per_m, point_mass_s_m=a["pm_s"],
-        point_mass_kg=a["pm_m"], precurvature_per_m=a["ustar"],
+        point_mass_kg=a["pm_m"], precurvature_per_m=a["ustar"], routes=a["routes"],
     )
 
 
