@@ -678,15 +678,34 @@ def tip_sensitivities(m0, h_m, h_tau, h_f, p_ref, r_ref, rod, states, strains, d
 
 
 @njit(cache=True)
-def shoot_batch(rod, tensions, sigma, forces, moments, cold, guesses, guess_jacs, guess_kind, chain, tol_nm, max_iter,
+def _nearest_solved(estimates, out, i):
+    """The converged case before ``i`` whose estimate of m(0) (N·m) is nearest to case i's
+    (the latest of equals), or −1 for none."""
+    best = -1
+    best_d2 = np.inf
+    for k in range(i - 1, -1, -1):
+        if out[k, 0] != _CONVERGED:
+            continue
+        d2 = 0.0
+        for j in range(3):
+            d2 += (estimates[i, j] - estimates[k, j]) ** 2
+        if d2 < best_d2:
+            best, best_d2 = k, d2
+    return best
+
+
+@njit(cache=True)
+def shoot_batch(rod, tensions, sigma, forces, moments, cold, estimates, guesses, guess_jacs, guess_kind, chain, tol_nm, max_iter,
                 fd_step_nm, m0_out, jac_out, states, strains, traces, out):
     """:func:`shoot` for many load cases of one rod in one compiled call (``twin.rod.solve_batch``).
 
     Case i sets the tensions ``tensions[i]`` (N), friction directions ``sigma[i]``, tip force
     ``forces[i]`` (N) and moment ``moments[i]`` (N·m) into ``rod`` (its tendon table and tip
     arrays are overwritten: give it copies). It starts from ``guesses[i]`` (with ``guess_jacs[i]``
-    when ``guess_kind[i]`` is 2, without when 1); with ``guess_kind[i]`` 0 from the previous
-    case's solution when ``chain`` and that one converged, else from ``cold[i]``. A warm start
+    when ``guess_kind[i]`` is 2, without when 1); with ``guess_kind[i]`` 0 and ``chain`` from the
+    converged earlier case whose estimate of m(0) ``estimates[i]`` (N·m) is nearest
+    (:func:`_nearest_solved`), its base moment moved by the difference of the two estimates, with
+    its Jacobian; else from ``cold[i]``. A warm start
     that fails is retried from ``cold[i]``, as :func:`twin.rod.solve` does.
 
     Outputs per case: ``m0_out`` (N·m), ``jac_out`` (the final ∂res/∂m0), ``states``,
@@ -711,9 +730,14 @@ def shoot_batch(rod, tensions, sigma, forces, moments, cold, guesses, guess_jacs
             if guess_kind[i] == 2:
                 jac[:, :] = guess_jacs[i]
                 have_jac = True
-        elif chain and i > 0 and out[i - 1, 0] == _CONVERGED:
-            m0[:] = m0_out[i - 1]
-            jac[:, :] = jac_out[i - 1]
+        elif chain and _nearest_solved(estimates, out, i) >= 0:
+            # The solution of the solved case whose estimate lies nearest, moved by what the
+            # estimates say the load change does to m(0) (they follow the tendon tensions and
+            # tip loads to first order), with its shooting Jacobian.
+            near = _nearest_solved(estimates, out, i)
+            for j in range(3):
+                m0[j] = m0_out[near, j] + estimates[i, j] - estimates[near, j]
+            jac[:, :] = jac_out[near]
             have_jac = True
         else:
             m0[:] = cold[i]
