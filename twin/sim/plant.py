@@ -38,7 +38,7 @@ from twin.sim.motor import MotorConstants
 from twin.sim.native_loop import Mode, PlantLoop, Reason
 from twin.sim.sensors import HX711_RANGE_COUNTS, LoadCellSample, NoiseStream, TrackerSample, probe_layout
 
-__all__ = ["DriveMode", "ENGAGE_MAX_STEP_S", "Plant", "SettleResult", "SimulationError"]
+__all__ = ["DriveMode", "ENGAGE_MAX_STEP_S", "HOLDER_STAGE_M", "HOLDER_STAGE_S", "Plant", "SettleResult", "SimulationError"]
 
 
 class DriveMode(enum.StrEnum):
@@ -68,6 +68,13 @@ _DRIVE_MODES = tuple(DriveMode[mode.name] for mode in Mode)
 ENGAGE_MAX_STEP_S = 1.25e-3
 ENGAGE_MARGIN_N = 0.5
 ENGAGE_SPIKE_N = 0.1
+# Disc travel (m) the reference holder closes by at most at once (Plant.engage_holder), and the
+# time (s) each stage is given (twin.device.sim_fixture.SimFixture): a rod frictionless twins
+# pretension is within 1.7 mm of straight when the holder closes (the zoo's validation sweeps)
+# and is clamped at once as before; one that friction holds 7-15 mm off closes in stages of
+# 2 mm, each four times the welds' 10 ms time constant (twin.sim.model, holder solref).
+HOLDER_STAGE_M = 2e-3
+HOLDER_STAGE_S = 0.04
 
 
 class SimulationError(RuntimeError):
@@ -297,7 +304,7 @@ class Plant:
                 return hook.state.copy()
         return None
 
-    def engage_holder(self) -> None:
+    def engage_holder(self) -> int:
         """Clamp the reference holder around the discs: they are pulled back to and held in the
         straight pose (weld constraints), as while pretensioning.
 
@@ -305,11 +312,23 @@ class Plant:
         disc turned about the backbone as it is when it closes (the weld's reference takes the
         disc's twist relative to the clamp). Pulling the twist out too would snap a helically
         routed robot, whose pretension alone twists the tip by 17°, against its tendons within
-        a step (MuJoCo diverged six steps after the holder closed)."""
+        a step (MuJoCo diverged six steps after the holder closed).
+
+        A rod that tendon friction holds bent (7-15 mm off straight at μ = 0.6 on the helical and
+        long robots) is not snapped straight within a step either: that drove the spools' tensions
+        to hundreds of newtons and MuJoCo diverged within four steps, with or without the
+        friction. The holder then closes in stages of at most :data:`HOLDER_STAGE_M` of disc
+        travel each (:meth:`close_holder`), the way a hand closes it; a rod nearer straight than
+        that is clamped straight at once.
+
+        Returns:
+            the number of stages the holder closes in (1: it is closed now).
+        """
         m, d = self.model, self.data
         mujoco.mj_kinematics(m, d)
         relative, conjugate, anchor = np.empty(4), np.empty(4), np.empty(3)
-        for eq, straight in zip(self._holder, self._holder_straight):
+        start, target = np.empty((len(self._holder), 7)), np.empty((len(self._holder), 7))
+        for row, (eq, straight) in enumerate(zip(self._holder, self._holder_straight)):
             disc, clamp = m.eq_obj1id[eq], m.eq_obj2id[eq]
             # The clamp's orientation in the disc's frame; its twist part about the backbone (z).
             mujoco.mju_negQuat(conjugate, d.xquat[disc])
@@ -319,10 +338,41 @@ class Plant:
             # The weld's anchor (eq_data[0:3], disc frame) lies at eq_data[3:6] in the clamp's
             # frame: at the straight disc's position, turned by the disc's twist.
             mujoco.mju_rotVecQuat(anchor, straight[0:3], twist)
-            m.eq_data[eq, 3:6] = straight[3:6] - straight[0:3] + anchor
-            m.eq_data[eq, 6:10] = twist
+            target[row, :3] = straight[3:6] - straight[0:3] + anchor
+            target[row, 3:] = twist
+            # The reference that holds the disc where it is: the point eq_data[3:6] of the disc's
+            # frame on the clamp's eq_data[0:3].
+            here = d.xmat[clamp].reshape(3, 3) @ straight[0:3] + d.xpos[clamp] - d.xpos[disc]
+            start[row, :3] = d.xmat[disc].reshape(3, 3).T @ here
+            start[row, 3:] = relative
+        travel_m = float(np.max(np.linalg.norm(target[:, :3] - start[:, :3], axis=1)))
+        self._holder_path = (start, target)
+        self._holder_stages = max(1, math.ceil(travel_m / HOLDER_STAGE_M - 1e-9))
+        self._holder_stage = 0
+        self.close_holder()
         self.data.eq_active[self._holder] = True
+        return self._holder_stages
+
+    def close_holder(self) -> bool:
+        """Close the engaged holder by one more of its stages (:meth:`engage_holder`): the welds
+        hold each disc that share of the way from where it was when the holder engaged to
+        straight. Returns True once it is fully closed."""
+        start, target = self._holder_path
+        self._holder_stage = min(self._holder_stage + 1, self._holder_stages)
+        share = self._holder_stage / self._holder_stages
+        turn, quat = np.empty(3), np.empty(4)
+        for eq, a, b in zip(self._holder, start, target):
+            if share >= 1.0:
+                self.model.eq_data[eq, 3:10] = b
+                continue
+            # Position straight along, orientation along the shortest turn.
+            mujoco.mju_subQuat(turn, b[3:], a[3:])
+            quat[:] = a[3:]
+            mujoco.mju_quatIntegrate(quat, turn, share)
+            self.model.eq_data[eq, 3:6] = a[:3] + share * (b[:3] - a[:3])
+            self.model.eq_data[eq, 6:10] = quat
         self.loop.state.jump = 1
+        return self._holder_stage == self._holder_stages
 
     def release_holder(self) -> None:
         """Open the reference holder: the discs are free again."""
