@@ -108,3 +108,54 @@ def test_a_twin_cross_check_that_diverges_after_the_sweep_is_a_warning_not_a_los
     args = argparse.Namespace(device="sim://", twin_overrides=["effects.tendon_friction_coeff=0.1"])
     warnings = _twin_warnings(args, load_robot("long"))
     assert len(warnings) == 1 and "diverged" in warnings[0], warnings
+
+
+def test_the_holder_closes_in_stages_on_a_rod_friction_holds_bent():
+    # The helical robot bent by one tendon, then pretensioned evenly at mu = 0.6: friction holds
+    # it ~9 mm off straight. Clamped straight within a step, such a rod drove the spools to
+    # hundreds of newtons and MuJoCo diverged; the holder closes in stages instead, and the rod
+    # ends straight. A straight rod is clamped at once.
+    import numpy as np
+
+    from twin.robots import load_robot
+    from twin.sim.plant import HOLDER_STAGE_M, HOLDER_STAGE_S, Plant
+
+    plant = Plant(load_robot("helical").replace({"effects.tendon_friction_coeff": 0.6}))
+    straight = plant.tip_pose()[0]
+    assert plant.engage_holder() == 1
+    plant.release_holder()
+    n = plant.tendon_count
+    plant.set_tensions([4.0] + [0.3] * (n - 1))
+    plant.step(0.5)
+    plant.set_tensions([1.35] * n)
+    plant.step(0.5)
+    assert np.linalg.norm(plant.tip_pose()[0] - straight) > HOLDER_STAGE_M
+    stages = plant.engage_holder()
+    assert stages > 1
+    closed = []
+    for _ in range(stages - 1):
+        plant.step(HOLDER_STAGE_S)
+        closed.append(plant.close_holder())
+    assert closed[-1] and not any(closed[:-1])
+    plant.step(0.3)
+    assert np.linalg.norm(plant.tip_pose()[0] - straight) < 1e-3
+
+
+def test_tensions_that_dither_about_a_steady_mean_are_at_rest_and_the_load_cells_noise_is_not_a_dither():
+    # wait_for_rest's tension tolerance between two windows: the load cells' noise (half the
+    # tolerance) keeps it; a dither of ten tolerances about a steady mean widens it to two
+    # standard errors of the windows' means; a steady ramp as fast does not pass.
+    import numpy as np
+
+    from twin.experiments.protocols import _dithered_tolerance_n
+
+    rng = np.random.default_rng(0)
+    tolerance = 0.01
+    noise = [list(rng.normal(1.0, tolerance / 2, (4, 3))) for _ in range(2)]
+    assert np.all(_dithered_tolerance_n(noise[1], noise[0], tolerance) == tolerance)
+    dither = [list(1.0 + 0.1 * np.array([[1, -1, 1]] * 4) * np.array([[1], [-1], [1], [-1]])) for _ in range(2)]
+    allowed = _dithered_tolerance_n(dither[1], dither[0], tolerance)
+    assert np.all(allowed > 0.1)
+    ramp = np.arange(8)[:, None] * 0.1 * np.ones(3)
+    allowed = _dithered_tolerance_n(list(ramp[4:]), list(ramp[:4]), tolerance)
+    assert np.all(np.abs(ramp[4:].mean(axis=0) - ramp[:4].mean(axis=0)) > allowed)
