@@ -112,13 +112,14 @@ def test_a_twin_cross_check_that_diverges_after_the_sweep_is_a_warning_not_a_los
 
 def test_the_holder_closes_in_stages_on_a_rod_friction_holds_bent():
     # The helical robot bent by one tendon, then pretensioned evenly at mu = 0.6: friction holds
-    # it ~9 mm off straight. Clamped straight within a step, such a rod drove the spools to
-    # hundreds of newtons and MuJoCo diverged; the holder closes in stages instead, and the rod
-    # ends straight. A straight rod is clamped at once.
+    # its tip ~9 mm off straight and its discs tilted, ~280 mm of error at the holder's weld
+    # anchors. Clamped straight within a step, a rod that far off drove the spools to hundreds of
+    # newtons and MuJoCo diverged; the holder closes in stages instead, and the rod ends
+    # straight. A straight rod is clamped at once.
     import numpy as np
 
     from twin.robots import load_robot
-    from twin.sim.plant import HOLDER_STAGE_M, HOLDER_STAGE_S, Plant
+    from twin.sim.plant import HOLDER_STAGE_S, Plant
 
     plant = Plant(load_robot("helical").replace({"effects.tendon_friction_coeff": 0.6}))
     straight = plant.tip_pose()[0]
@@ -129,7 +130,7 @@ def test_the_holder_closes_in_stages_on_a_rod_friction_holds_bent():
     plant.step(0.5)
     plant.set_tensions([1.35] * n)
     plant.step(0.5)
-    assert np.linalg.norm(plant.tip_pose()[0] - straight) > HOLDER_STAGE_M
+    assert np.linalg.norm(plant.tip_pose()[0] - straight) > 5e-3
     stages = plant.engage_holder()
     assert stages > 1
     closed = []

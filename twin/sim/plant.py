@@ -38,7 +38,7 @@ from twin.sim.motor import MotorConstants
 from twin.sim.native_loop import Mode, PlantLoop, Reason
 from twin.sim.sensors import HX711_RANGE_COUNTS, LoadCellSample, NoiseStream, TrackerSample, probe_layout
 
-__all__ = ["DriveMode", "ENGAGE_MAX_STEP_S", "HOLDER_STAGE_M", "HOLDER_STAGE_S", "Plant", "SettleResult", "SimulationError"]
+__all__ = ["DriveMode", "ENGAGE_MAX_STEP_S", "HOLDER_AT_ONCE_M", "HOLDER_STAGE_M", "HOLDER_STAGE_S", "Plant", "SettleResult", "SimulationError"]
 
 
 class DriveMode(enum.StrEnum):
@@ -68,12 +68,18 @@ _DRIVE_MODES = tuple(DriveMode[mode.name] for mode in Mode)
 ENGAGE_MAX_STEP_S = 1.25e-3
 ENGAGE_MARGIN_N = 0.5
 ENGAGE_SPIKE_N = 0.1
-# Disc travel (m) the reference holder closes by at most at once (Plant.engage_holder), and the
-# time (s) each stage is given (twin.device.sim_fixture.SimFixture): the discs of a rod that
-# frictionless twins pretension travel at most 4.6 mm as the holder closes (the long robot's
-# sag; 1.0 mm on the others; the zoo's quick validation sweeps), and it is clamped at once as
-# before; one that friction holds 7-15 mm off closes in stages of at most 5 mm, each four times
-# the welds' 10 ms time constant (twin.sim.model, holder solref).
+# The most the reference holder's welds close at once (m of their position error, at anchors
+# that lie a metre off each disc, so that a disc's tilt counts with its offset: Plant.engage_holder),
+# the stages it closes a larger error in, and the time (s) each stage is given
+# (twin.device.sim_fixture.SimFixture). A rod within HOLDER_AT_ONCE_M is clamped at once as before:
+# every frictionless sweep of the zoo (at most 4.6 mm, the long robot's sag), the endoscope at
+# μ = 0.15 (10 mm), the helical robot at μ = 0.6 (up to 33 mm, which it survives). One farther
+# off, a robot that drooped with slack tendons and that friction then holds so (217-268 mm on
+# long and helical at μ = 0.6; clamped at once from 268 mm the helical robot diverged within a
+# step, and so it did closing from 280 mm in stages of 20 mm), closes in stages of
+# HOLDER_STAGE_M, each given four times the welds' 10 ms time constant (twin.sim.model, holder
+# solref).
+HOLDER_AT_ONCE_M = 20e-3
 HOLDER_STAGE_M = 5e-3
 HOLDER_STAGE_S = 0.04
 
@@ -315,12 +321,12 @@ class Plant:
         routed robot, whose pretension alone twists the tip by 17°, against its tendons within
         a step (MuJoCo diverged six steps after the holder closed).
 
-        A rod that tendon friction holds bent (7-15 mm off straight at μ = 0.6 on the helical and
-        long robots) is not snapped straight within a step either: that drove the spools' tensions
-        to hundreds of newtons and MuJoCo diverged within four steps, with or without the
-        friction. The holder then closes in stages of at most :data:`HOLDER_STAGE_M` of disc
-        travel each (:meth:`close_holder`), the way a hand closes it; a rod nearer straight than
-        that is clamped straight at once.
+        A rod that drooped while its tendons were slack and that tendon friction then holds so
+        (268 mm of weld error on the helical robot at μ = 0.6) is not snapped straight within a
+        step either: that drove the spools' tensions to hundreds of newtons and MuJoCo diverged
+        within four steps, with or without the friction. The holder then closes in stages of
+        :data:`HOLDER_STAGE_M` of weld error each (:meth:`close_holder`), the way a hand closes
+        it; a rod within :data:`HOLDER_AT_ONCE_M` is clamped straight at once.
 
         Returns:
             the number of stages the holder closes in (1: it is closed now).
@@ -346,9 +352,10 @@ class Plant:
             here = d.xmat[clamp].reshape(3, 3) @ straight[0:3] + d.xpos[clamp] - d.xpos[disc]
             start[row, :3] = d.xmat[disc].reshape(3, 3).T @ here
             start[row, 3:] = relative
+        # The welds' position error at their anchors, which the holder is to close.
         travel_m = float(np.max(np.linalg.norm(target[:, :3] - start[:, :3], axis=1)))
         self._holder_path = (start, target)
-        self._holder_stages = max(1, math.ceil(travel_m / HOLDER_STAGE_M - 1e-9))
+        self._holder_stages = 1 if travel_m <= HOLDER_AT_ONCE_M else math.ceil(travel_m / HOLDER_STAGE_M - 1e-9)
         self._holder_stage = 0
         self.close_holder()
         self.data.eq_active[self._holder] = True

@@ -480,13 +480,14 @@ static void tendon_friction(const mjModel* m, mjData* d, bl_state* s) {
     double lag_s = s->mode == BL_PWM || s->mode == BL_COAST ? s->friction_motor_travel_lag_s : s->friction_travel_lag_s;
     double moved_m = (spool_m - s->friction_spool_m[i]) * (dt / (lag_s + dt));
     s->friction_spool_m[i] += moved_m;
-    // Turning the friction round changes the tension at the path's end by up to
-    // 2 T0 sinh(μ θ), and the tendon takes that up over its stretch before it slides: σ turns
-    // over at least that travel (half of it per unit of σ). Over a fixed few hundredths of a
-    // millimetre a large friction (27 N on a bent stiff robot at μ = 0.6: a 30 N swing) turned
-    // within one step, and the explicit swing it threw at the rod, back and forth, never let it
-    // rest or diverged; below 4 N of swing (every hold at μ <= 0.3 and at 1.35 N) nothing changes.
-    double stretch_m = s->friction_tension_n[i] * sinh(s->friction_coeff * s->friction_wrap_rad[i]) / s->tendon_stiffness_n_per_m;
+    // Turning the friction round changes the tension along the path by up to 2 T0 sinh(μ θ) at
+    // its end, about half that on average, and the tendon takes that up over its stretch before
+    // it slides: σ turns over at least that travel (half of it per unit of σ). Over a fixed few
+    // hundredths of a millimetre a large friction (27 N on a bent stiff robot at μ = 0.6: a 30 N
+    // swing) turned within one step, and the explicit swing it threw at the rod, back and forth,
+    // never let it rest or diverged; below 16 N of swing nothing changes.
+    double stretch_m = 0.5 * s->friction_tension_n[i] * sinh(s->friction_coeff * s->friction_wrap_rad[i])
+                       / s->tendon_stiffness_n_per_m;
     double step = -moved_m / (stretch_m > s->presliding_m ? stretch_m : s->presliding_m);
     if (step != 0.0) {
       double value = s->sliding_state[i] + step;
