@@ -227,6 +227,7 @@ class Plant:
         self._loadcell: LoadCellSample | None = None
         self._tracker_frame: TrackerSample | None = None
         self._warnings_seen = self.data.warning.number.copy()
+        self.loop.state.diverged_at_s = -1.0
 
     @property
     def time_s(self) -> float:
@@ -439,8 +440,11 @@ class Plant:
         counts = self.data.warning.number.copy()
         new = {mujoco.mjtWarning(i).name: int(c) for i, c in enumerate(counts - self._warnings_seen) if c > 0}
         self._warnings_seen = counts
+        # MuJoCo resets the data when a step diverges: the loop kept the time it happened at.
+        diverged_s, self.loop.state.diverged_at_s = self.loop.state.diverged_at_s, -1.0
         if new:
-            raise SimulationError(f"MuJoCo warned at t = {self.time_s:.4f} s: {new}")
+            at_s = diverged_s if diverged_s >= 0 else self.time_s
+            raise SimulationError(f"MuJoCo warned at t = {at_s:.4f} s: {new}")
 
     # ----------------------------------------------------------------------------- sensors
     def encoder_counts(self) -> np.ndarray:
