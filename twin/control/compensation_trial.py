@@ -13,8 +13,8 @@ mode and measure the unloaded tip — the target — and the tensions. Then, per
    measure; stop early once that error is within ``correction_tolerance_m``. Then keep the best
    command measured: one measured better than the last, the PCC lengths included, is commanded
    again and measured afresh. Under tendon friction the length mode can hold the loaded tip
-   closer than the tension loop can put it (the endoscope at κ 26.2, φ 0, 10 g, μ = 0.1: 0.06 mm
-   uncompensated, 0.26 mm after four corrections). A row is worse than uncompensated when its
+   closer than the tension loop can put it (the endoscope at κ 26.2, φ 0, 10 g, μ = 0.1 hidden:
+   0.10 mm uncompensated, 0.27 mm after four corrections; kept at the PCC lengths, 0.09 mm). A row is worse than uncompensated when its
    error is larger by more than the tracker can resolve (:func:`resolvably_larger`: two
    standard errors of the two means);
 4. back to length mode at the PCC lengths, for the next mass.
@@ -382,7 +382,9 @@ def run_compensation_trial(device, params: Params, *, configs: Sequence[tuple[fl
             against 92.6 %).
         correction_tolerance_m: no further correction once the model error the tracker shows
             (measured miss minus the predictor's own, expected miss) is within this (m): about
-            the tracker's noise on the means of a miss (~0.1 mm a frame per axis, 40 frames a second).
+            the standard error of a miss's length (the norm over the axes of both means' errors:
+            0.045-0.047 mm on the twin, 0.2 mm of tracker noise a frame per axis, 40 frames a
+            second, 1.5 s loaded and 3 s for the target); each row reports its own.
         ramp_s: duration of each smooth tension ramp (device s).
         rest_s, correction_rest_s: wait after the feed-forward ramp and after a correction's ramp
             before the at-rest check (device s); see the module docstring for the decay.
