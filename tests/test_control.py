@@ -8,7 +8,8 @@ from twin.robots import load_robot
 from twin.control.cocontraction import run_cocontraction_study
 from twin.control.compensation import compensate_tensions, correct_tensions, hold_tensions
 from twin.control.compensation_trial import (GOAL_REDUCTION_PCT, CompensationTrial, compensation_grid,
-                                             run_compensation_trial, tension_ceiling_n, within_reach)
+                                             resolvably_larger, run_compensation_trial, tension_ceiling_n,
+                                             within_reach)
 from twin.control.gains import DEFAULT_TENSION_GAINS, PROPORTIONAL_LOOP_GAIN, TUNED_TENSION_GAINS, tension_gains_for
 from twin.tuning import tension_cost
 from twin.driver import open_device
@@ -151,6 +152,42 @@ def test_compensation_reaches_the_goal_under_a_tendon_friction_the_model_does_no
     assert not row["fault"] and not trial.left_out
     assert row["corrected_reduction_pct"] >= GOAL_REDUCTION_PCT
     assert trial.verdict() == (True, [])
+
+
+def test_where_friction_holds_the_loaded_tip_closer_than_tension_mode_the_trial_keeps_the_pcc_lengths():
+    # κ 26.2 φ 0 under 10 g at a hidden μ = 0.1: the friction holds the tip in length mode a
+    # tenth of a millimetre from the target, and the tension loop leaves it ~0.25 mm off after
+    # four corrections. The trial goes back to the best command it measured and measures it again.
+    hidden = PARAMS.replace({"effects.tendon_friction_coeff": 0.1})
+    with open_device("sim://?seed=0", params=hidden) as device:
+        trial = run_compensation_trial(device, PARAMS, configs=[(26.2, 0.0)])
+    heavy = trial.rows[-1]
+    assert heavy["mass_g"] == 10.0 and not heavy["fault"] and heavy["uncompensated_mm"] < 0.2
+    assert heavy["kept"] == "PCC lengths"
+    # Measured afresh, not the reading it was picked by; as close as the tracker can tell.
+    assert not resolvably_larger(heavy["corrected_mm"], heavy["corrected_sem_mm"], heavy["uncompensated_mm"],
+                                 heavy["uncompensated_sem_mm"])
+    assert trial.worse_rows() == []
+    for row in trial.rows:
+        assert 0.01 < row["uncompensated_sem_mm"] < 0.1 and 0.01 < row["corrected_sem_mm"] < 0.1
+
+
+def test_a_row_is_worse_only_by_more_than_the_tracker_can_tell():
+    # Two standard errors of the difference: 0.045 mm each puts the line at 0.127 mm.
+    assert not resolvably_larger(0.20, 0.045, 0.08, 0.045)
+    assert resolvably_larger(0.26, 0.045, 0.06, 0.045)
+    # Without standard errors every excess counts.
+    assert resolvably_larger(0.061, float("nan"), 0.06, float("nan"))
+    row = {"kappa_per_m": 26.2, "phi_deg": 0.0, "mass_g": 10.0, "uncompensated_mm": 0.06, "feedforward_mm": 0.5,
+           "corrected_mm": 0.10, "feedforward_reduction_pct": -733.0, "corrected_reduction_pct": -66.7, "fault": "",
+           "uncompensated_sem_mm": 0.045, "corrected_sem_mm": 0.045}
+    far = dict(row, corrected_mm=0.26, corrected_reduction_pct=-333.0)
+    assert CompensationTrial(rows=[row], device="sim://", floor_n=0.3, limit_n=5.0, corrections=4,
+                             timing_s={}).worse_rows() == []
+    trial = CompensationTrial(rows=[far], device="sim://", floor_n=0.3, limit_n=5.0, corrections=4, timing_s={})
+    met, problems = trial.verdict()
+    assert not met and trial.worse_rows() == [far]
+    assert any("WORSE" in p and "standard errors 0.045 / 0.045 mm" in p for p in problems)
 
 
 def test_a_high_curvature_bend_rests_in_tension_mode_under_strong_hidden_friction():

@@ -111,16 +111,20 @@ constexpr float kMaxLengthLeadM = 0.00025f;
 // on it), it must yield, and its 2.7 kg of reflected rotor lags a pull that rises at once: on the
 // twin, a tension step at 2 N with an 18 g tip load put 1.23× the limit on the held tendon.
 constexpr float kTensionRatePerS = 10.0f;
-// The tension loop's proportional term may act on the tension error through a first-order lag of
+// The tension loop's proportional term acts on the tension error through a first-order lag of
 // this time constant (s); 0 acts on the error itself. A held tendon that friction sticks is a
 // stiff load (presliding: tens of kN/m against 2.7 kg of reflected rotor, a 20-40 Hz resonance
-// behind the 80 Hz load cell), on which a gain tuned for the sliding, soft load can ring. Measured
-// on the twin (twin bench hold, μ = 0.3, tuned gains), with the twin's friction following the
-// spool travel through its lag: 0 holds the endoscope, the soft-G endoscope and the three-tendon
-// robot within 0.04 N peak to peak, while 50 ms let the endoscope ring at 0.13 N and moved a
-// noisy recording's tension steps 0.3 mm from their noiseless replay (a clean run then read as
-// an effect); the 100 mm robot rings at 0.6 N either way (0.06 N at 50 ms).
-constexpr float kTensionProportionalLagS = 0.0f;
+// behind the 80 Hz load cell), and the proportional term feeds the cells' white noise into it:
+// on stiff-long at μ = 0.3 (5 kg cells, 25 mN RMS) the true tension of its 16 N tendon rang
+// 0.43 N peak to peak, 73 % of its variance in 25-40 Hz, and not at all with noiseless cells
+// (no limit cycle: the ring grows with the noise). One control period, 10 ms (a 16 Hz corner,
+// under half the drive at 30 Hz, 14 degrees on the proportional term at the loop's ~4 Hz
+// crossover, ki × stall force = 23 /s), took it to 0.12 N
+// and changed no other robot of the zoo by more than 3 mN (twin bench hold, μ 0-0.3). Longer
+// lags cost more than they give: 50 ms let the endoscope ring at 0.13 N and moved a noisy
+// recording's tension steps 0.3 mm from their noiseless replay (a clean run then read as an
+// effect).
+constexpr float kTensionProportionalLagS = 0.01f;
 // Tension mode can hold each taut tendon (over kTautFraction of the limit) at its reference
 // plus a damping (N·s/m) times the tendon's swinging speed (paying out raises the reference,
 // winding in lowers it): a viscous tendon to the rod's swing modes instead of an ideal tension

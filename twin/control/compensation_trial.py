@@ -10,7 +10,13 @@ mode and measure the unloaded tip — the target — and the tensions. Then, per
    known load; wait for the tip to come to rest, measure;
 3. **corrected**: up to ``corrections`` times, re-aim the predictor by the model error the
    tracker's miss reveals (:func:`twin.control.compensation.correct_tensions`), ramp, rest,
-   measure; stop early once that error is within ``correction_tolerance_m``;
+   measure; stop early once that error is within ``correction_tolerance_m``. Then keep the best
+   command measured: one measured better than the last, the PCC lengths included, is commanded
+   again and measured afresh. Under tendon friction the length mode can hold the loaded tip
+   closer than the tension loop can put it (the endoscope at κ 26.2, φ 0, 10 g, μ = 0.1 hidden:
+   0.10 mm uncompensated, 0.27 mm after four corrections; kept at the PCC lengths, 0.09 mm). A row is worse than uncompensated when its
+   error is larger by more than the tracker can resolve (:func:`resolvably_larger`: two
+   standard errors of the two means);
 4. back to length mode at the PCC lengths, for the next mass.
 
 Errors are tracker distances of the resting, loaded tip from the target (means over ``measure_s``).
@@ -44,7 +50,7 @@ from twin.control.pretension import pretension_straight
 from twin.control.gains import tension_gains_for
 from twin.driver import CommandRejected
 from twin.effects import SlidingState, friction_direction
-from twin.experiments.protocols import ProtocolError, measure, wait_for_rest
+from twin.experiments.protocols import Measurement, ProtocolError, measure, wait_for_rest
 from twin.experiments.report import markdown_table
 from twin.params import Params
 from twin.pcc import GRID_KAPPA_PER_M, GRID_PHI_DEG, tendon_length_changes_m, validation_grid
@@ -52,7 +58,7 @@ from twin.rod import RodModel
 from twin.rod.grid import GRAVITY_TIP_FORCE_N, pcc_realisable, pcc_tensions_n
 
 __all__ = ["CompensationTrial", "run_compensation_trial", "tension_ceiling_n", "compensation_grid", "within_reach",
-           "QUICK_CONFIGS", "GOAL_REDUCTION_PCT"]
+           "resolvably_larger", "QUICK_CONFIGS", "GOAL_REDUCTION_PCT", "RESOLVE_SIGMAS"]
 
 # A few (κ 1/m, φ deg) across curvature and bending direction (up, down, sideways), for --quick.
 QUICK_CONFIGS = ((8.7, 0.0), (13.0, 90.0), (17.5, 180.0), (26.2, 270.0), (4.5, 30.0), (17.5, 240.0))
@@ -78,8 +84,11 @@ class CompensationTrial:
     ``feedforward_reduction_pct``, ``corrected_reduction_pct`` (against uncompensated);
     ``model_residual_mm`` (the predictor's own miss of the target at the feed-forward tensions,
     within the bounds), ``reached`` (that miss is within tolerance), ``corrections`` (applied),
-    ``feedforward_tensions_n``, ``tensions_n`` (the last applied), ``fault`` (empty, or what
-    stopped the row).
+    ``feedforward_tensions_n``, ``tensions_n`` (those the row ended with), ``fault`` (empty, or what
+    stopped the row); ``uncompensated_sem_mm``, ``corrected_sem_mm`` (standard errors of those two
+    errors, mm, from the tracker frames' scatter) and ``kept`` (the command the row ended with:
+    ``last``, or an earlier one measured better — ``feed-forward``, ``correction k``,
+    ``PCC lengths`` — commanded again and measured afresh).
 
     ``floor_n``, ``limit_n`` are the tension bounds (N), ``corrections`` the most corrections per
     mass, ``timing_s`` the ramp, rest and averaging durations (device s) the trial ran with,
@@ -96,9 +105,11 @@ class CompensationTrial:
     left_out: list = dataclasses.field(default_factory=list)
 
     def worse_rows(self) -> list[dict]:
-        """Rows whose compensated (final) tip error is larger than the uncompensated one: a
-        compensation that made things worse, never to be read as an ordinary result."""
-        return [r for r in self.rows if not r["fault"] and r["corrected_mm"] > r["uncompensated_mm"]]
+        """Rows whose compensated (final) tip error is larger than the uncompensated one beyond
+        what the tracker can measure (:func:`resolvably_larger` of the two errors' standard
+        errors; a row without them, every excess): a compensation that made things worse, never
+        to be read as an ordinary result."""
+        return [r for r in self.rows if not r["fault"] and _worse(r)]
 
     def verdict(self) -> tuple[bool, list[str]]:
         """Whether the trial met its goal, and one line per way it did not: faulted rows, rows
@@ -111,7 +122,8 @@ class CompensationTrial:
             problems.append(f"{s['faulted']} of {len(self.rows)} rows faulted ({'; '.join(faults)})")
         for r in self.worse_rows():
             problems.append(f"κ {r['kappa_per_m']:g} φ {r['phi_deg']:g} {r['mass_g']:g} g: compensated "
-                            f"{r['corrected_mm']:.2f} mm is WORSE than uncompensated {r['uncompensated_mm']:.2f} mm")
+                            f"{r['corrected_mm']:.2f} mm is WORSE than uncompensated {r['uncompensated_mm']:.2f} mm"
+                            + _sem_text(r))
         if not s["configurations"]:
             problems.append("no row ran to the end")
         elif not s["corrected_median_reduction_pct"] >= GOAL_REDUCTION_PCT:
@@ -222,7 +234,12 @@ class CompensationTrial:
                  f"floor {self.floor_n:.2f} N, ceiling {self.limit_n:.2f} N; target = the predictor's tip at the "
                  "measured unloaded tensions). **Corrected**: then up to "
                  f"{self.corrections} closed-loop corrections, each re-aiming the predictor by the model error "
-                 "the tracker's miss reveals. Ramps are smooth, "
+                 "the tracker's miss reveals. The row ends on the best command measured: one measured better than "
+                 "the last — an earlier correction, the feed-forward or the PCC lengths — is commanded again and "
+                 f"measured afresh ({sum(r.get('kept') not in ('', 'last', None) for r in self.rows)} rows; "
+                 f"{sum(r.get('kept') == 'PCC lengths' for r in self.rows)} back at the PCC lengths), and a row "
+                 f"counts as worse than uncompensated when its error is larger by more than {RESOLVE_SIGMAS:g} "
+                 "standard errors of the difference of the two tracker means. Ramps are smooth, "
                  f"{t['ramp_s']:g} s; the tip rests {t['rest_s']:g} s after the feed-forward ramp and "
                  f"{t['correction_rest_s']:g} s after a correction's. Errors are tracker distances to the "
                  f"target, means over {t['measure_s']:g} s with the tip at rest ({t['target_measure_s']:g} s "
@@ -365,7 +382,9 @@ def run_compensation_trial(device, params: Params, *, configs: Sequence[tuple[fl
             against 92.6 %).
         correction_tolerance_m: no further correction once the model error the tracker shows
             (measured miss minus the predictor's own, expected miss) is within this (m): about
-            the tracker's noise on the means of a miss (~0.1 mm a frame per axis, 40 frames a second).
+            the standard error of a miss's length (the norm over the axes of both means' errors:
+            0.045-0.047 mm on the twin, 0.2 mm of tracker noise a frame per axis, 40 frames a
+            second, 1.5 s loaded and 3 s for the target); each row reports its own.
         ramp_s: duration of each smooth tension ramp (device s).
         rest_s, correction_rest_s: wait after the feed-forward ramp and after a correction's ramp
             before the at-rest check (device s); see the module docstring for the decay.
@@ -443,6 +462,7 @@ def run_compensation_trial(device, params: Params, *, configs: Sequence[tuple[fl
                    "side_force_n": side.round(6).tolist(), "load": "estimated" if unknown_load else "known",
                    "estimated_force_n": [],
                    "uncompensated_mm": math.nan, "feedforward_mm": math.nan, "corrected_mm": math.nan,
+                   "uncompensated_sem_mm": math.nan, "corrected_sem_mm": math.nan, "kept": "",
                    "feedforward_reduction_pct": math.nan, "corrected_reduction_pct": math.nan,
                    "model_residual_mm": plan.residual_m * 1e3 if plan else math.nan,
                    "reached": bool(plan and plan.reached), "corrections": 0,
@@ -457,7 +477,7 @@ def run_compensation_trial(device, params: Params, *, configs: Sequence[tuple[fl
                     force = _estimated_load_n(params, model, loaded, device.base_rotation, sliding.direction())
                     return sliding.plan(model, unloaded.tensions_n, unloaded_sigma, force, bounds, target_m), force
             try:
-                _run_mass(device, row, model, plan, unloaded.tip_position_m, mass, load, pcc_lengths, bounds,
+                _run_mass(device, row, model, plan, unloaded, mass, load, pcc_lengths, bounds,
                           side_force_n=side, replan=replan,
                           steps=steps, corrections=corrections, correction_tolerance_m=correction_tolerance_m,
                           rest_s=rest_s, correction_rest_s=correction_rest_s, measure_s=measure_s,
@@ -475,11 +495,24 @@ def run_compensation_trial(device, params: Params, *, configs: Sequence[tuple[fl
             progress(f"κ {kappa:g} φ {phi:g}: " + ", ".join(
                 f"{r['mass_g']:g} g {r['uncompensated_mm']:.2f} → {r['feedforward_mm']:.2f} → "
                 f"{r['corrected_mm']:.2f} mm" + (f" ({r['fault']})" if r["fault"] else "")
-                + (" (WORSE than uncompensated)" if r["corrected_mm"] > r["uncompensated_mm"] else "") for r in last))
+                + (f" (kept: {r['kept']})" if r.get("kept") not in ("", "last") else "")
+                + (" (WORSE than uncompensated)" if not r["fault"] and _worse(r) else "") for r in last))
     timing = {"ramp_s": ramp_s, "rest_s": rest_s, "correction_rest_s": correction_rest_s, "measure_s": measure_s,
               "target_measure_s": target_measure_s}
     return CompensationTrial(rows=rows, device=device.url, floor_n=floor_n, limit_n=limit_n, corrections=corrections,
                              timing_s=timing, left_out=left_out)
+
+
+def _worse(row: dict) -> bool:
+    """Whether a row's compensated error is resolvably larger than its uncompensated one."""
+    return resolvably_larger(row["corrected_mm"], row.get("corrected_sem_mm", math.nan), row["uncompensated_mm"],
+                             row.get("uncompensated_sem_mm", math.nan))
+
+
+def _sem_text(row: dict) -> str:
+    """`` (standard errors a / b mm)`` of a row's two errors, where it has them."""
+    sems = (row.get("corrected_sem_mm", math.nan), row.get("uncompensated_sem_mm", math.nan))
+    return f" (standard errors {sems[0]:.3f} / {sems[1]:.3f} mm)" if all(map(math.isfinite, sems)) else ""
 
 
 def _side_direction(base_rotation) -> np.ndarray:
@@ -539,7 +572,7 @@ class _Sliding:
                              **bounds)
 
 
-def _run_mass(device, row: dict, model: RodModel, plan, target, mass: float, load, pcc_lengths, bounds: dict, *,
+def _run_mass(device, row: dict, model: RodModel, plan, target: Measurement, mass: float, load, pcc_lengths, bounds: dict, *,
               side_force_n=None, replan=None, steps: int, corrections: int, correction_tolerance_m: float, rest_s: float,
               correction_rest_s: float, measure_s: float, settle_timeout_s: float) -> None:
     """One tip mass of a configuration, from length mode at the PCC lengths back to it; fills ``row``.
@@ -559,13 +592,20 @@ def _run_mass(device, row: dict, model: RodModel, plan, target, mass: float, loa
             device.fixture.apply_tip_load((0.0, 0.0, 0.0))
 
 
-def _compensate_mass(device, row: dict, model: RodModel, plan, target, load, pcc_lengths, bounds: dict, *, replan,
+def _compensate_mass(device, row: dict, model: RodModel, plan, target: Measurement, load, pcc_lengths, bounds: dict, *, replan,
                      steps: int, corrections: int, correction_tolerance_m: float, rest_s: float,
                      correction_rest_s: float, measure_s: float, settle_timeout_s: float) -> None:
+    """``target`` is the unloaded measurement, every miss is measured from its tip.
+
+    The loop keeps the best command it measured: after the corrections, a command measured
+    better than the last one — the PCC lengths themselves, where friction held the loaded tip
+    closer than the tension loop can put it — is commanded again and measured afresh, and that
+    fresh measurement, not the one it was picked by (the smallest of several noisy means reads
+    low), is the row's result."""
     _wait_for_tip_rest(device, settle_timeout_s)
     loaded = measure(device, duration_s=measure_s)
-    uncompensated = float(np.linalg.norm(loaded.tip_position_m - target))
-    row["uncompensated_mm"] = uncompensated * 1e3
+    uncompensated = _Miss.of(loaded, target)
+    row["uncompensated_mm"], row["uncompensated_sem_mm"] = uncompensated.mm, uncompensated.sem_mm
     if replan is not None:
         plan, load = replan(loaded)
         row["estimated_force_n"] = np.round(load, 5).tolist()
@@ -576,26 +616,77 @@ def _compensate_mass(device, row: dict, model: RodModel, plan, target, load, pcc
     # A slack tendon reads a few mN either side of zero; the board refuses negative setpoints.
     _ramp_tensions(device, np.maximum(loaded.tensions_n, 0.0), plan.tensions_n, steps)
     miss = _rest_and_measure(device, target, rest_s, measure_s, settle_timeout_s)
-    row["feedforward_mm"] = float(np.linalg.norm(miss)) * 1e3
-    row["feedforward_reduction_pct"] = float(100.0 * (1.0 - np.linalg.norm(miss) / uncompensated))
+    row["feedforward_mm"] = miss.mm
+    row["feedforward_reduction_pct"] = float(100.0 * (1.0 - miss.mm / uncompensated.mm))
 
     applied = plan
+    # Each command measured, with its miss: None stands for the PCC lengths in length mode.
+    tried: list[tuple[_Miss, Any]] = [(uncompensated, None), (miss, plan)]
     for _ in range(corrections):
         # What the predictor expected to miss by (a target out of reach within the bounds) is
         # no model error: a correction would not change it, so it does not count.
-        if np.linalg.norm(miss - (applied.predicted_tip_m - plan.target_m)) <= correction_tolerance_m:
+        if np.linalg.norm(miss.vector_m - (applied.predicted_tip_m - plan.target_m)) <= correction_tolerance_m:
             break
-        corrected = correct_tensions(model, applied, plan.target_m, miss, tip_force_n=load, **bounds)
+        corrected = correct_tensions(model, applied, plan.target_m, miss.vector_m, tip_force_n=load, **bounds)
         _ramp_tensions(device, applied.tensions_n, corrected.tensions_n, steps)
         applied = corrected
         miss = _rest_and_measure(device, target, correction_rest_s, measure_s, settle_timeout_s)
+        tried.append((miss, applied))
         row["corrections"] += 1
-    row["tensions_n"] = applied.tensions_n.round(4).tolist()
-    row["corrected_mm"] = float(np.linalg.norm(miss)) * 1e3
-    row["corrected_reduction_pct"] = float(100.0 * (1.0 - np.linalg.norm(miss) / uncompensated))
+    k = min(range(len(tried)), key=lambda i: tried[i][0].mm)
+    best, command = tried[k]
+    row["kept"] = "last"
+    if k != len(tried) - 1:
+        if command is None:
+            row["kept"] = "PCC lengths"
+            device.set_mode("lengths")
+            device.set_lengths(pcc_lengths)
+            miss = _rest_and_measure(device, target, correction_rest_s, measure_s, settle_timeout_s)
+        else:
+            row["kept"] = "feed-forward" if k == 1 else f"correction {k - 1}"
+            _ramp_tensions(device, applied.tensions_n, command.tensions_n, steps)
+            applied = command
+            miss = _rest_and_measure(device, target, correction_rest_s, measure_s, settle_timeout_s)
+    # Back at the PCC lengths, the tensions are the length mode's under the load.
+    row["tensions_n"] = (loaded.tensions_n if command is None and row["kept"] != "last" else applied.tensions_n).round(4).tolist()
+    row["corrected_mm"], row["corrected_sem_mm"] = miss.mm, miss.sem_mm
+    row["corrected_reduction_pct"] = float(100.0 * (1.0 - miss.mm / uncompensated.mm))
 
     device.set_mode("lengths")
     device.set_lengths(pcc_lengths)
+
+
+# How many standard errors apart two measured tip errors must be for the trial to call one
+# larger: 2, a difference a still tip measured twice shows by chance under 5 % of the time (the
+# standard error used, the norm of the per-axis ones, bounds that of a length from above).
+RESOLVE_SIGMAS = 2.0
+
+
+def resolvably_larger(a_mm: float, a_sem_mm: float, b_mm: float, b_sem_mm: float) -> bool:
+    """Whether tip error ``a_mm`` is larger than ``b_mm`` beyond what the tracker can measure:
+    by more than :data:`RESOLVE_SIGMAS` standard errors of their difference (``*_sem_mm``, the
+    errors' own, :class:`_Miss`). An unknown standard error (NaN, a single frame) counts as 0:
+    every excess then counts."""
+    spread = math.hypot(*(s if math.isfinite(s) else 0.0 for s in (a_sem_mm, b_sem_mm)))
+    return a_mm - b_mm > RESOLVE_SIGMAS * spread
+
+
+@dataclasses.dataclass(frozen=True)
+class _Miss:
+    """A measured tip error: loaded tip mean minus the target's mean (``vector_m``, m), its length
+    (``mm``) and that length's standard error (``sem_mm``): the norm over the axes of both means'
+    standard errors (:attr:`twin.experiments.protocols.Measurement.tip_sem_m`, the frames' own
+    scatter over √frames) added in quadrature."""
+
+    vector_m: np.ndarray
+    mm: float
+    sem_mm: float
+
+    @classmethod
+    def of(cls, loaded, target) -> "_Miss":
+        vector = loaded.tip_position_m - target.tip_position_m
+        sem = float(np.linalg.norm(np.hypot(loaded.tip_sem_m, target.tip_sem_m)))
+        return cls(vector, float(np.linalg.norm(vector)) * 1e3, sem * 1e3)
 
 
 def _ramp_tensions(device, start_n, end_n, steps: int) -> None:
@@ -611,11 +702,11 @@ def _ramp_tensions(device, start_n, end_n, steps: int) -> None:
                                 "during a tension ramp")
 
 
-def _rest_and_measure(device, target, rest_s: float, measure_s: float, settle_timeout_s: float) -> np.ndarray:
-    """Wait ``rest_s``, check the tip is at rest, and return the mean tracked tip minus ``target`` (m)."""
+def _rest_and_measure(device, target, rest_s: float, measure_s: float, settle_timeout_s: float) -> _Miss:
+    """Wait ``rest_s``, check the tip is at rest, and return its miss of ``target`` (the unloaded measurement)."""
     device.wait(rest_s)
     _wait_for_tip_rest(device, settle_timeout_s)
-    return measure(device, duration_s=measure_s).tip_position_m - target
+    return _Miss.of(measure(device, duration_s=measure_s), target)
 
 
 def _wait_for_tip_rest(device, timeout_s: float) -> None:

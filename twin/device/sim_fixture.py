@@ -8,6 +8,7 @@ from typing import TYPE_CHECKING, Callable, Iterable
 import numpy as np
 
 from twin.driver.fixture import Fixture, check_channels, check_mass
+from twin.sim.plant import HOLDER_STAGE_S
 
 if TYPE_CHECKING:
     from twin.device.board import EmulatedBoard
@@ -44,7 +45,11 @@ class SimFixture(Fixture):
         self._settle(self.settle_s)
 
     def engage_holder(self) -> None:
-        self._board.plant.engage_holder()
+        # A rod that friction holds bent is clamped in stages (Plant.engage_holder says why).
+        plant = self._board.plant
+        for _ in range(plant.engage_holder() - 1):
+            self._settle(HOLDER_STAGE_S)
+            plant.close_holder()
         self._settle(self.settle_s)
 
     def release_holder(self) -> None:

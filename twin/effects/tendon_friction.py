@@ -28,7 +28,7 @@ import numpy as np
 
 from twin.effects.base import BodySpec, Candidate, Effect, FitParameter, Key, Params
 
-__all__ = ["EFFECT", "FRICTION_MAX_STEP_S", "FRICTION_TENSION_CAP_LIMITS", "FRICTION_MOTOR_TRAVEL_LAG_S", "FRICTION_TENSION_LAG_S", "FRICTION_TRAVEL_LAG_S", "PRESLIDING_M", "SlidingState", "TendonFriction", "friction_direction",
+__all__ = ["EFFECT", "FRICTION_JUMP_N", "FRICTION_MAX_STEP_S", "FRICTION_TENSION_CAP_LIMITS", "FRICTION_MOTOR_TRAVEL_LAG_S", "FRICTION_TENSION_LAG_S", "FRICTION_TRAVEL_LAG_S", "PRESLIDING_M", "SlidingState", "TendonFriction", "friction_direction",
            "slide", "slide_path"]
 
 # Tendon travel over which the friction turns from one direction to the other (m): the
@@ -70,6 +70,15 @@ FRICTION_MOTOR_TRAVEL_LAG_S = 0.0
 # twin diverged (the compensation grid at μ = 0.3, κ = 26.2 1/m: mjWARN_BADQACC 29 ms after the
 # weights went on). Twice the limit leaves every tension the board can hold or trip on followed.
 FRICTION_TENSION_CAP_LIMITS = 2.0
+# A change of the friction's pull at a tendon's end within one physics step (N) after which the
+# plant loop takes short steps (twin.sim.plant.ENGAGE_MAX_STEP_S) until it calms: the friction
+# turning round on a stiff robot let go by a tripped board at 27 N (μ = 0.6) swung it by some
+# 30 N in a step, which at 5 ms steps whipped the rod to MuJoCo's divergence within 50 ms and at
+# 1.25 ms steps did not; on ideal tension sources (the twin's cross-check) the long and
+# stiff-long robots at μ = 0.6 chattered into a divergence with 10 N and 1 N here, not with
+# 0.5 N. The endoscope's sweeps at μ <= 0.3 (twin bench friction's rows) take no more short
+# steps for it than without (93 at μ = 0.3; 95 with 0.2 N).
+FRICTION_JUMP_N = 0.5
 # Starting value of μ for a fit when it is off (0) in the parameter set: log(0) cannot start one.
 _FIT_START = 0.02
 
@@ -308,6 +317,7 @@ class TendonFriction:
             state.friction_joint_dofs = self._joint_dofs.ctypes.data
             state.friction_joint_coefficients = self._joint_coefficients.ctypes.data
         state.friction_tension_cap_n = self.tension_cap_n
+        state.friction_jump_n = FRICTION_JUMP_N
 
     @property
     def state(self) -> np.ndarray:

@@ -102,6 +102,28 @@ def measure(device, *, duration_s: float = 0.25) -> Measurement:
 REST_TOLERANCE_COUNTS = 450.0
 
 
+# The sample-to-sample scatter of a tendon's tension (in tension tolerances) above which
+# wait_for_rest takes it for a dither, not the load cells' noise: four times that noise (the
+# tolerance is twice it), which an estimate from a few samples does not reach by chance.
+REST_DITHER_TOLERANCES = 2.0
+
+
+def _dithered_tolerance_n(window, previous, tolerance_n: float) -> np.ndarray:
+    """The change of each tendon's window-mean tension that :func:`wait_for_rest` allows between
+    the ``previous`` window and this one (lists of (N,) samples, N): ``tolerance_n``, or two
+    standard errors of the difference of the two means where the tensions dither (their
+    sample-to-sample scatter, the root mean square of successive differences over √2, which a
+    slow swing hardly raises, is over :data:`REST_DITHER_TOLERANCES` tolerances)."""
+    if previous is None or len(window) < 2 or len(previous) < 2:
+        return np.full(np.shape(window[0]), tolerance_n)
+    steps = np.concatenate([np.diff(np.asarray(previous, dtype=float), axis=0),
+                            np.diff(np.asarray(window, dtype=float), axis=0)])
+    scatter_n = np.sqrt(np.mean(steps ** 2, axis=0) / 2.0)
+    standard_error_n = scatter_n * np.sqrt(1.0 / len(window) + 1.0 / len(previous))
+    return np.where(scatter_n > REST_DITHER_TOLERANCES * tolerance_n,
+                    np.maximum(tolerance_n, 2.0 * standard_error_n), tolerance_n)
+
+
 def wait_for_rest(device, *, tension_tolerance_n: float | None = None, tip_tolerance_m: float = 3e-4,
                   window_s: float = 0.1, timeout_s: float = 4.0) -> float:
     """Wait until the endoscope is at rest: the ``window_s`` means of the tensions and of the
@@ -114,12 +136,20 @@ def wait_for_rest(device, *, tension_tolerance_n: float | None = None, tip_toler
     ratio ~0.1), and two windows around a turning point of the swing have nearly the same mean.
     Three windows span half its period, so they cannot all sit at one.
 
+    A length loop holding tendons through strong friction never stills its tensions: it dithers
+    by an encoder count, each dither turns the friction round, and the tensions swing by some
+    0.1 N from sample to sample for good (endoscope-soft-g at μ = 0.6: ±0.15 N about a steady
+    mean, the tip still within 0.1 mm), so two window means differ by more than the tolerance
+    by chance alone. Where the tensions' sample-to-sample scatter is over
+    :data:`REST_DITHER_TOLERANCES` tolerances, the means may also differ by up to two standard
+    errors of that scatter: the tensions are then at rest about a dither, as on a rig.
+
     Returns the device time it took (s). Raises :class:`ProtocolError` after ``timeout_s``.
     """
     if tension_tolerance_n is None:
         tension_tolerance_n = REST_TOLERANCE_COUNTS / getattr(device, "loadcell_gain_counts_per_n", 45000.0)
     start = device.time_s
-    last, quiet = None, 0
+    last, quiet, previous = None, 0, None
     while device.time_s - start < timeout_s:
         end = device.time_s + window_s
         tensions, tips = [], []
@@ -132,14 +162,15 @@ def wait_for_rest(device, *, tension_tolerance_n: float | None = None, tip_toler
                 if fused.ok:
                     tips.append(fused.pose.position_m)
         now = (np.mean(tensions, axis=0), np.mean(tips, axis=0) if tips else None)
-        if last is not None and np.max(np.abs(now[0] - last[0])) < tension_tolerance_n and (
+        allowed_n = _dithered_tolerance_n(tensions, previous, tension_tolerance_n)
+        if last is not None and np.all(np.abs(now[0] - last[0]) < allowed_n) and (
                 now[1] is None or last[1] is None or np.linalg.norm(now[1] - last[1]) < tip_tolerance_m):
             quiet += 1
             if quiet == 2:
                 return device.time_s - start
         else:
             quiet = 0
-        last = now
+        last, previous = now, tensions
     raise ProtocolError(f"the endoscope did not come to rest within {timeout_s} s (tensions to "
                         f"{tension_tolerance_n:.3g} N, tip to {tip_tolerance_m * 1e3:.2f} mm)")
 

@@ -11,7 +11,6 @@ import subprocess
 from pathlib import Path
 
 import numpy as np
-from numba import njit
 
 from twin.params import Params, load_params
 from twin.pcc import validation_grid
@@ -130,17 +129,6 @@ def _batch_and_loop(model: RodModel, tensions: np.ndarray, forces: np.ndarray, p
     return best_batch, best_loop
 
 
-@njit(cache=True)
-def _integrate_repeatedly(m0, rod, states, strains, count):
-    """``count`` integrations at m0 (the compiled loop times the kernel without Python around it)."""
-    failed = 0
-    for _ in range(count):
-        ok, _res = kernel.integrate(m0, rod, states, strains)
-        if not ok:
-            failed += 1
-    return failed
-
-
 def integration_s(model: RodModel, solution, *, count: int = 2000, rounds: int = 5) -> tuple[float, float]:
     """(CPU s, wall s) of one integration of ``model`` at a solution's base moment and load, inside
     compiled code: the fastest of ``rounds`` runs of ``count``."""
@@ -149,11 +137,11 @@ def integration_s(model: RodModel, solution, *, count: int = 2000, rounds: int =
     strains = np.empty((model.stations, 6))
     strains[0] = solution.strains[0]  # the base strains to start from, as a shooting solve's integrations have
     m0 = np.asarray(solution.base_moment_nm, dtype=float)
-    _integrate_repeatedly(m0, rod, states, strains, 1)
+    kernel.integrate_repeatedly(m0, rod, states, strains, 1)
     best = None
     for _ in range(rounds):
         with Stopwatch() as watch:
-            _integrate_repeatedly(m0, rod, states, strains, count)
+            kernel.integrate_repeatedly(m0, rod, states, strains, count)
         if best is None or watch.cpu_s < best.cpu_s:
             best = watch
     if best is None:

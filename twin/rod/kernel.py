@@ -103,6 +103,9 @@ class RodInputs(NamedTuple):
         point_mass_s_m: arc lengths of the lumped masses (np,).
         point_mass_kg: the lumped masses (np,).
         precurvature_per_m: the intrinsic curvature u* (body frame, 1/m) (3,).
+        routes: the tendons' routes at each RK4 step's three stations s, s + h/2 and s + h, by
+            the step's interval, (K, 3, nt, ROUTE_COLUMNS) (columns ``RT_*``): they depend on
+            the rod alone, so no integration evaluates them.
     """
 
     base_position_m: np.ndarray
@@ -121,71 +124,24 @@ class RodInputs(NamedTuple):
     point_mass_s_m: np.ndarray
     point_mass_kg: np.ndarray
     precurvature_per_m: np.ndarray
+    routes: np.ndarray
 
 
-@njit(cache=True, inline="always")
-def _cholesky_solve6(a, b):
-    """Solve a x = b for a symmetric positive definite 6×6 ``a`` given by its upper triangle
-    (overwritten by its Cholesky factor); x overwrites b. False if ``a`` is not positive definite."""
-    for j in range(6):
-        d = a[j, j]
-        for k in range(j):
-            d -= a[k, j] * a[k, j]
-        if not d > 0.0:
-            return False
-        d = np.sqrt(d)
-        a[j, j] = d
-        for i in range(j + 1, 6):
-            acc = a[j, i]
-            for k in range(j):
-                acc -= a[k, j] * a[k, i]
-            a[j, i] = acc / d
-    for i in range(6):
-        acc = b[i]
-        for k in range(i):
-            acc -= a[k, i] * b[k]
-        b[i] = acc / a[i, i]
-    for i in range(5, -1, -1):
-        acc = b[i]
-        for k in range(i + 1, 6):
-            acc -= a[i, k] * b[k]
-        b[i] = acc / a[i, i]
-    return True
+# Columns of a route row (RodInputs.routes): the tendon's body-frame offset r_i = (x, y, 0) (m), its
+# derivative r_i' = (x', y', 0) (1), and 1.0 if the tendon runs through the step's interval else 0.0.
+RT_X, RT_Y, RT_DX, RT_DY, RT_ON = range(5)
+ROUTE_COLUMNS = 5
 
 
-@njit(cache=True, inline="always")
-def _routes(s, mid, tendons, length, trig, routes):
-    """The body-frame offsets r_i(s) = (x, y, 0) and their derivatives r_i'(s) = (x', y', 0) of
-    the tendons that run through the interval around ``mid``, into ``routes`` rows (x, y, x', y',
-    1.0); a tendon that ended before it gets a row whose last column is 0.
+@njit(cache=True, fastmath={"contract"})
+def integrate(m0, rod, states, strains):
+    """Integrate the rod from the base with base moment m0 (N·m, world) by fixed-step RK4.
 
-    ``trig`` holds each tendon's (cos, sin) of its base angle, used when its helix rate is zero.
-    """
-    for k in range(tendons.shape[0]):
-        if tendons[k, T_END] < mid:
-            routes[k, 4] = 0.0
-            continue
-        r0 = tendons[k, T_R0]
-        drho = (tendons[k, T_R1] - r0) / length
-        rho = r0 + drho * s
-        omega = tendons[k, T_OMEGA]
-        if omega == 0.0:
-            c = trig[k, 0]
-            sn = trig[k, 1]
-        else:
-            th = tendons[k, T_ALPHA] + omega * s
-            c = np.cos(th)
-            sn = np.sin(th)
-        routes[k, 0] = rho * c
-        routes[k, 1] = rho * sn
-        routes[k, 2] = drho * c - rho * omega * sn
-        routes[k, 3] = drho * sn + rho * omega * c
-        routes[k, 4] = 1.0
-
-
-@njit(cache=True, inline="always")
-def _newton_step(nb, mb, kse, kbt, routes, taus, vu, jac, rhs, w):
-    """One Newton step on the constitutive law for (v, u) given body-frame n, m; updates ``vu``.
+    Each stage solves the constitutive law for the strains (v, u) given the body-frame n, m: as
+    costly as an RK4 of R&W's (v, u) form, which solves one 6×6 system per stage as well. It
+    takes one Newton step from a warm start (the previous stage's strains, an RK4 stage away),
+    or, at the base and where an interval starts (a point load or a tendon's end changes the law
+    there), Newton to 1e-13.
 
     With q_i = u × r_i + r_i' + v, t_i = q_i/|q_i| and w_i = (t_i, r_i × t_i), the law is
     [n_b; m_b] = K (vu − vu*) + Σ τ_i w_i, and its Jacobian (R&W 2011's [[K_se + A, G], [B, K_bt + H]])
@@ -193,182 +149,9 @@ def _newton_step(nb, mb, kse, kbt, routes, taus, vu, jac, rhs, w):
 
         K + Σ c_i [[I, −r̂_i], [r̂_i, |r_i|² I − r_i r_iᵀ]] − Σ c_i w_i w_iᵀ,    c_i = τ_i / |q_i|,
 
-    whose first sum needs only Σc, Σc r and Σc r rᵀ; one Cholesky solve takes the step.
-
-    Returns:
-        The residual before the step as a strain, max over its rows of |residual| / stiffness
-        (force rows over K_se: dimensionless; moment rows over K_bt: 1/m), or −1.0 when the
-        matrix was not positive definite.
-    """
-    v0 = vu[0]
-    v1 = vu[1]
-    v2 = vu[2]
-    u0 = vu[3]
-    u1 = vu[4]
-    u2 = vu[5]
-    rhs[0] = nb[0] - kse[0] * v0
-    rhs[1] = nb[1] - kse[1] * v1
-    rhs[2] = nb[2] - kse[2] * (v2 - 1.0)
-    rhs[3] = mb[0] - kbt[0] * u0
-    rhs[4] = mb[1] - kbt[1] * u1
-    rhs[5] = mb[2] - kbt[2] * u2
-    for a in range(6):
-        for b in range(a, 6):
-            jac[a, b] = 0.0
-    sc = sx = sy = sxx = sxy = syy = 0.0
-    for k in range(taus.shape[0]):
-        tau = taus[k]
-        if routes[k, 4] == 0.0 or tau == 0.0:
-            continue
-        rx = routes[k, 0]
-        ry = routes[k, 1]
-        q0 = -u2 * ry + routes[k, 2] + v0
-        q1 = u2 * rx + routes[k, 3] + v1
-        q2 = u0 * ry - u1 * rx + v2
-        inv = 1.0 / np.sqrt(q0 * q0 + q1 * q1 + q2 * q2)
-        t0 = q0 * inv
-        t1 = q1 * inv
-        t2 = q2 * inv
-        w[0] = t0
-        w[1] = t1
-        w[2] = t2
-        w[3] = ry * t2
-        w[4] = -rx * t2
-        w[5] = rx * t1 - ry * t0
-        c = tau * inv
-        for a in range(6):
-            rhs[a] -= tau * w[a]
-            cw = c * w[a]
-            for b in range(a, 6):
-                jac[a, b] -= cw * w[b]
-        sc += c
-        sx += c * rx
-        sy += c * ry
-        sxx += c * rx * rx
-        sxy += c * rx * ry
-        syy += c * ry * ry
-    err = 0.0
-    for i in range(3):
-        err = max(err, abs(rhs[i]) / kse[i], abs(rhs[3 + i]) / kbt[i])
-    jac[0, 0] += kse[0] + sc
-    jac[1, 1] += kse[1] + sc
-    jac[2, 2] += kse[2] + sc
-    jac[0, 5] -= sy
-    jac[1, 5] += sx
-    jac[2, 3] += sy
-    jac[2, 4] -= sx
-    jac[3, 3] += kbt[0] + syy
-    jac[3, 4] -= sxy
-    jac[4, 4] += kbt[1] + sxx
-    jac[5, 5] += kbt[2] + sxx + syy
-    if not _cholesky_solve6(jac, rhs):
-        return -1.0
-    for i in range(6):
-        vu[i] += rhs[i]
-    return err
-
-
-@njit(cache=True)
-def _internal_force(s, mid, length, tip_force, grav, line_mass, pm_s, pm_m, n):
-    """Total internal force n(s) (N, world): tip force plus the weight distal to s.
-
-    ``mid`` decides which point masses count as distal (the current interval's midpoint), so
-    stations on a point load take the limit from inside the interval.
-    """
-    w = line_mass * (length - s)
-    for k in range(pm_s.shape[0]):
-        if pm_s[k] > mid:
-            w += pm_m[k]
-    for i in range(3):
-        n[i] = tip_force[i] + w * grav[i]
-    return n
-
-
-# The stage takes the fields it uses, not a RodInputs: it runs at every RK4 stage, and a
-# RodInputs argument would hand it all of its arrays each time.
-@njit(cache=True)
-def _stage(y, s, mid, converge, vu, kse, kbt, ustar, tendons, length, mu, tip_force, grav, line_mass, pm_s, pm_m,
-           trig, routes, taus, n, nb, mb, jac, rhs, w, dy):
-    """dy/ds of the state at (y, s), with the strains vu (in: the warm start, out: the strains).
-
-    The constitutive law is solved by one Newton step from the warm start (the previous stage's
-    strains, an RK4 stage away), or, with ``converge``, by Newton to 1e-13 (at the base and
-    where an interval starts: a point load or a tendon's end changes the law there).
-
-    Returns:
-        False if the constitutive solve failed.
-    """
-    nt = tendons.shape[0]
-    _internal_force(s, mid, length, tip_force, grav, line_mass, pm_s, pm_m, n)
-    # Body-frame n, m: Rᵀ n, Rᵀ m (R stored row-major at y[3:12]).
-    for i in range(3):
-        nb[i] = y[3 + i] * n[0] + y[6 + i] * n[1] + y[9 + i] * n[2]
-        # K_bt u* moved to this side: the law then reads Rᵀ m + K_bt u* = K_bt u + ….
-        mb[i] = y[3 + i] * y[12] + y[6 + i] * y[13] + y[9 + i] * y[14] + kbt[i] * ustar[i]
-    if routes[0, 5] != s or routes[0, 6] != mid:
-        _routes(s, mid, tendons, length, trig, routes)
-        routes[0, 5] = s
-        routes[0, 6] = mid
-    for k in range(nt):
-        taus[k] = tendons[k, T_TAU]
-        if mu != 0.0:
-            taus[k] *= np.exp(-mu * tendons[k, T_SIGMA] * y[15 + k])
-    if converge:
-        for _ in range(_LOCAL_MAX_ITER):
-            err = _newton_step(nb, mb, kse, kbt, routes, taus, vu, jac, rhs, w)
-            if err < 0.0:
-                return False
-            if err * length < _LOCAL_TOL:
-                break
-        else:
-            return False
-    elif _newton_step(nb, mb, kse, kbt, routes, taus, vu, jac, rhs, w) < 0.0:
-        return False
-    v0, v1, v2, u0, u1, u2 = vu[0], vu[1], vu[2], vu[3], vu[4], vu[5]
-    # p' = R v
-    for i in range(3):
-        dy[i] = y[3 + 3 * i] * v0 + y[4 + 3 * i] * v1 + y[5 + 3 * i] * v2
-    # R' = R û
-    for i in range(3):
-        a = y[3 + 3 * i]
-        b = y[4 + 3 * i]
-        c = y[5 + 3 * i]
-        dy[3 + 3 * i] = b * u2 - c * u1
-        dy[4 + 3 * i] = c * u0 - a * u2
-        dy[5 + 3 * i] = a * u1 - b * u0
-    # m' = −p' × n
-    dy[12] = -(dy[1] * n[2] - dy[2] * n[1])
-    dy[13] = -(dy[2] * n[0] - dy[0] * n[2])
-    dy[14] = -(dy[0] * n[1] - dy[1] * n[0])
-    for k in range(nt):
-        if routes[k, 4] == 0.0:
-            dy[15 + k] = 0.0
-            dy[15 + nt + k] = 0.0
-            continue
-        rx = routes[k, 0]
-        ry = routes[k, 1]
-        q0 = -u2 * ry + routes[k, 2] + v0
-        q1 = u2 * rx + routes[k, 3] + v1
-        q2 = u0 * ry - u1 * rx + v2
-        qn = np.sqrt(q0 * q0 + q1 * q1 + q2 * q2)
-        dy[15 + nt + k] = qn
-        if mu == 0.0:
-            dy[15 + k] = 0.0  # the wrap angle only ever scales μ
-            continue
-        # Wrap rate |u × t| (tendon direction turning with the backbone).
-        c0 = u1 * q2 - u2 * q1
-        c1 = u2 * q0 - u0 * q2
-        c2 = u0 * q1 - u1 * q0
-        dy[15 + k] = np.sqrt(c0 * c0 + c1 * c1 + c2 * c2) / qn
-    return True
-
-
-@njit(cache=True)
-def integrate(m0, rod, states, strains):
-    """Integrate the rod from the base with base moment m0 (N·m, world) by fixed-step RK4.
-
-    Each stage takes one constitutive solve (:func:`_stage`): the integration is as costly as
-    an RK4 of R&W's (v, u) form, which solves one 6×6 system per stage as well.
+    whose first sum needs only Σc, Σc r and Σc r rᵀ; one Cholesky solve takes the step. The whole
+    integration is this one function on scalars and one work array: a stage called as a function
+    with its arrays cost as much again in argument passing and reference counting.
 
     Args:
         m0: base moment m(0) (N·m, world) (3,).
@@ -382,114 +165,327 @@ def integrate(m0, rod, states, strains):
     """
     nodes = rod.nodes
     intervals = rod.intervals
-    kse = rod.kse
-    kbt = rod.kbt
-    ustar = rod.precurvature_per_m
+    routes = rod.routes
     tendons = rod.tendons
     length = rod.length_m
     mu = rod.friction_coeff
-    tip_force = rod.tip_force_n
-    grav = rod.gravity_m_s2
     line_mass = rod.line_mass_kg_per_m
     pm_s = rod.point_mass_s_m
     pm_m = rod.point_mass_kg
+    kse0, kse1, kse2 = rod.kse[0], rod.kse[1], rod.kse[2]
+    kbt0, kbt1, kbt2 = rod.kbt[0], rod.kbt[1], rod.kbt[2]
+    # K_bt u* moved to the side of Rᵀ m: the law then reads Rᵀ m + K_bt u* = K_bt u + ….
+    kbu0 = kbt0 * rod.precurvature_per_m[0]
+    kbu1 = kbt1 * rod.precurvature_per_m[1]
+    kbu2 = kbt2 * rod.precurvature_per_m[2]
+    ikse0, ikse1, ikse2 = 1.0 / kse0, 1.0 / kse1, 1.0 / kse2
+    ikbt0, ikbt1, ikbt2 = 1.0 / kbt0, 1.0 / kbt1, 1.0 / kbt2
+    f0, f1, f2 = rod.tip_force_n[0], rod.tip_force_n[1], rod.tip_force_n[2]
+    g0, g1, g2 = rod.gravity_m_s2[0], rod.gravity_m_s2[1], rod.gravity_m_s2[2]
     nt = tendons.shape[0]
     ny = 15 + 2 * nt
-    y = np.zeros(ny)
-    y[0:3] = rod.base_position_m
-    r0 = rod.base_rotation
+    res = np.zeros(3)
+    # Work array: y, the stage state, k1..k4 (ny each), then the stage's tensions (nt).
+    yt_at = ny
+    k_at = 2 * ny
+    tau_at = 6 * ny
+    work = np.empty(6 * ny + nt)
     for i in range(3):
+        work[i] = rod.base_position_m[i]
         for j in range(3):
-            y[3 + 3 * i + j] = r0[i, j]
-    y[12:15] = m0
+            work[3 + 3 * i + j] = rod.base_rotation[i, j]
+        work[12 + i] = m0[i]
+    for i in range(15, ny):
+        work[i] = 0.0
+    for k in range(nt):
+        work[tau_at + k] = tendons[k, T_TAU]
+    for i in range(ny):
+        states[0, i] = work[i]
     # The base strains start from the last integration's (``strains[0]``: a shooting solve's
     # integrations lie close together), or from the straight rod's where it holds none (NaN).
-    vu = np.empty(6)
     warm = True
     for i in range(6):
-        vu[i] = strains[0, i]
-        warm = warm and np.isfinite(vu[i])
-    if not warm:
-        vu[:] = 0.0
-        vu[2] = 1.0
-    k1 = np.empty(ny)
-    k2 = np.empty(ny)
-    k3 = np.empty(ny)
-    k4 = np.empty(ny)
-    yt = np.empty(ny)
-    trig = np.empty((nt, 2))
-    for k in range(nt):
-        trig[k, 0] = np.cos(tendons[k, T_ALPHA])
-        trig[k, 1] = np.sin(tendons[k, T_ALPHA])
-    # Columns 5, 6 of row 0: the (s, mid) the routes were evaluated at (k2 and k3 share theirs).
-    routes = np.full((max(nt, 1), 7), np.nan)
-    taus = np.empty(nt)
-    vec = np.empty((4, 3))
-    jac = np.empty((6, 6))
-    rhs = np.empty(6)
-    w = np.empty(6)
-    res = np.zeros(3)
-    states[0, :] = y
-    nsteps = nodes.shape[0] - 1
-    # The base: its strains are station 0's output and the first step's k1.
-    if not _stage(y, nodes[0], intervals[0], True, vu, kse, kbt, ustar, tendons, length, mu, tip_force, grav, line_mass,
-                  pm_s, pm_m, trig, routes, taus, vec[0], vec[1], vec[2], jac, rhs, w, k1):
-        if not warm:
-            return False, res
-        vu[:] = 0.0
-        vu[2] = 1.0
-        if not _stage(y, nodes[0], intervals[0], True, vu, kse, kbt, ustar, tendons, length, mu, tip_force, grav,
-                      line_mass, pm_s, pm_m, trig, routes, taus, vec[0], vec[1], vec[2], jac, rhs, w, k1):
-            return False, res
-    strains[0, :] = vu
+        warm = warm and np.isfinite(strains[0, i])
+    if warm:
+        v0, v1, v2, u0, u1, u2 = strains[0, 0], strains[0, 1], strains[0, 2], strains[0, 3], strains[0, 4], strains[0, 5]
+    else:
+        v0, v1, v2, u0, u1, u2 = 0.0, 0.0, 1.0, 0.0, 0.0, 0.0
     # The strains change smoothly within an interval: each step's k2 and k4 start from the last
     # stage's strains moved along the slope between the last two steps' k1 strains. One Newton
     # step from there puts the tip within 1.1e-7 m of fully converged constitutive solves on the
     # zoo's robots (2e-9 m on the endoscope), well inside the RK4 error at 12 steps.
-    slope = np.zeros(6)
-    start = vu.copy()
+    sl0 = sl1 = sl2 = sl3 = sl4 = sl5 = 0.0
+    st0 = st1 = st2 = st3 = st4 = st5 = 0.0
+    nsteps = nodes.shape[0] - 1
     for k in range(nsteps):
         s = nodes[k]
         h = nodes[k + 1] - s
         mid = intervals[k]
-        if k > 0:
-            fresh = mid != intervals[k - 1]
-            if not _stage(y, s, mid, fresh, vu, kse, kbt, ustar, tendons, length, mu, tip_force, grav, line_mass, pm_s,
-                          pm_m, trig, routes, taus, vec[0], vec[1], vec[2], jac, rhs, w, k1):
-                return False, res
-            for i in range(6):
-                slope[i] = 0.0 if fresh else (vu[i] - start[i]) / (s - nodes[k - 1])
-                start[i] = vu[i]
-        for i in range(ny):
-            yt[i] = y[i] + 0.5 * h * k1[i]
-        for i in range(6):
-            vu[i] += 0.5 * h * slope[i]
-        if not _stage(yt, s + 0.5 * h, mid, False, vu, kse, kbt, ustar, tendons, length, mu, tip_force, grav, line_mass,
-                      pm_s, pm_m, trig, routes, taus, vec[0], vec[1], vec[2], jac, rhs, w, k2):
-            return False, res
-        for i in range(ny):
-            yt[i] = y[i] + 0.5 * h * k2[i]
-        if not _stage(yt, s + 0.5 * h, mid, False, vu, kse, kbt, ustar, tendons, length, mu, tip_force, grav, line_mass,
-                      pm_s, pm_m, trig, routes, taus, vec[0], vec[1], vec[2], jac, rhs, w, k3):
-            return False, res
-        for i in range(ny):
-            yt[i] = y[i] + h * k3[i]
-        for i in range(6):
-            vu[i] += 0.5 * h * slope[i]
-        if not _stage(yt, s + h, mid, False, vu, kse, kbt, ustar, tendons, length, mu, tip_force, grav, line_mass,
-                      pm_s, pm_m, trig, routes, taus, vec[0], vec[1], vec[2], jac, rhs, w, k4):
-            return False, res
-        finite = True
-        for i in range(ny):
-            y[i] += h / 6.0 * (k1[i] + 2.0 * k2[i] + 2.0 * k3[i] + k4[i])
-            finite = finite and np.isfinite(y[i])
-        if not finite:
-            return False, res
-        states[k + 1, :] = y
-        strains[k + 1, :] = vu
+        fresh = k == 0 or mid != intervals[k - 1]
+        # The point masses distal to the interval (a station on one takes the limit from inside).
+        point_weight = 0.0
+        for j in range(pm_s.shape[0]):
+            if pm_s[j] > mid:
+                point_weight += pm_m[j]
+        for stage in range(4):
+            y_at = 0 if stage == 0 else yt_at
+            dy_at = k_at + stage * ny
+            ss = s if stage == 0 else s + h if stage == 3 else s + 0.5 * h
+            route = 0 if stage == 0 else 2 if stage == 3 else 1
+            # n(s): the tip force plus the weight distal to s.
+            wd = line_mass * (length - ss) + point_weight
+            n0 = f0 + wd * g0
+            n1 = f1 + wd * g1
+            n2 = f2 + wd * g2
+            # Body-frame n, m: Rᵀ n, Rᵀ m (R stored row-major at y[3:12]).
+            ra, rb, rc = work[y_at + 3], work[y_at + 4], work[y_at + 5]
+            rd, re, rf = work[y_at + 6], work[y_at + 7], work[y_at + 8]
+            rg, rh, ri = work[y_at + 9], work[y_at + 10], work[y_at + 11]
+            ma, mb, mc = work[y_at + 12], work[y_at + 13], work[y_at + 14]
+            nb0 = ra * n0 + rd * n1 + rg * n2
+            nb1 = rb * n0 + re * n1 + rh * n2
+            nb2 = rc * n0 + rf * n1 + ri * n2
+            mb0 = ra * ma + rd * mb + rg * mc + kbu0
+            mb1 = rb * ma + re * mb + rh * mc + kbu1
+            mb2 = rc * ma + rf * mb + ri * mc + kbu2
+            if mu != 0.0:
+                for j in range(nt):
+                    work[tau_at + j] = tendons[j, T_TAU] * np.exp(-mu * tendons[j, T_SIGMA] * work[y_at + 15 + j])
+            converge = stage == 0 and fresh
+            retry = k == 0 and stage == 0 and warm
+            iterations = 0
+            while True:
+                # One Newton step on the law from (v, u); err: its residual before the step as a
+                # strain, max over its rows of |residual| / stiffness (force rows over K_se:
+                # dimensionless; moment rows over K_bt: 1/m).
+                # The tendons' part of the residual (e) and of J depend on the strains alone, not on
+                # this stage's state: summed apart, they need not wait for n_b, m_b.
+                e0 = e1 = e2 = e3 = e4 = e5 = 0.0
+                j00 = j01 = j02 = j03 = j04 = j05 = j11 = j12 = j13 = j14 = j15 = 0.0
+                j22 = j23 = j24 = j25 = j33 = j34 = j35 = j44 = j45 = j55 = 0.0
+                sc = sx = sy = sxx = sxy = syy = 0.0
+                for j in range(nt):
+                    tau = work[tau_at + j]
+                    if routes[k, route, j, RT_ON] == 0.0 or tau == 0.0:
+                        continue
+                    rx = routes[k, route, j, RT_X]
+                    ry = routes[k, route, j, RT_Y]
+                    q0 = -u2 * ry + routes[k, route, j, RT_DX] + v0
+                    q1 = u2 * rx + routes[k, route, j, RT_DY] + v1
+                    q2 = u0 * ry - u1 * rx + v2
+                    inv = 1.0 / np.sqrt(q0 * q0 + q1 * q1 + q2 * q2)
+                    t0 = q0 * inv
+                    t1 = q1 * inv
+                    t2 = q2 * inv
+                    w3 = ry * t2
+                    w4 = -rx * t2
+                    w5 = rx * t1 - ry * t0
+                    e0 += tau * t0
+                    e1 += tau * t1
+                    e2 += tau * t2
+                    e3 += tau * w3
+                    e4 += tau * w4
+                    e5 += tau * w5
+                    c = tau * inv
+                    cw = c * t0
+                    j00 -= cw * t0; j01 -= cw * t1; j02 -= cw * t2; j03 -= cw * w3; j04 -= cw * w4; j05 -= cw * w5
+                    cw = c * t1
+                    j11 -= cw * t1; j12 -= cw * t2; j13 -= cw * w3; j14 -= cw * w4; j15 -= cw * w5
+                    cw = c * t2
+                    j22 -= cw * t2; j23 -= cw * w3; j24 -= cw * w4; j25 -= cw * w5
+                    cw = c * w3
+                    j33 -= cw * w3; j34 -= cw * w4; j35 -= cw * w5
+                    cw = c * w4
+                    j44 -= cw * w4; j45 -= cw * w5
+                    j55 -= c * w5 * w5
+                    sc += c
+                    sx += c * rx
+                    sy += c * ry
+                    sxx += c * rx * rx
+                    sxy += c * rx * ry
+                    syy += c * ry * ry
+                b0 = nb0 - kse0 * v0 - e0
+                b1 = nb1 - kse1 * v1 - e1
+                b2 = nb2 - kse2 * (v2 - 1.0) - e2
+                b3 = mb0 - kbt0 * u0 - e3
+                b4 = mb1 - kbt1 * u1 - e4
+                b5 = mb2 - kbt2 * u2 - e5
+                err = 0.0
+                if converge:
+                    err = max(abs(b0) * ikse0, abs(b1) * ikse1, abs(b2) * ikse2,
+                              abs(b3) * ikbt0, abs(b4) * ikbt1, abs(b5) * ikbt2)
+                j00 += kse0 + sc
+                j11 += kse1 + sc
+                j22 += kse2 + sc
+                j05 -= sy
+                j15 += sx
+                j23 += sy
+                j24 -= sx
+                j33 += kbt0 + syy
+                j34 -= sxy
+                j44 += kbt1 + sxx
+                j55 += kbt2 + sxx + syy
+                # The step by blocks, J = [[A, G], [Gᵀ, H]] (3×3 each): A⁻¹ by its adjugate, the
+                # Schur complement S = H − Gᵀ A⁻¹ G likewise. Each stage's solve waits on the last
+                # one's strains: this takes two divisions in a row where a Cholesky factor takes six
+                # square roots and divisions and two triangular solves. J is positive definite iff
+                # A and S are, iff their leading minors are positive (a NaN fails them too).
+                c00 = j11 * j22 - j12 * j12
+                c01 = j02 * j12 - j01 * j22
+                c02 = j01 * j12 - j02 * j11
+                c11 = j00 * j22 - j02 * j02
+                c12 = j01 * j02 - j00 * j12
+                c22 = j00 * j11 - j01 * j01
+                det = j00 * c00 + j01 * c01 + j02 * c02
+                ok = j00 > 0.0 and c22 > 0.0 and det > 0.0
+                if ok:
+                    inv = 1.0 / det
+                    c00 *= inv; c01 *= inv; c02 *= inv; c11 *= inv; c12 *= inv; c22 *= inv
+                    # P = A⁻¹ G
+                    p00 = c00 * j03 + c01 * j13 + c02 * j23
+                    p01 = c00 * j04 + c01 * j14 + c02 * j24
+                    p02 = c00 * j05 + c01 * j15 + c02 * j25
+                    p10 = c01 * j03 + c11 * j13 + c12 * j23
+                    p11 = c01 * j04 + c11 * j14 + c12 * j24
+                    p12 = c01 * j05 + c11 * j15 + c12 * j25
+                    p20 = c02 * j03 + c12 * j13 + c22 * j23
+                    p21 = c02 * j04 + c12 * j14 + c22 * j24
+                    p22 = c02 * j05 + c12 * j15 + c22 * j25
+                    s00 = j33 - (j03 * p00 + j13 * p10 + j23 * p20)
+                    s01 = j34 - (j03 * p01 + j13 * p11 + j23 * p21)
+                    s02 = j35 - (j03 * p02 + j13 * p12 + j23 * p22)
+                    s11 = j44 - (j04 * p01 + j14 * p11 + j24 * p21)
+                    s12 = j45 - (j04 * p02 + j14 * p12 + j24 * p22)
+                    s22 = j55 - (j05 * p02 + j15 * p12 + j25 * p22)
+                    d00 = s11 * s22 - s12 * s12
+                    d01 = s02 * s12 - s01 * s22
+                    d02 = s01 * s12 - s02 * s11
+                    d11 = s00 * s22 - s02 * s02
+                    d12 = s01 * s02 - s00 * s12
+                    d22 = s00 * s11 - s01 * s01
+                    det = s00 * d00 + s01 * d01 + s02 * d02
+                    ok = s00 > 0.0 and d22 > 0.0 and det > 0.0
+                if ok:
+                    inv = 1.0 / det
+                    # x_v = A⁻¹ (b_v − G x_u), x_u = S⁻¹ (b_u − Gᵀ A⁻¹ b_v)
+                    a0 = c00 * b0 + c01 * b1 + c02 * b2
+                    a1 = c01 * b0 + c11 * b1 + c12 * b2
+                    a2 = c02 * b0 + c12 * b1 + c22 * b2
+                    b3 -= j03 * a0 + j13 * a1 + j23 * a2
+                    b4 -= j04 * a0 + j14 * a1 + j24 * a2
+                    b5 -= j05 * a0 + j15 * a1 + j25 * a2
+                    x3 = (d00 * b3 + d01 * b4 + d02 * b5) * inv
+                    x4 = (d01 * b3 + d11 * b4 + d12 * b5) * inv
+                    x5 = (d02 * b3 + d12 * b4 + d22 * b5) * inv
+                    v0 += a0 - (p00 * x3 + p01 * x4 + p02 * x5)
+                    v1 += a1 - (p10 * x3 + p11 * x4 + p12 * x5)
+                    v2 += a2 - (p20 * x3 + p21 * x4 + p22 * x5)
+                    u0 += x3
+                    u1 += x4
+                    u2 += x5
+                iterations += 1
+                if ok and (not converge or err * length < _LOCAL_TOL):
+                    break
+                if not ok or iterations >= _LOCAL_MAX_ITER:
+                    if not retry:
+                        return False, res
+                    # A warm base start the law cannot be solved from: once more from the straight rod's.
+                    v0, v1, v2, u0, u1, u2 = 0.0, 0.0, 1.0, 0.0, 0.0, 0.0
+                    retry = False
+                    iterations = 0
+            # p' = R v
+            work[dy_at] = ra * v0 + rb * v1 + rc * v2
+            work[dy_at + 1] = rd * v0 + re * v1 + rf * v2
+            work[dy_at + 2] = rg * v0 + rh * v1 + ri * v2
+            # R' = R û
+            work[dy_at + 3] = rb * u2 - rc * u1
+            work[dy_at + 4] = rc * u0 - ra * u2
+            work[dy_at + 5] = ra * u1 - rb * u0
+            work[dy_at + 6] = re * u2 - rf * u1
+            work[dy_at + 7] = rf * u0 - rd * u2
+            work[dy_at + 8] = rd * u1 - re * u0
+            work[dy_at + 9] = rh * u2 - ri * u1
+            work[dy_at + 10] = ri * u0 - rg * u2
+            work[dy_at + 11] = rg * u1 - rh * u0
+            # m' = −p' × n
+            px, py, pz = work[dy_at], work[dy_at + 1], work[dy_at + 2]
+            work[dy_at + 12] = -(py * n2 - pz * n1)
+            work[dy_at + 13] = -(pz * n0 - px * n2)
+            work[dy_at + 14] = -(px * n1 - py * n0)
+            for j in range(nt):
+                if routes[k, route, j, RT_ON] == 0.0:
+                    work[dy_at + 15 + j] = 0.0
+                    work[dy_at + 15 + nt + j] = 0.0
+                    continue
+                rx = routes[k, route, j, RT_X]
+                ry = routes[k, route, j, RT_Y]
+                q0 = -u2 * ry + routes[k, route, j, RT_DX] + v0
+                q1 = u2 * rx + routes[k, route, j, RT_DY] + v1
+                q2 = u0 * ry - u1 * rx + v2
+                qn = np.sqrt(q0 * q0 + q1 * q1 + q2 * q2)
+                work[dy_at + 15 + nt + j] = qn
+                if mu == 0.0:
+                    work[dy_at + 15 + j] = 0.0  # the wrap angle only ever scales μ
+                    continue
+                # Wrap rate |u × t| (tendon direction turning with the backbone).
+                c0 = u1 * q2 - u2 * q1
+                c1 = u2 * q0 - u0 * q2
+                c2 = u0 * q1 - u1 * q0
+                work[dy_at + 15 + j] = np.sqrt(c0 * c0 + c1 * c1 + c2 * c2) / qn
+            # The next stage's state, and the strains to start it from.
+            if stage == 0:
+                if k == 0:
+                    strains[0, 0], strains[0, 1], strains[0, 2] = v0, v1, v2
+                    strains[0, 3], strains[0, 4], strains[0, 5] = u0, u1, u2
+                elif fresh:
+                    sl0 = sl1 = sl2 = sl3 = sl4 = sl5 = 0.0
+                else:
+                    ds = s - nodes[k - 1]
+                    sl0, sl1, sl2 = (v0 - st0) / ds, (v1 - st1) / ds, (v2 - st2) / ds
+                    sl3, sl4, sl5 = (u0 - st3) / ds, (u1 - st4) / ds, (u2 - st5) / ds
+                st0, st1, st2, st3, st4, st5 = v0, v1, v2, u0, u1, u2
+            if stage == 3:
+                finite = True
+                for i in range(ny):
+                    yi = work[i] + h / 6.0 * (work[k_at + i] + 2.0 * work[k_at + ny + i] + 2.0 * work[k_at + 2 * ny + i]
+                                              + work[k_at + 3 * ny + i])
+                    work[i] = yi
+                    states[k + 1, i] = yi
+                    finite = finite and np.isfinite(yi)
+                if not finite:
+                    return False, res
+                strains[k + 1, 0], strains[k + 1, 1], strains[k + 1, 2] = v0, v1, v2
+                strains[k + 1, 3], strains[k + 1, 4], strains[k + 1, 5] = u0, u1, u2
+            else:
+                a = h if stage == 2 else 0.5 * h
+                for i in range(ny):
+                    work[yt_at + i] = work[i] + a * work[dy_at + i]
+                if stage != 1:
+                    half = 0.5 * h
+                    v0 += half * sl0
+                    v1 += half * sl1
+                    v2 += half * sl2
+                    u0 += half * sl3
+                    u1 += half * sl4
+                    u2 += half * sl5
     for i in range(3):
-        res[i] = y[12 + i] - rod.tip_moment_nm[i]
+        res[i] = work[12 + i] - rod.tip_moment_nm[i]
     return True, res
+
+
+@njit(cache=True)
+def integrate_repeatedly(m0, rod, states, strains, count):
+    """``count`` integrations at m0 (the benchmark times the kernel without Python around it);
+    returns how many failed. It lives beside :func:`integrate` because Numba's cache checks a
+    function's own source file only: a compiled copy of the kernel cached with another module
+    would outlive changes to this one.
+    """
+    failed = 0
+    for _ in range(count):
+        ok, _res = integrate(m0, rod, states, strains)
+        if not ok:
+            failed += 1
+    return failed
 
 
 @njit(cache=True)
@@ -702,15 +698,34 @@ def tip_sensitivities(m0, h_m, h_tau, h_f, p_ref, r_ref, rod, states, strains, d
 
 
 @njit(cache=True)
-def shoot_batch(rod, tensions, sigma, forces, moments, cold, guesses, guess_jacs, guess_kind, chain, tol_nm, max_iter,
+def _nearest_solved(estimates, out, i):
+    """The converged case before ``i`` whose estimate of m(0) (N·m) is nearest to case i's
+    (the latest of equals), or −1 for none."""
+    best = -1
+    best_d2 = np.inf
+    for k in range(i - 1, -1, -1):
+        if out[k, 0] != _CONVERGED:
+            continue
+        d2 = 0.0
+        for j in range(3):
+            d2 += (estimates[i, j] - estimates[k, j]) ** 2
+        if d2 < best_d2:
+            best, best_d2 = k, d2
+    return best
+
+
+@njit(cache=True)
+def shoot_batch(rod, tensions, sigma, forces, moments, cold, estimates, guesses, guess_jacs, guess_kind, chain, tol_nm, max_iter,
                 fd_step_nm, m0_out, jac_out, states, strains, traces, out):
     """:func:`shoot` for many load cases of one rod in one compiled call (``twin.rod.solve_batch``).
 
     Case i sets the tensions ``tensions[i]`` (N), friction directions ``sigma[i]``, tip force
     ``forces[i]`` (N) and moment ``moments[i]`` (N·m) into ``rod`` (its tendon table and tip
     arrays are overwritten: give it copies). It starts from ``guesses[i]`` (with ``guess_jacs[i]``
-    when ``guess_kind[i]`` is 2, without when 1); with ``guess_kind[i]`` 0 from the previous
-    case's solution when ``chain`` and that one converged, else from ``cold[i]``. A warm start
+    when ``guess_kind[i]`` is 2, without when 1); with ``guess_kind[i]`` 0 and ``chain`` from the
+    converged earlier case whose estimate of m(0) ``estimates[i]`` (N·m) is nearest
+    (:func:`_nearest_solved`), its base moment moved by the difference of the two estimates, with
+    its Jacobian; else from ``cold[i]``. A warm start
     that fails is retried from ``cold[i]``, as :func:`twin.rod.solve` does.
 
     Outputs per case: ``m0_out`` (N·m), ``jac_out`` (the final ∂res/∂m0), ``states``,
@@ -735,9 +750,14 @@ def shoot_batch(rod, tensions, sigma, forces, moments, cold, guesses, guess_jacs
             if guess_kind[i] == 2:
                 jac[:, :] = guess_jacs[i]
                 have_jac = True
-        elif chain and i > 0 and out[i - 1, 0] == _CONVERGED:
-            m0[:] = m0_out[i - 1]
-            jac[:, :] = jac_out[i - 1]
+        elif chain and _nearest_solved(estimates, out, i) >= 0:
+            # The solution of the solved case whose estimate lies nearest, moved by what the
+            # estimates say the load change does to m(0) (they follow the tendon tensions and
+            # tip loads to first order), with its shooting Jacobian.
+            near = _nearest_solved(estimates, out, i)
+            for j in range(3):
+                m0[j] = m0_out[near, j] + estimates[i, j] - estimates[near, j]
+            jac[:, :] = jac_out[near]
             have_jac = True
         else:
             m0[:] = cold[i]

@@ -172,12 +172,13 @@ class RodModel:
             table[i, kernel.T_END] = L if t.end_m is None else t.end_m
         pm = np.array(self.point_masses, dtype=float).reshape(-1, 2)
         # The weight distal to each station (kg): the rod beyond it and the point masses beyond its
-        # interval's midpoint (the last station takes the last interval's), as kernel._internal_force does per RK4 stage.
+        # interval's midpoint (the last station takes the last interval's), as kernel.integrate does per RK4 stage.
         stations = np.array(nodes)
         midpoints = np.array(mids + mids[-1:])
         distal = self.line_mass_kg_per_m * (L - stations) + (pm[None, :, 1] * (pm[None, :, 0] > midpoints[:, None])).sum(1)
         grav = np.array([0.0, 0.0, -self.gravity_m_s2])
         return {
+            "routes": _routes(table, L, stations, np.array(mids)),
             "distal_mass_kg": distal,
             # The weight distal to each station (N, (K, 3)): the load-free part of n(s).
             "distal_weight_n": distal[:, None] * grav,
@@ -196,3 +197,28 @@ class RodModel:
     @property
     def stations(self) -> int:
         return self.arrays["nodes"].shape[0]
+
+
+def _routes(table: np.ndarray, length_m: float, nodes: np.ndarray, mids: np.ndarray) -> np.ndarray:
+    """The tendons' body-frame routes at each RK4 step's stations s, s + h/2 and s + h, as the
+    kernel's :class:`~twin.rod.kernel.RodInputs` carries them: (K, 3, nt, ROUTE_COLUMNS).
+
+    r_i(s) = ρ(s) (cos θ(s), sin θ(s), 0), ρ linear from the base radius to the tip radius,
+    θ(s) = α + ω s; a tendon anchored before the step's interval midpoint is off there.
+    """
+    s = nodes[:-1]
+    h = nodes[1:] - s
+    at = np.stack([s, s + 0.5 * h, s + h], axis=1)[:, :, None]  # stations the RK4 stages evaluate at
+    r0 = table[:, kernel.T_R0]
+    drho = (table[:, kernel.T_R1] - r0) / length_m
+    omega = table[:, kernel.T_OMEGA]
+    rho = r0 + drho * at
+    theta = table[:, kernel.T_ALPHA] + omega * at
+    c, sn = np.cos(theta), np.sin(theta)
+    out = np.empty(rho.shape + (kernel.ROUTE_COLUMNS,))
+    out[..., kernel.RT_X] = rho * c
+    out[..., kernel.RT_Y] = rho * sn
+    out[..., kernel.RT_DX] = drho * c - rho * omega * sn
+    out[..., kernel.RT_DY] = drho * sn + rho * omega * c
+    out[..., kernel.RT_ON] = (table[:, kernel.T_END] >= mids[:, None, None]).astype(float)
+    return out

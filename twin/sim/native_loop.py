@@ -29,7 +29,7 @@ __all__ = ["LoopState", "Mode", "NativeLoopError", "PlantLoop", "Reason", "build
 
 SOURCE = resource_path("native") / "loop.cpp"
 LIB_NAME = "libtwinloop.so"
-ABI_VERSION = 10
+ABI_VERSION = 11
 # Where the mujoco wheel lives (headers, libmujoco), found without importing it: MuJoCo picks its
 # GL backend on first import, which the twin package arranges for (headless EGL).
 _MUJOCO_SPEC = importlib.util.find_spec("mujoco")

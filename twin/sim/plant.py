@@ -38,7 +38,7 @@ from twin.sim.motor import MotorConstants
 from twin.sim.native_loop import Mode, PlantLoop, Reason
 from twin.sim.sensors import HX711_RANGE_COUNTS, LoadCellSample, NoiseStream, TrackerSample, probe_layout
 
-__all__ = ["DriveMode", "ENGAGE_MAX_STEP_S", "Plant", "SettleResult", "SimulationError"]
+__all__ = ["DriveMode", "ENGAGE_MAX_STEP_S", "HOLDER_AT_ONCE_M", "HOLDER_STAGE_M", "HOLDER_STAGE_S", "Plant", "SettleResult", "SimulationError"]
 
 
 class DriveMode(enum.StrEnum):
@@ -68,6 +68,20 @@ _DRIVE_MODES = tuple(DriveMode[mode.name] for mode in Mode)
 ENGAGE_MAX_STEP_S = 1.25e-3
 ENGAGE_MARGIN_N = 0.5
 ENGAGE_SPIKE_N = 0.1
+# The most the reference holder's welds close at once (m of their position error, at anchors
+# that lie a metre off each disc, so that a disc's tilt counts with its offset: Plant.engage_holder),
+# the stages it closes a larger error in, and the time (s) each stage is given
+# (twin.device.sim_fixture.SimFixture). A rod within HOLDER_AT_ONCE_M is clamped at once as before:
+# every frictionless sweep of the zoo (at most 4.6 mm, the long robot's sag), the endoscope at
+# μ = 0.15 (10 mm), the helical robot at μ = 0.6 (up to 33 mm, which it survives). One farther
+# off, a robot that drooped with slack tendons and that friction then holds so (217-268 mm on
+# long and helical at μ = 0.6; clamped at once from 268 mm the helical robot diverged within a
+# step, and so it did closing from 280 mm in stages of 20 mm), closes in stages of
+# HOLDER_STAGE_M, each given four times the welds' 10 ms time constant (twin.sim.model, holder
+# solref).
+HOLDER_AT_ONCE_M = 20e-3
+HOLDER_STAGE_M = 5e-3
+HOLDER_STAGE_S = 0.04
 
 
 class SimulationError(RuntimeError):
@@ -213,6 +227,7 @@ class Plant:
         self._loadcell: LoadCellSample | None = None
         self._tracker_frame: TrackerSample | None = None
         self._warnings_seen = self.data.warning.number.copy()
+        self.loop.state.diverged_at_s = -1.0
 
     @property
     def time_s(self) -> float:
@@ -297,7 +312,7 @@ class Plant:
                 return hook.state.copy()
         return None
 
-    def engage_holder(self) -> None:
+    def engage_holder(self) -> int:
         """Clamp the reference holder around the discs: they are pulled back to and held in the
         straight pose (weld constraints), as while pretensioning.
 
@@ -305,11 +320,23 @@ class Plant:
         disc turned about the backbone as it is when it closes (the weld's reference takes the
         disc's twist relative to the clamp). Pulling the twist out too would snap a helically
         routed robot, whose pretension alone twists the tip by 17°, against its tendons within
-        a step (MuJoCo diverged six steps after the holder closed)."""
+        a step (MuJoCo diverged six steps after the holder closed).
+
+        A rod that drooped while its tendons were slack and that tendon friction then holds so
+        (268 mm of weld error on the helical robot at μ = 0.6) is not snapped straight within a
+        step either: that drove the spools' tensions to hundreds of newtons and MuJoCo diverged
+        within four steps, with or without the friction. The holder then closes in stages of
+        :data:`HOLDER_STAGE_M` of weld error each (:meth:`close_holder`), the way a hand closes
+        it; a rod within :data:`HOLDER_AT_ONCE_M` is clamped straight at once.
+
+        Returns:
+            the number of stages the holder closes in (1: it is closed now).
+        """
         m, d = self.model, self.data
         mujoco.mj_kinematics(m, d)
         relative, conjugate, anchor = np.empty(4), np.empty(4), np.empty(3)
-        for eq, straight in zip(self._holder, self._holder_straight):
+        start, target = np.empty((len(self._holder), 7)), np.empty((len(self._holder), 7))
+        for row, (eq, straight) in enumerate(zip(self._holder, self._holder_straight)):
             disc, clamp = m.eq_obj1id[eq], m.eq_obj2id[eq]
             # The clamp's orientation in the disc's frame; its twist part about the backbone (z).
             mujoco.mju_negQuat(conjugate, d.xquat[disc])
@@ -319,10 +346,42 @@ class Plant:
             # The weld's anchor (eq_data[0:3], disc frame) lies at eq_data[3:6] in the clamp's
             # frame: at the straight disc's position, turned by the disc's twist.
             mujoco.mju_rotVecQuat(anchor, straight[0:3], twist)
-            m.eq_data[eq, 3:6] = straight[3:6] - straight[0:3] + anchor
-            m.eq_data[eq, 6:10] = twist
+            target[row, :3] = straight[3:6] - straight[0:3] + anchor
+            target[row, 3:] = twist
+            # The reference that holds the disc where it is: the point eq_data[3:6] of the disc's
+            # frame on the clamp's eq_data[0:3].
+            here = d.xmat[clamp].reshape(3, 3) @ straight[0:3] + d.xpos[clamp] - d.xpos[disc]
+            start[row, :3] = d.xmat[disc].reshape(3, 3).T @ here
+            start[row, 3:] = relative
+        # The welds' position error at their anchors, which the holder is to close.
+        travel_m = float(np.max(np.linalg.norm(target[:, :3] - start[:, :3], axis=1)))
+        self._holder_path = (start, target)
+        self._holder_stages = 1 if travel_m <= HOLDER_AT_ONCE_M else math.ceil(travel_m / HOLDER_STAGE_M - 1e-9)
+        self._holder_stage = 0
+        self.close_holder()
         self.data.eq_active[self._holder] = True
+        return self._holder_stages
+
+    def close_holder(self) -> bool:
+        """Close the engaged holder by one more of its stages (:meth:`engage_holder`): the welds
+        hold each disc that share of the way from where it was when the holder engaged to
+        straight. Returns True once it is fully closed."""
+        start, target = self._holder_path
+        self._holder_stage = min(self._holder_stage + 1, self._holder_stages)
+        share = self._holder_stage / self._holder_stages
+        turn, quat = np.empty(3), np.empty(4)
+        for eq, a, b in zip(self._holder, start, target):
+            if share >= 1.0:
+                self.model.eq_data[eq, 3:10] = b
+                continue
+            # Position straight along, orientation along the shortest turn.
+            mujoco.mju_subQuat(turn, b[3:], a[3:])
+            quat[:] = a[3:]
+            mujoco.mju_quatIntegrate(quat, turn, share)
+            self.model.eq_data[eq, 3:6] = a[:3] + share * (b[:3] - a[:3])
+            self.model.eq_data[eq, 6:10] = quat
         self.loop.state.jump = 1
+        return self._holder_stage == self._holder_stages
 
     def release_holder(self) -> None:
         """Open the reference holder: the discs are free again."""
@@ -381,8 +440,11 @@ class Plant:
         counts = self.data.warning.number.copy()
         new = {mujoco.mjtWarning(i).name: int(c) for i, c in enumerate(counts - self._warnings_seen) if c > 0}
         self._warnings_seen = counts
+        # MuJoCo resets the data when a step diverges: the loop kept the time it happened at.
+        diverged_s, self.loop.state.diverged_at_s = self.loop.state.diverged_at_s, -1.0
         if new:
-            raise SimulationError(f"MuJoCo warned at t = {self.time_s:.4f} s: {new}")
+            at_s = diverged_s if diverged_s >= 0 else self.time_s
+            raise SimulationError(f"MuJoCo warned at t = {at_s:.4f} s: {new}")
 
     # ----------------------------------------------------------------------------- sensors
     def encoder_counts(self) -> np.ndarray:

@@ -20,7 +20,7 @@
 
 #include <mujoco/mujoco.h>
 
-#define BL_ABI_VERSION 10
+#define BL_ABI_VERSION 11
 // Tendons (spools, motors, load cells) a plant can have.
 #define BL_MAX_CHANNELS 12
 // The tracker's two probes: three position and three axis components each.
@@ -97,6 +97,7 @@ enum { BL_DRIVE_COAST = 0, BL_DRIVE_ON = 1 };
   S(f64, friction_motor_travel_lag_s) /* ... and while the motor drives the spool (s) */            \
   S(f64, friction_tension_cap_n) /* highest spool tension the friction follows (N) */                  \
   S(f64, friction_turn_beyond) /* share of a site's turn whose loss the next segment does not carry */ \
+  S(f64, friction_jump_n)       /* a change of that pull in a step that needs short steps (N) */ \
   A(f64, slack_length_m, BL_MAX_CHANNELS)       /* slack edge of each tendon's spring now (m) */       \
   A(f64, taut_length_m, BL_MAX_CHANNELS)        /* ... in the straight pose (m) */                     \
   A(f64, loadcell_offset_counts, BL_MAX_CHANNELS)                                                       \
@@ -123,7 +124,10 @@ enum { BL_DRIVE_COAST = 0, BL_DRIVE_ON = 1 };
   A(f64, sliding_state, BL_MAX_CHANNELS)        /* the friction's Dahl state σ per tendon (−1 … +1) */ \
   A(f64, friction_tension_n, BL_MAX_CHANNELS)   /* the lagged spool tension it follows (N) */          \
   A(f64, friction_spool_m, BL_MAX_CHANNELS)     /* the lagged spool position σ follows (m) */          \
+  A(f64, friction_load_n, BL_MAX_CHANNELS)      /* the friction's pull at each path's end, last step (N) */ \
+  A(f64, friction_wrap_rad, BL_MAX_CHANNELS)    /* each path's whole wrap at the last step (rad) */    \
   S(f64, jump_accel_m_s2)       /* spool acceleration step since the last physics step */               \
+  S(f64, diverged_at_s)         /* plant time of the step MuJoCo reset after a warning (s); -1: none */  \
   S(i32, channels)              /* tendons of the plant */                                              \
   S(i32, noise_size)            /* draws in the buffer */                                               \
   S(i32, noise_cursor)          /* the next draw to take */                                             \
@@ -133,6 +137,7 @@ enum { BL_DRIVE_COAST = 0, BL_DRIVE_ON = 1 };
   S(i32, friction_sites_per_tendon)  /* sites of each path: spool, base hole, then towards the tip */   \
   S(i32, friction_primed)       /* 0 until friction_tension_n holds a tension */                        \
   S(i32, friction_joint_turns)  /* 1: fixed tendons: turns and pulls at the joints, 0: along the chords */ \
+  S(i32, friction_jumped)       /* 1 after a step whose friction load changed by friction_jump_n */     \
   S(i32, base_substeps)         /* physics steps each step is cut into always (effects' stability) */  \
   S(i32, engage_substeps)       /* ... while a tendon could engage */                                   \
   S(i32, current_substeps)      /* what mjModel.opt.timestep is cut to now */                           \
@@ -451,8 +456,9 @@ static void dynamics_reset(const mjData* d, bl_state* s) {
   }
   s->delay_head = 0;
   s->delay_filled = 0;
-  for (int i = 0; i < s->channels; ++i) s->sliding_state[i] = 0.0;
+  for (int i = 0; i < s->channels; ++i) s->sliding_state[i] = 0.0, s->friction_wrap_rad[i] = 0.0, s->friction_load_n[i] = 0.0;
   s->friction_primed = 0;
+  s->friction_jumped = 0;
 }
 
 // Capstan friction of the tendons at the disc holes (twin.effects.tendon_friction.TendonFriction,
@@ -523,7 +529,15 @@ static void tendon_friction(const mjModel* m, mjData* d, bl_state* s) {
     double lag_s = s->mode == BL_PWM || s->mode == BL_COAST ? s->friction_motor_travel_lag_s : s->friction_travel_lag_s;
     double moved_m = (spool_m - s->friction_spool_m[i]) * (dt / (lag_s + dt));
     s->friction_spool_m[i] += moved_m;
-    double step = -moved_m / s->presliding_m;
+    // Turning the friction round changes the tension along the path by up to 2 T0 sinh(μ θ) at
+    // its end, about half that on average, and the tendon takes that up over its stretch before
+    // it slides: σ turns over at least that travel (half of it per unit of σ). Over a fixed few
+    // hundredths of a millimetre a large friction (27 N on a bent stiff robot at μ = 0.6: a 30 N
+    // swing) turned within one step, and the explicit swing it threw at the rod, back and forth,
+    // never let it rest or diverged; below 16 N of swing nothing changes.
+    double stretch_m = 0.5 * s->friction_tension_n[i] * sinh(s->friction_coeff * s->friction_wrap_rad[i])
+                       / s->tendon_stiffness_n_per_m;
+    double step = -moved_m / (stretch_m > s->presliding_m ? stretch_m : s->presliding_m);
     if (step != 0.0) {
       double value = s->sliding_state[i] + step;
       s->sliding_state[i] = value > 1.0 ? 1.0 : value < -1.0 ? -1.0 : value;
@@ -540,7 +554,7 @@ static void tendon_friction(const mjModel* m, mjData* d, bl_state* s) {
   for (int i = 0; i < n; ++i) {
     const int32_t* row = path + i * sites;
     double t0 = s->friction_tension_n[i], decay = -s->sliding_state[i] * s->friction_coeff;
-    double wrap = 0.0, before[3] = {0.0, 0.0, 0.0};
+    double wrap = 0.0, before[3] = {0.0, 0.0, 0.0}, load_n = 0.0;
     for (int k = 0; k + 1 < sites; ++k) {
       const double* a = d->site_xpos + 3 * row[k];
       const double* b = d->site_xpos + 3 * row[k + 1];
@@ -556,6 +570,7 @@ static void tendon_friction(const mjModel* m, mjData* d, bl_state* s) {
         // site stands for a bend spread over the bodies on both sides of it (a joint's plane),
         // segment k carries the loss of half its turn, the next segment the rest.
         double excess = t0 * (exp(decay * (wrap - s->friction_turn_beyond * turn)) - 1.0);
+        load_n = fabs(excess);
         if (s->friction_joint_turns) {
           // The joints in site k's plane, pulled as the fixed tendon pulls them (−T ∂ℓ/∂ξ) with
           // T_k − T0: the tension there is T_k.
@@ -582,6 +597,9 @@ static void tendon_friction(const mjModel* m, mjData* d, bl_state* s) {
       }
       before[0] = u[0], before[1] = u[1], before[2] = u[2];
     }
+    s->friction_wrap_rad[i] = wrap;
+    if (fabs(load_n - s->friction_load_n[i]) > s->friction_jump_n) s->friction_jumped = 1;
+    s->friction_load_n[i] = load_n;
   }
 }
 
@@ -591,11 +609,14 @@ static int plant_chunk(mjModel* m, mjData* d, bl_state* s, int chunk) {
   bl_mj_fn step = (bl_mj_fn)s->step_fn;
   bl_hook_fn hook = (bl_hook_fn)s->hook_fn;
   int substeps = s->base_substeps;
-  if (s->engage_substeps > substeps && engage_risk(m, d, s, chunk)) {
+  // A friction load that jumped (the friction turning round on a spool let go at a high
+  // tension, a rod whipping) is a change an explicit 5 ms step cannot follow either.
+  if (s->engage_substeps > substeps && (s->friction_jumped || engage_risk(m, d, s, chunk))) {
     substeps = s->engage_substeps;
     s->short_steps += chunk;
   }
   s->jump = 0;
+  s->friction_jumped = 0;
   s->jump_accel_m_s2 = 0.0;
   if (substeps != s->current_substeps) {
     m->opt.timestep = s->step_s / substeps;
@@ -611,7 +632,10 @@ static int plant_chunk(mjModel* m, mjData* d, bl_state* s, int chunk) {
     if (geometry) tendon_geometry(m, d, s);
     if (friction) tendon_friction(m, d, s);
     if (hook) hook();
+    double before_s = d->time;
     step(m, d);
+    // A diverged step resets the data (time 0): keep when it was, for the error.
+    if (d->time < before_s && s->diverged_at_s < 0) s->diverged_at_s = before_s;
     if (dynamics) dynamics_after_step(m, d, s);
     for (int i = 0; i < s->channels; ++i) {
       double tension = spring_tension_n(d, s, i);
