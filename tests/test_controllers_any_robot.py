@@ -100,10 +100,6 @@ def test_twin_tune_and_bench_env_run_on_a_three_tendon_robot(capsys):
     assert bench_env(params, steps=20)["steps_per_s"] > 0
 
 
-@pytest.mark.xfail(strict=True, reason="the twin's capstan loss sits half a joint's turn beyond each joint plane "
-                   "since the single-segment robots' friction bias was fixed (0.03-0.05 mm from the predictor "
-                   "there); on two-segment the tip is then 0.68 mm off at mu 0.3 (0.05 mm with the whole turn "
-                   "at the joint): the segment boundary's loss is not yet placed as the predictor places it")
 def test_friction_on_a_two_segment_twin_agrees_with_the_predictor():
     """The twin's capstan friction on a robot whose proximal tendons end at the middle disc: it
     moves the tip by millimetres, and the predictor, given the twin's sliding state, follows it."""

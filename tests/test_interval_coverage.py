@@ -54,3 +54,14 @@ def test_bad_arguments_are_one_line(capsys):
     assert load().main(["2", "--effects", "gravity"]) == 2
     assert load().main(["2", "--robot", "no-such-robot"]) == 2
     assert capsys.readouterr().err.count("\n") == 4
+
+
+def test_every_plane_doubles_the_grid_past_the_configurations_counted_independent():
+    from twin.discrepancy.uncertainty import PATTERNS
+    from twin.robots import load_robot
+
+    module = load()
+    params = load_robot("endoscope")
+    default, every = module.coverage_grid(params), module.coverage_grid(params, every_plane=True)
+    assert len(default) == PATTERNS and len(every) == 2 * PATTERNS
+    assert {g[2] for g in every} == set(range(0, 360, 30)) and set(map(tuple, default)) <= set(map(tuple, every))

@@ -92,9 +92,22 @@ def test_friction_runs_inside_the_loop_at_the_twins_own_step():
     plant.set_tensions([3.0, 1.0, 0.5, 1.0])
     plant.step(0.2)
     assert plant.sliding_state[0] == 1.0 and plant.sliding_state[2] == -1.0
-    assert np.abs(plant.data.xfrc_applied).max() > 0.1
+    # Continuous routing: the loss pulls the joints as the fixed tendon does (the axial slides by
+    # ~0.4 N here); a frictionless plant applies nothing there.
+    assert np.abs(plant.data.qfrc_applied).max() > 0.1
     free = Plant(load_params()).loop.state
     assert not free.hook_fn and free.friction_coeff == 0.0
+
+
+def test_friction_set_to_zero_at_run_time_leaves_no_force_behind():
+    # What twin.sim.events does to a running plant's μ: the loop keeps clearing what it applied.
+    plant = Plant(load_params().replace({"effects.tendon_friction_coeff": 0.1}))
+    plant.set_tensions([3.0, 1.0, 0.5, 1.0])
+    plant.step(0.2)
+    assert np.abs(plant.data.qfrc_applied).max() > 0.1
+    plant.loop.state.friction_coeff = 0.0
+    plant.step(0.05)
+    assert np.abs(plant.data.qfrc_applied).max() < 1e-9
 
 
 def test_a_plant_takes_any_tendon_count_the_loop_holds():

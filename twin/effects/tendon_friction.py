@@ -199,9 +199,12 @@ class TendonFriction:
     the state of a Dahl model of the sliding direction: σ → +1 while the spool pulls tendon
     in, → −1 while it pays out, over :data:`PRESLIDING_M` of travel, and it holds when the
     tendon stops, so a static state remembers how it was reached. The difference between the
-    friction profile and MuJoCo's uniform one is added at each disc site as a force (and its
-    moment about the body's centre of mass) through ``xfrc_applied``; the forces include the
-    friction on the disc, so momentum balances. T₀ is the spool's tension, at most
+    friction profile and MuJoCo's uniform one is added, for a spatial tendon through the discs,
+    at each site as a force along the chords (and its moment about the body's centre of mass)
+    through ``xfrc_applied``, the forces including the friction on the disc so that momentum
+    balances; for a fixed tendon over the joints (continuous routing) as the fixed tendon's own
+    pull on each joint, −(T_k − T₀) ∂ℓ/∂ξ, through ``qfrc_applied`` (``joint_pulls`` in the
+    constructor says why). T₀ is the spool's tension, at most
     ``tension_cap_n`` (:data:`FRICTION_TENSION_CAP_LIMITS`), through a first-order lag of
     :data:`FRICTION_TENSION_LAG_S`, and σ follows the spool's travel through one of
     :data:`FRICTION_TRAVEL_LAG_S` on an ideal source, of :data:`FRICTION_MOTOR_TRAVEL_LAG_S`
@@ -215,7 +218,7 @@ class TendonFriction:
     max_step_s = FRICTION_MAX_STEP_S
 
     def __init__(self, model, coeff: float, spool_dofs: np.ndarray, sites: np.ndarray, passed=None,
-                 turn_beyond: float = 0.0, tension_cap_n: float = math.inf):
+                 turn_beyond: float = 0.0, tension_cap_n: float = math.inf, joint_pulls=None):
         """Args:
             model: the compiled twin (``mujoco.MjModel``).
             coeff: μ per radian of wrap.
@@ -235,12 +238,32 @@ class TendonFriction:
                 turn's loss at the joint put the loss half an element early and made the friction's
                 effect on the tip larger than the predictor's by ~1.5/N (9 % at N = 10 elements,
                 5 % at N = 20, 16 % at N = 5; endoscope, μ = 0.3, κ = 26.2 1/m).
+            joint_pulls: for fixed tendons over the joints (continuous routing), a pair of
+                (n, S, 6) arrays, the dof index (−1: none) and the tendon's length coefficient
+                ∂ℓ/∂ξ on it (:func:`_joint_pulls`), of the joints in the plane of each site. The
+                friction then pulls those joints through the fixed tendon's own coefficients, with
+                the tension lost up to half the joint's turn, as the predictor's moment τ(s) r × t
+                at the joint: a force along the chord to the next site, which a bend of Δθ at the
+                joint tilts from the plane's normal, reaches the arm r·cos Δθ only (1 % of the
+                friction's effect on the endoscope at N = 10, κ = 20 1/m). And a site's turn is
+                then its joint's rotation across the tendon, |φ × t|, the predictor's wrap
+                ∫|u × t| ds over the joint; not the angle between the chords through the sites,
+                which a twist hinge tilts by r·φ/h without bending the tendon (with G·J torsion
+                and a 10 g tip that counted 4 % more wrap than the predictor on a 100 mm rod) and
+                a helix turns even on a straight rod (1.8 times the predictor's friction on the
+                helical robot). None: forces along the
+                chords through the sites, turning at each by the angle between them (a line
+                running straight between discs, as the rig's).
         """
         self.coeff = float(coeff)
         if not 0.0 <= turn_beyond <= 1.0:
             raise ValueError(f"turn_beyond = {turn_beyond!r}: must be within 0 … 1")
         self.turn_beyond = float(turn_beyond)
         self.tension_cap_n = float(tension_cap_n)
+        self.joint_turns = joint_pulls is not None
+        if joint_pulls is not None:
+            self._joint_dofs = np.ascontiguousarray(joint_pulls[0], dtype=np.int32)
+            self._joint_coefficients = np.ascontiguousarray(joint_pulls[1], dtype=np.float64)
         sites = np.array(sites)
         if passed is not None:
             # The sites beyond a tendon's anchor repeat the anchor, so that the paths stay
@@ -269,11 +292,10 @@ class TendonFriction:
         dofs = [model.jnt_dofadr[model.joint(f"spool{i}").id] for i in range(tendons)]
         # A fixed tendon (continuous routing: it wraps the joints, its sites only trace the path)
         # bends at the joints' planes, where its sites are; a spatial one turns at its sites.
-        import mujoco
-
-        fixed = int(model.wrap_type[model.tendon_adr[model.tendon("tendon0").id]]) == int(mujoco.mjtWrap.mjWRAP_JOINT)
+        fixed = _wraps_joints(model)
         return cls(model, coeff, np.array(dofs), np.array(sites), None if passed is None else np.asarray(passed) + 2,
-                   turn_beyond=0.5 if fixed else 0.0, tension_cap_n=tension_cap_n)
+                   turn_beyond=0.5 if fixed else 0.0, tension_cap_n=tension_cap_n,
+                   joint_pulls=_joint_pulls(model, np.array(sites)) if fixed else None)
 
     def attach(self, state) -> None:
         """Have the plant loop whose state (:class:`twin.sim.native_loop.LoopState`) is ``state``
@@ -290,6 +312,10 @@ class TendonFriction:
         state.friction_motor_travel_lag_s = FRICTION_MOTOR_TRAVEL_LAG_S
         state.friction_coeff = self.coeff
         state.friction_turn_beyond = self.turn_beyond
+        state.friction_joint_turns = int(self.joint_turns)
+        if self.joint_turns:
+            state.friction_joint_dofs = self._joint_dofs.ctypes.data
+            state.friction_joint_coefficients = self._joint_coefficients.ctypes.data
         state.friction_tension_cap_n = self.tension_cap_n
         state.friction_jump_n = FRICTION_JUMP_N
 
@@ -320,22 +346,72 @@ def friction_direction(relative_lengths_m, sense: float = 1.0, sliding_state=Non
     return sense * np.where(lengths > 0, -1.0, 1.0)
 
 
+def _wraps_joints(model) -> bool:
+    """Whether the twin's tendons are fixed tendons over the joints (continuous routing), whose
+    sites only trace the path, rather than spatial ones through their sites."""
+    import mujoco
+
+    return int(model.wrap_type[model.tendon_adr[model.tendon("tendon0").id]]) == int(mujoco.mjtWrap.mjWRAP_JOINT)
+
+
+def _joint_pulls(model, sites: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The joints each fixed tendon pulls, by the site in whose plane they lie: (n, S, 6) dof
+    indices (−1: none) and (n, S, 6) the tendon's length coefficients on them, for the paths
+    ``sites`` (n, S) of :meth:`TendonFriction.in_model` (spool, hole, then ``t{i}_s{k}`` in joint
+    k's plane). Station k's joints are named ``b{k}_…`` (:mod:`twin.sim.model`); a joint that
+    lumps the compliance of a block of elements (a slide, a twist hinge) is pulled with its
+    station's tension, the block's middle."""
+    import mujoco
+
+    n, count = sites.shape
+    dofs = np.full((n, count, 6), -1, dtype=np.int32)
+    coefficients = np.zeros((n, count, 6))
+    for i in range(n):
+        tendon = model.tendon(f"tendon{i}").id
+        used = np.zeros(count, dtype=int)
+        for w in range(model.tendon_adr[tendon], model.tendon_adr[tendon] + model.tendon_num[tendon]):
+            if int(model.wrap_type[w]) != int(mujoco.mjtWrap.mjWRAP_JOINT):
+                continue
+            joint = int(model.wrap_objid[w])
+            name = model.joint(joint).name
+            if not (name.startswith("b") and "_" in name):
+                continue  # the spool
+            k = int(name[1:name.index("_")]) + 1  # path: spool, hole, then t{i}_s1 at joint 1's plane
+            dofs[i, k, used[k]] = model.jnt_dofadr[joint]
+            coefficients[i, k, used[k]] = model.wrap_prm[w]
+            used[k] += 1
+    return dofs, coefficients
+
+
 def _sites_to_anchor(model, params: Params) -> np.ndarray:
-    """(n,) how many of the sites ``t{i}_s1`` … each tendon passes up to its anchor
-    (:meth:`Params.tendon_ends_m`): those at an arc length, measured along the clamp's axis in the
-    straight pose (``qpos0``), not beyond the anchor."""
+    """(n,) how many of the sites ``t{i}_s1`` … each tendon's friction path runs through up to its
+    anchor (:meth:`Params.tendon_ends_m`), by their arc length along the clamp's axis in the
+    straight pose (``qpos0``).
+
+    A spatial tendon ends at the site of its anchor's disc: the sites not beyond the anchor. A
+    fixed one (continuous routing) pulls every joint whose plane lies before its anchor, and its
+    sites stand in those planes, each on the body before the joint: the path runs on to the next
+    site, on the anchor's body, as a tendon to the tip runs on to the tip, so that the segment
+    across the last joint it pulls carries that joint's friction loss. Ended at the last plane,
+    that joint kept the spool's tension (two-segment, μ = 0.3, κ 15 1/m: the tip 0.7 mm from the
+    predictor)."""
     import mujoco
 
     data = mujoco.MjData(model)
     mujoco.mj_kinematics(model, data)
     names = {model.site(k).name for k in range(model.nsite)}
     along = sum(1 for j in range(1, model.nsite + 1) if f"t0_s{j}" in names)
+    fixed = _wraps_joints(model)
     passed = []
     for i, end_m in enumerate(params.tendon_ends_m()):
         hole = model.site(f"hole{i}").id
         axis = data.xmat[model.site_bodyid[hole]].reshape(3, 3)[:, 2]
         s_m = [(data.site_xpos[model.site(f"t{i}_s{j}").id] - data.site_xpos[hole]) @ axis for j in range(1, along + 1)]
-        passed.append(int(np.count_nonzero(np.asarray(s_m) <= end_m + 1e-7)))
+        if fixed:
+            # The joints pulled are those of elements centred before the anchor (twin.sim.model.TendonLength).
+            passed.append(min(along, int(np.count_nonzero(np.asarray(s_m) < end_m - 1e-7)) + 1))
+        else:
+            passed.append(int(np.count_nonzero(np.asarray(s_m) <= end_m + 1e-7)))
     return np.array(passed)
 
 

@@ -67,6 +67,8 @@ enum { BL_DRIVE_COAST = 0, BL_DRIVE_ON = 1 };
   S(f64p, geometry)             /* tendons' second-order length (twin.sim.model.GeometricStiffness) */  \
   S(ptr, geometry_index)        /* int32: its joints' ids and addresses */                              \
   S(ptr, friction_sites)        /* int32 (channels × friction_sites_per_tendon): each tendon's path */  \
+  S(ptr, friction_joint_dofs)   /* int32 (channels × sites × 6): dofs in each site's plane (-1: none) */ \
+  S(f64p, friction_joint_coefficients) /* ... and the tendon's length coefficient on each */            \
   /* plant constants */                                                                                 \
   S(f64, step_s)                /* physics step sim.timestep_s (s) */                                   \
   S(f64, engage_stretch_m)      /* a tendon stretched less than this gets the engagement check */       \
@@ -134,6 +136,7 @@ enum { BL_DRIVE_COAST = 0, BL_DRIVE_ON = 1 };
   S(i32, coupled_pairs)         /* ... then pairs of joints it couples */                              \
   S(i32, friction_sites_per_tendon)  /* sites of each path: spool, base hole, then towards the tip */   \
   S(i32, friction_primed)       /* 0 until friction_tension_n holds a tension */                        \
+  S(i32, friction_joint_turns)  /* 1: fixed tendons: turns and pulls at the joints, 0: along the chords */ \
   S(i32, friction_jumped)       /* 1 after a step whose friction load changed by friction_jump_n */     \
   S(i32, base_substeps)         /* physics steps each step is cut into always (effects' stability) */  \
   S(i32, engage_substeps)       /* ... while a tendon could engage */                                   \
@@ -462,9 +465,50 @@ static void dynamics_reset(const mjData* d, bl_state* s) {
 // which documents the model): MuJoCo's tendon carries the spool's tension T0 along its whole
 // path; with friction the tension in segment k is T0 exp(−σ μ θ_k), θ_k the wrap from the spool to
 // site k, σ each tendon's Dahl sliding state. The difference is applied at the path's sites as
-// forces (and their moments about each body's centre of mass) through xfrc_applied. Computed
+// forces along the chords (and their moments about each body's centre of mass) through
+// xfrc_applied, or, for fixed tendons, on the joints in each site's plane through qfrc_applied
+// as the fixed tendon pulls them. Computed
 // here, before every physics step, so that a twin with friction steps at the speed of one without
 // and a Ctrl-C reaches Python between the loop's calls.
+// The angle between two unit chords (rad): the turn of a line that runs straight between sites.
+static double chord_turn(const double* before, const double* after) {
+  double c = before[0] * after[0] + before[1] * after[1] + before[2] * after[2];
+  return acos(c > 1.0 ? 1.0 : c < -1.0 ? -1.0 : c);
+}
+
+// The turn (rad) of a continuously routed tendon across the joint between bodies a and b, whose
+// chords before and after it are unit vectors: |φ × t| with φ the rotation vector of b relative
+// to a and t the tendon's direction there, the joint's share of the predictor's wrap ∫|u × t| ds
+// (twin.rod.kernel). The angle between the chords is not: a twist hinge moves the next site
+// sideways by r·φz, which tilts the chord by r·φz/h without bending the tendon (a 100 mm rod with
+// G·J torsion under a 10 g tip counted 4 % more wrap so than the predictor).
+static double joint_turn(const mjData* d, int a, int b, const double* before, const double* after) {
+  if (a == b) return 0.0;
+  const double* ra = d->xmat + 9 * a;
+  const double* rb = d->xmat + 9 * b;
+  double r[3][3];  // rb · raᵀ: b's orientation relative to a's, in the world frame
+  for (int i = 0; i < 3; ++i)
+    for (int j = 0; j < 3; ++j) r[i][j] = rb[3 * i] * ra[3 * j] + rb[3 * i + 1] * ra[3 * j + 1] + rb[3 * i + 2] * ra[3 * j + 2];
+  double w[3] = {0.5 * (r[2][1] - r[1][2]), 0.5 * (r[0][2] - r[2][0]), 0.5 * (r[1][0] - r[0][1])};
+  double sine = sqrt(w[0] * w[0] + w[1] * w[1] + w[2] * w[2]);
+  double angle = atan2(sine, 0.5 * (r[0][0] + r[1][1] + r[2][2] - 1.0));
+  double scale = sine > 1e-300 ? angle / sine : 1.0;
+  double t[3] = {before[0] + after[0], before[1] + after[1], before[2] + after[2]};
+  double norm = sqrt(t[0] * t[0] + t[1] * t[1] + t[2] * t[2]);
+  if (norm <= 0.0) return 0.0;
+  double c[3] = {w[1] * t[2] - w[2] * t[1], w[2] * t[0] - w[0] * t[2], w[0] * t[1] - w[1] * t[0]};
+  return scale * sqrt(c[0] * c[0] + c[1] * c[1] + c[2] * c[2]) / norm;
+}
+
+// Before the tendons' second order (which sets its coupled joints' qfrc_applied afresh): the
+// joints the friction pulls (fixed tendons), cleared for tendon_friction to add to.
+static void tendon_friction_clear(mjData* d, const bl_state* s) {
+  if (!s->friction_joint_turns) return;
+  const int32_t* dofs = (const int32_t*)s->friction_joint_dofs;
+  for (int k = 0; k < 6 * s->channels * s->friction_sites_per_tendon; ++k)
+    if (dofs[k] >= 0) d->qfrc_applied[dofs[k]] = 0.0;
+}
+
 static void tendon_friction(const mjModel* m, mjData* d, bl_state* s) {
   int n = s->channels, sites = s->friction_sites_per_tendon;
   const int32_t* path = (const int32_t*)s->friction_sites;
@@ -500,10 +544,13 @@ static void tendon_friction(const mjModel* m, mjData* d, bl_state* s) {
     }
   }
   s->friction_primed = 1;
-  for (int k = 0; k < n * sites; ++k) {
-    double* f = d->xfrc_applied + 6 * m->site_bodyid[path[k]];
-    for (int j = 0; j < 6; ++j) f[j] = 0.0;
+  if (!s->friction_joint_turns) {
+    for (int k = 0; k < n * sites; ++k) {
+      double* f = d->xfrc_applied + 6 * m->site_bodyid[path[k]];
+      for (int j = 0; j < 6; ++j) f[j] = 0.0;
+    }
   }
+  const int32_t* joint_dofs = (const int32_t*)s->friction_joint_dofs;
   for (int i = 0; i < n; ++i) {
     const int32_t* row = path + i * sites;
     double t0 = s->friction_tension_n[i], decay = -s->sliding_state[i] * s->friction_coeff;
@@ -516,14 +563,23 @@ static void tendon_friction(const mjModel* m, mjData* d, bl_state* s) {
       if (norm <= 0.0) break;  // past the tendon's anchor: its path repeats the anchor site
       u[0] /= norm, u[1] /= norm, u[2] /= norm;
       if (k > 0) {
-        double c = before[0] * u[0] + before[1] * u[1] + before[2] * u[2];
-        double turn = acos(c > 1.0 ? 1.0 : c < -1.0 ? -1.0 : c);
+        double turn = s->friction_joint_turns ? joint_turn(d, m->site_bodyid[row[k]], m->site_bodyid[row[k + 1]], before, u)
+                                              : chord_turn(before, u);
         wrap += turn;
         // Segment k pulls site k towards site k + 1 and site k + 1 back, with T_k − T0. Where a
         // site stands for a bend spread over the bodies on both sides of it (a joint's plane),
         // segment k carries the loss of half its turn, the next segment the rest.
         double excess = t0 * (exp(decay * (wrap - s->friction_turn_beyond * turn)) - 1.0);
         load_n = fabs(excess);
+        if (s->friction_joint_turns) {
+          // The joints in site k's plane, pulled as the fixed tendon pulls them (−T ∂ℓ/∂ξ) with
+          // T_k − T0: the tension there is T_k.
+          int at = 6 * (i * sites + k);
+          for (int j = 0; j < 6 && joint_dofs[at + j] >= 0; ++j)
+            d->qfrc_applied[joint_dofs[at + j]] -= excess * s->friction_joint_coefficients[at + j];
+          before[0] = u[0], before[1] = u[1], before[2] = u[2];
+          continue;
+        }
         for (int end = 0; end < 2; ++end) {
           int site = row[k + end];
           double sign = end ? -excess : excess;
@@ -568,8 +624,11 @@ static int plant_chunk(mjModel* m, mjData* d, bl_state* s, int chunk) {
   }
   bool geometry = s->stiffened_joints || s->coupled_pairs;
   bool dynamics = s->loadcell_lag_s > 0 || s->backlash_m > 0;
-  bool friction = s->friction_coeff > 0;
+  // Attached friction runs at any μ: one set to 0 at run time (twin.sim.events) then clears the
+  // forces it applied last instead of leaving them on.
+  bool friction = s->friction_sites != 0;
   for (int k = 0; k < chunk * substeps; ++k) {
+    if (friction) tendon_friction_clear(d, s);
     if (geometry) tendon_geometry(m, d, s);
     if (friction) tendon_friction(m, d, s);
     if (hook) hook();
