@@ -171,7 +171,7 @@ def wait_for_rest(device, *, tension_tolerance_n: float | None = None, tip_toler
         else:
             quiet = 0
         last, previous = now, tensions
-    raise ProtocolError(f"the endoscope did not come to rest within {timeout_s} s (tensions to "
+    raise ProtocolError(f"the robot did not come to rest within {timeout_s} s (tensions to "
                         f"{tension_tolerance_n:.3g} N, tip to {tip_tolerance_m * 1e3:.2f} mm)")
 
 
