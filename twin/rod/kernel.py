@@ -133,6 +133,20 @@ RT_X, RT_Y, RT_DX, RT_DY, RT_ON = range(5)
 ROUTE_COLUMNS = 5
 
 
+@njit(cache=True, inline="always")
+def _adjugate_sym3(a00, a01, a02, a11, a12, a22):
+    """The upper triangle of the adjugate of a symmetric 3×3 matrix, given by its upper triangle,
+    and the matrix's determinant (the inverse is the adjugate over the determinant). Inlined into
+    the stage's Newton step, which takes it twice (the block and its Schur complement)."""
+    c00 = a11 * a22 - a12 * a12
+    c01 = a02 * a12 - a01 * a22
+    c02 = a01 * a12 - a02 * a11
+    c11 = a00 * a22 - a02 * a02
+    c12 = a01 * a02 - a00 * a12
+    c22 = a00 * a11 - a01 * a01
+    return c00, c01, c02, c11, c12, c22, a00 * c00 + a01 * c01 + a02 * c02
+
+
 @njit(cache=True, fastmath={"contract"})
 def integrate(m0, rod, states, strains):
     """Integrate the rod from the base with base moment m0 (N·m, world) by fixed-step RK4.
@@ -330,13 +344,7 @@ def integrate(m0, rod, states, strains):
                 # one's strains: this takes two divisions in a row where a Cholesky factor takes six
                 # square roots and divisions and two triangular solves. J is positive definite iff
                 # A and S are, iff their leading minors are positive (a NaN fails them too).
-                c00 = j11 * j22 - j12 * j12
-                c01 = j02 * j12 - j01 * j22
-                c02 = j01 * j12 - j02 * j11
-                c11 = j00 * j22 - j02 * j02
-                c12 = j01 * j02 - j00 * j12
-                c22 = j00 * j11 - j01 * j01
-                det = j00 * c00 + j01 * c01 + j02 * c02
+                c00, c01, c02, c11, c12, c22, det = _adjugate_sym3(j00, j01, j02, j11, j12, j22)
                 ok = j00 > 0.0 and c22 > 0.0 and det > 0.0
                 if ok:
                     inv = 1.0 / det
@@ -357,13 +365,7 @@ def integrate(m0, rod, states, strains):
                     s11 = j44 - (j04 * p01 + j14 * p11 + j24 * p21)
                     s12 = j45 - (j04 * p02 + j14 * p12 + j24 * p22)
                     s22 = j55 - (j05 * p02 + j15 * p12 + j25 * p22)
-                    d00 = s11 * s22 - s12 * s12
-                    d01 = s02 * s12 - s01 * s22
-                    d02 = s01 * s12 - s02 * s11
-                    d11 = s00 * s22 - s02 * s02
-                    d12 = s01 * s02 - s00 * s12
-                    d22 = s00 * s11 - s01 * s01
-                    det = s00 * d00 + s01 * d01 + s02 * d02
+                    d00, d01, d02, d11, d12, d22, det = _adjugate_sym3(s00, s01, s02, s11, s12, s22)
                     ok = s00 > 0.0 and d22 > 0.0 and det > 0.0
                 if ok:
                     inv = 1.0 / det
