@@ -345,6 +345,9 @@ class ShadowDevice:
             # The load as the world sees it: the twin's own tip force plus the one found.
             self._twin_force_n = self._twin_force_n + np.asarray(event.detail["force_n"], dtype=float)
             twin.change(HiddenEvent(0.0, "tip_force_n", self._twin_force_n))
+        else:
+            return
+        self.monitor.recalibrated(event)
 
     def _jacobian(self, tensions_n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         from twin.rod import RodModel, solve_with_jacobian
