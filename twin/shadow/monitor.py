@@ -64,7 +64,7 @@ TAIL_SIGMAS = 3.0
 TAIL_MIN_EXCURSIONS = 3
 # Frames out of band in a row that start a divergence: one frame's crossing is the tail of the noise.
 MIN_PERSIST_FRAMES = 2
-# A tendon whose tension on the twin is below this many load-cell noise levels is slack: where
+# A tendon whose tension on the twin or the device is below this many load-cell noise levels is slack: where
 # it goes slack or takes its slack up, the rig's length loop and the twin's part for a few frames
 # by when in a tick the load came or went (the noise times it), so its encoder and duty are not
 # compared while slack and for a running median's window after.
@@ -291,7 +291,10 @@ class Monitor:
         if settling:
             return raised
         residual = device.vector() - twin.vector()
-        self._since_slack = np.where(twin.tensions_n < self._slack_n, 0, self._since_slack + 1)
+        # Slack on either side: a tendon one side has taken up and the other not yet parts the two
+        # loops the same way.
+        slack = np.minimum(twin.tensions_n, device.tensions_n) < self._slack_n
+        self._since_slack = np.where(slack, 0, self._since_slack + 1)
         loose = np.flatnonzero(self._since_slack < MEDIAN_FRAMES)
         residual[loose] = np.nan
         residual[2 * self.n + loose] = np.nan
