@@ -425,14 +425,17 @@ class Monitor:
     def recalibrated(self, event: Divergence) -> None:
         """The twin was given ``event``'s change (its size): what remains between the two is a draw
         of the estimate's error, ``std`` in the pattern the change made at its naming. Each channel
-        group's band widens by :data:`UNCERTAINTY_SIGMAS` of that (its largest channel, as the
-        pattern moves between the tendons with the pose) in the frames before the naming."""
+        group the change took out of band widens by :data:`UNCERTAINTY_SIGMAS` of that (its largest
+        channel in the frames before the naming, as the pattern moves between the tendons with the
+        pose)."""
         if self.noise is None or not (math.isfinite(event.size) and math.isfinite(event.std) and event.size != 0):
             return
         n = self.n
         fraction = UNCERTAINTY_SIGMAS * abs(event.std / event.size)
+        # The change's pattern: the channels it took out of their band (the others saw the noise).
+        pattern = np.where(self._named_watched > self._band, self._named_watched, 0.0)
         for group in (slice(0, n), slice(n, 2 * n), slice(2 * n, 3 * n), slice(3 * n, 3 * n + 3)):
-            extra = fraction * float(np.nanmax(np.abs(self._named_watched[group]), initial=0.0))
+            extra = fraction * float(np.max(pattern[group], initial=0.0))
             self._uncertainty[group] = np.hypot(self._uncertainty[group], extra)
         self._band = np.hypot(self.noise.band, self._uncertainty)
 
