@@ -47,6 +47,9 @@ SETPOINTS = ("set_lengths", "set_pairs", "set_tensions")
 # Frames not compared after any other command or fixture action, which may take effect in
 # another frame on each side (a tick's order of command and telemetry).
 SETTLE_FRAMES = 2
+# Largest difference of the two sides' setpoints (m in the length modes, N in tension mode) taken
+# as the same setpoint: far below a count or a load cell's noise, above the float32 the board sends.
+TARGET_TOLERANCE = 1e-6
 # Device commands the twin hears too.
 COMMANDS = ("enable", "disable", "tare", "set_mode", "set_gains", "set_calibration", "set_limits", "set_lengths",
             "set_pairs", "set_tensions")
@@ -128,6 +131,7 @@ class ShadowDevice:
         self.max_queue = 0
         self.twin_resyncs = 0
         self.skipped = 0
+        self.target_mismatches = 0
         self.divergences: list[Divergence] = []
 
     # ------------------------------------------------------------------ forwarding
@@ -305,6 +309,12 @@ class ShadowDevice:
                            twin_sample.motor_commands[:n], twin_tip, int(twin_sample.state),
                            int(twin_sample.fault_flags))
         self.compared += 1
+        if not np.allclose(sample.targets[:n], twin_sample.targets[:n], rtol=0.0, atol=TARGET_TOLERANCE):
+            # A setpoint reached one side a tick or more before the other (a wall-clock link's
+            # latency, which the host's clock does not see): the two loops run different commands
+            # until both hold it, and part for the step's transient after.
+            self.target_mismatches += 1
+            self._settle_until_s = sample.time_s + (SETTLE_FRAMES + 0.5) * self.monitor.period_s
         settling = sample.time_s <= self._settle_until_s
         for event in self.monitor.update(device, twin, tip_frame_time_s=frame_time, settling=settling):
             self._raise(event)
