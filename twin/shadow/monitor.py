@@ -10,11 +10,12 @@ residual stays out of the band the warm-up saw for :data:`MIN_PERSIST_FRAMES` fr
 the length loop's own encoders and duties where their warm-up excursions lasted longer). The band
 is :data:`ALARM_SIGMAS` robust spreads, or 1.5 times the warm-up's largest excursion, or the level
 the warm-up's excursions reach once extrapolated to a run of :data:`WATCH_S` (peaks over a
-threshold), whichever is widest. A slack tendon's encoder and duty are not compared (the loop
-parts from the twin's as the slack is taken up). The frames after the first crossing
+threshold), whichever is widest. A tendon slack on either side has its encoder and duty left out
+(the loop parts from the twin's as the slack is taken up). The frames after the first crossing
 (:data:`NAMING_FRAMES`) are then named by what could cause them (:meth:`Monitor._name`), the twin
-re-calibrated where the cause has a parameter, and the bias
-learned again over :data:`RESYNC_S` before the monitor watches on.
+re-calibrated where the cause has a parameter, and the bias learned again over :data:`RESYNC_S`
+before the monitor watches on, its bands widened by what the re-calibration left uncertain
+(:meth:`Monitor.recalibrated`).
 """
 
 from __future__ import annotations
