@@ -191,8 +191,8 @@ class NoiseModel:
             encoders and duties, which the loop drives back to the setpoints) one frame longer
             than their excursions beyond half the band lasted in the warm-up.
         ring_band_n: the tensions' frame-to-frame change (N, the norm over the cells, a median
-            over :data:`FIT_FRAMES`) beyond which they ring: its median in the warm-up plus
-            :data:`ALARM_SIGMAS` robust spreads of it.
+            over :data:`FIT_FRAMES`) beyond which they ring: :data:`PEAK_MARGIN` times the
+            largest the warm-up saw.
     """
 
     bias: np.ndarray
@@ -413,12 +413,7 @@ class Monitor:
         persist = np.full(len(band), MIN_PERSIST_FRAMES, dtype=int)
         for group in groups[:3:2]:
             persist[group] = max(MIN_PERSIST_FRAMES, _longest_excursion(medians_abs[:, group], band[group] / 2) + 1)
-        # The ringing level is for naming a divergence already found, not for finding one: the
-        # warm-up's typical level and spread, not its largest (a fast ramp's few frames, which a
-        # loop that answers 10 ms late rings below).
-        ringing = _ringing(np.nan_to_num(warm[:, n:2 * n] - bias[n:2 * n]))
-        typical = float(np.median(ringing))
-        ring_band = typical + ALARM_SIGMAS * 1.4826 * float(np.median(np.abs(ringing - typical)))
+        ring_band = PEAK_MARGIN * _ringing(np.nan_to_num(warm[:, n:2 * n] - bias[n:2 * n])).max(initial=0.0)
         self.noise = NoiseModel(np.nan_to_num(bias), sigma, band, mix, _loop_stiffness(twin_rows, n), persist,
                                 ring_band)
         self._band = np.hypot(band, self._uncertainty)
