@@ -278,6 +278,48 @@ def test_a_tendon_taking_up_its_slack_is_not_named_a_gain(from_n):
         assert first.detail["channel"] == 1
 
 
+@pytest.mark.parametrize("lasting", [True, False])
+def test_a_load_cell_recalibration_that_does_not_fit_better_is_taken_back(lasting):
+    """A cell's 0.1 N step is named (an offset or a gain) and given to the twin. Where the step lasts the twin
+    with it fits the device better than without, and the change is kept; where it was a transient
+    of the motion (gone as the naming ends) the twin with it is 0.1 N off from then on, and the
+    change is taken back, the bands as they were before it."""
+    from twin.shadow.monitor import GAIN_CHI2
+
+    rng = np.random.default_rng(4)
+    monitor, start = _learned(rng)
+    step = np.zeros(N)
+    step[0] = 0.1
+    raised = []
+    frames = _frames(rng, int(4.0 / PERIOD_S), start)
+    given: dict = {}
+    for device, twin in frames:
+        if lasting or not raised:
+            device = FrameValues(device.time_s, device.lengths_m, device.tensions_n + step, device.duty, device.tip_m)
+        if given:
+            # The twin's cell 0 with the change: an offset shifts it, a gain scales its tension.
+            read = twin.tensions_n.copy()
+            read[0] += given["size"] * (read[0] if given["kind"] == "loadcell_gain" else 1.0)
+            twin = FrameValues(twin.time_s, twin.lengths_m, read, twin.duty, twin.tip_m)
+        new = monitor.update(device, twin, tip_frame_time_s=device.time_s)
+        for event in new:
+            if not raised:
+                assert event.kind in ("loadcell_offset", "loadcell_gain") and event.detail["channel"] == 0
+                monitor.recalibrated(event)
+                given = {"kind": event.kind, "size": event.size}
+        raised += new
+        if monitor.take_retracted():
+            given = {}
+    assert raised, "a 0.1 N step, ten times the noise, was not seen"
+    first = raised[0]
+    assert "trial_chi2" in first.detail, "the re-calibration's trial did not end within 4 s"
+    if lasting:
+        assert first.detail["trial_chi2"] > GAIN_CHI2 and "retracted" not in first.detail
+    else:
+        assert first.detail["trial_chi2"] < GAIN_CHI2 and first.detail["retracted"] is True
+        np.testing.assert_array_equal(monitor._band, monitor.noise.band)
+
+
 @pytest.mark.xfail(strict=True, reason="a gain and an offset fit a held tension's step exactly alike, and the offset "
                    "(the commoner fault) is named at once where it fits as well, so that offsets are named within "
                    "250 ms; waiting for the tension to move tells the gain but costs an offset's latency")

@@ -122,6 +122,8 @@ class ShadowDevice:
         self._offset_s: float | None = None
         self._rod: Any = None  # the twin.rod.RodModel, built with the first Jacobian
         self._twin_force_n = np.zeros(3)
+        # What the twin had before each load-cell re-calibration, by the event's id: (key, values).
+        self._given: dict[int, tuple[str, list]] = {}
         self._settle_until_s = -math.inf
         self._in_sync = False
         self.cpu_s = 0.0
@@ -318,6 +320,8 @@ class ShadowDevice:
         settling = sample.time_s <= self._settle_until_s
         for event in self.monitor.update(device, twin, tip_frame_time_s=frame_time, settling=settling):
             self._raise(event)
+        for event in self.monitor.take_retracted():
+            self._retract(event)
 
     # ------------------------------------------------------------------ divergences
     def _raise(self, event: Divergence) -> None:
@@ -345,6 +349,7 @@ class ShadowDevice:
         if event.kind in ("loadcell_offset", "loadcell_gain"):
             key = "effects.tension_offset_error_n" if event.kind == "loadcell_offset" else "effects.tension_gain_error"
             values = np.array(twin.params.get(key), dtype=float)
+            self._given[id(event)] = (key, values.tolist())
             values[event.detail["channel"]] += event.size
             twin.change(HiddenEvent(0.0, "set", (key, values.tolist())))
         elif event.kind == "tendon_slip":
@@ -358,6 +363,20 @@ class ShadowDevice:
         else:
             return
         self.monitor.recalibrated(event)
+
+    def _retract(self, event: Divergence) -> None:
+        """Give the twin back what it had before ``event``'s re-calibration, which the monitor
+        found fits the device no better than the twin without it."""
+        from twin.sim.events import HiddenEvent
+
+        given = self._given.pop(id(event), None)
+        if given is not None:
+            self._twin.twin.change(HiddenEvent(0.0, "set", given))
+        if self._console is not None:
+            print(f"shadow: retracted {event.line()}", file=self._console, flush=True)
+        if self._log_path is not None:
+            with self._log_path.open("a") as log:
+                log.write(json.dumps({"retracted": event.to_dict()}) + "\n")
 
     def _jacobian(self, tensions_n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         from twin.rod import RodModel, solve_with_jacobian

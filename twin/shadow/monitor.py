@@ -89,6 +89,11 @@ RESYNC_S = 1.0
 # carried through the residual the change made at its naming (three: one draw held for the rest of
 # the run stays inside 99.7 % of the time).
 UNCERTAINTY_SIGMAS = 3.0
+# A load cell's re-calibration is on trial for the resync and this many frames more (1 s at 40 Hz,
+# the load-cell wait's length: the standard motion moves the tension within it): the twin's cell with
+# and without the change against the device, from the bias before it; a change that does not fit
+# better by :data:`GAIN_CHI2` is taken back.
+TRIAL_FRAMES = 40
 # A load cell alone explains a tensions' change it leaves less than this fraction of unexplained
 # (in units of the bands).
 SINGLE_MISFIT = 0.35
@@ -263,6 +268,11 @@ class Monitor:
         self._watched: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
         # (channel, channels out of band) of a load cell's change waiting to be told gain or offset.
         self._pending: tuple[int, tuple[str, ...]] | None = None
+        # A load cell's re-calibration on trial: (event, the bands' uncertainty and the bias before
+        # it, the change's effect on the twin's reading per frame as a function of its tension,
+        # (watched residual from the old bias, the twin's tension) per frame since).
+        self._trial: tuple[Divergence, np.ndarray, np.ndarray, list[tuple[float, float]]] | None = None
+        self._retracted: list[Divergence] = []
         self.frames = 0
         self.events: list[Divergence] = []
 
@@ -326,6 +336,8 @@ class Monitor:
             self.events.extend(raised)
             return raised
         noise = self.noise
+        if self._trial is not None:
+            self._try(residual, twin.tensions_n, device.time_s)
         if device.time_s < self._resync_until_s:
             self._resync.append(residual)
             self.events.extend(raised)
@@ -430,6 +442,10 @@ class Monitor:
         if self.noise is None or not (math.isfinite(event.size) and math.isfinite(event.std) and event.size != 0):
             return
         n = self.n
+        if self._trial is not None:
+            self._judge(self._trial, math.nan)
+        if event.kind in ("loadcell_offset", "loadcell_gain"):
+            self._trial = (event, self._uncertainty.copy(), self.noise.bias.copy(), [])
         fraction = UNCERTAINTY_SIGMAS * abs(event.std / event.size)
         # The change's pattern: the channels it took out of their band (the others saw the noise).
         pattern = np.where(self._named_watched > self._band, self._named_watched, 0.0)
@@ -437,6 +453,48 @@ class Monitor:
             extra = fraction * float(np.max(pattern[group], initial=0.0))
             self._uncertainty[group] = np.hypot(self._uncertainty[group], extra)
         self._band = np.hypot(self.noise.band, self._uncertainty)
+
+    def take_retracted(self) -> list[Divergence]:
+        """The re-calibrations taken back since the last call (their events' ``detail`` says
+        ``retracted``): the twin is to be given back what it had before each."""
+        retracted, self._retracted = self._retracted, []
+        return retracted
+
+    def _try(self, residual: np.ndarray, twin_tensions_n: np.ndarray, now_s: float) -> None:
+        """One frame of a load cell's re-calibration on trial: its watched residual from the bias
+        before the change (the resync learns one with it)."""
+        trial = self._trial
+        assert trial is not None
+        event, _, bias, rows = trial
+        i = int(event.detail["channel"])
+        row = self._model().mix[self.n + i]
+        rows.append((float(row @ np.nan_to_num(residual - bias)), float(twin_tensions_n[i])))
+        if len(rows) >= round(RESYNC_S / self.period_s) + TRIAL_FRAMES:
+            self._judge(trial, now_s)
+
+    def _judge(self, trial, now_s: float) -> None:
+        """Keep a load cell's re-calibration that fits the frames since it better than the twin
+        without it did, by :data:`GAIN_CHI2` (χ² in the cell's noise); else take it back: a step
+        of the motion named a drift (a tendon taking up its slack) leaves the twin's cell off from
+        then on wherever its tension is, and sets off a divergence at every cycle."""
+        event, uncertainty, bias, rows = trial
+        self._trial = None
+        if not rows:
+            return
+        watched, tension = np.array(rows).T
+        # The twin's reading less the change: an offset shifts it, a gain scales the tension.
+        change = event.size * (tension if event.kind == "loadcell_gain" else np.ones_like(tension))
+        sigma = float(self._model().sigma[self.n + int(event.detail["channel"])])
+        with_sse, without_sse = float(watched @ watched), float((watched + change) @ (watched + change))
+        event.detail["trial_chi2"] = (without_sse - with_sse) / sigma ** 2
+        if without_sse - with_sse > GAIN_CHI2 * sigma ** 2:
+            return
+        event.detail["retracted"] = True
+        self._retracted.append(event)
+        self._uncertainty = uncertainty
+        self._band = np.hypot(self._model().band, uncertainty)
+        if math.isfinite(now_s):
+            self._start_resync(now_s)
 
     def _start_resync(self, now_s: float) -> None:
         self._onset = None
