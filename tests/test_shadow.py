@@ -251,33 +251,6 @@ def test_a_twin_recalibrated_with_an_uncertain_change_watches_on_within_that_unc
     assert results[True] == []
 
 
-@pytest.mark.parametrize("from_n", [0.0, 1.5])
-def test_a_tendon_taking_up_its_slack_is_not_named_a_gain(from_n):
-    """A cell's reading that parts from the twin's in proportion to its tension, as its tendon is
-    pulled: a gain where the tendon was taut before, and unexplained (no re-calibration) where it
-    was slack on one side in the frames before, as taking up the slack parts the two the same way."""
-    rng = np.random.default_rng(5)
-    monitor, start = _learned(rng)
-    raised = []
-    for k in range(80):
-        t = start + k * PERIOD_S
-        tensions = np.full(N, 1.5)
-        # Held for 0.25 s (slack from 0 N), then up by 4 N/s.
-        tensions[1] = from_n + 4.0 * max(0.0, k * PERIOD_S - 0.25)
-        twin = FrameValues(t, np.zeros(N), tensions, np.zeros(N), np.array([0.06, 0.0, 0.0]))
-        measured = tensions + rng.normal(0, 0.01, N)
-        measured[1] += 0.3 * tensions[1]
-        device = FrameValues(t, np.zeros(N), measured, np.zeros(N), twin.tip_m + rng.normal(0, 2e-4, 3))
-        raised += monitor.update(device, twin, tip_frame_time_s=t)
-    assert raised, "a 30 % gain on a rising tension was not seen"
-    first = raised[0]
-    if from_n > 0:
-        assert first.kind == "loadcell_gain" and first.key == "effects.tension_gain_error[1]"
-    else:
-        assert first.kind == "unexplained" and first.detail["slack_take_up"] is True
-        assert first.detail["channel"] == 1
-
-
 @pytest.mark.parametrize("lasting", [True, False])
 def test_a_load_cell_recalibration_that_does_not_fit_better_is_taken_back(lasting):
     """A cell's 0.1 N step is named (an offset or a gain) and given to the twin. Where the step lasts the twin

@@ -263,9 +263,8 @@ class Monitor:
         self._fault_frames = 0
         self._out_frames = np.zeros(3 * n + 3, dtype=int)
         self._history: list[tuple[FrameValues, FrameValues]] = []
-        # (watched residual, the twin's tensions, tendons slack on either side within a running
-        # median's window) of the last frames compared.
-        self._watched: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
+        # (watched residual, the twin's tensions) of the last frames compared.
+        self._watched: list[tuple[np.ndarray, np.ndarray]] = []
         # (channel, channels out of band) of a load cell's change waiting to be told gain or offset.
         self._pending: tuple[int, tuple[str, ...]] | None = None
         # A load cell's re-calibration on trial: (event, the bands' uncertainty and the bias before
@@ -350,7 +349,7 @@ class Monitor:
             deviation[-3:] = 0.0
         self._raw_window.append(deviation)
         self._window.append(noise.mix @ deviation)
-        self._watched.append((self._window[-1], twin.tensions_n, self._since_slack < MEDIAN_FRAMES))
+        self._watched.append((self._window[-1], twin.tensions_n))
         if len(self._watched) > HISTORY_FRAMES + LOADCELL_WAIT_FRAMES:
             del self._watched[0]
         if len(self._window) > MEDIAN_FRAMES:
@@ -672,14 +671,6 @@ class Monitor:
         margin = float(offset_sse[k_off] - gain_sse[k_gain]) / sigma ** 2
         if 0.0 < margin <= GAIN_CHI2 and len(frames) < NAMING_FRAMES + LOADCELL_WAIT_FRAMES:
             return None
-        if margin > GAIN_CHI2 and any(w[2][i] for w in kept):
-            # The tendon was slack on one side in these frames: taking its slack up parts the two
-            # loads for a few frames by when in a tick the loop took it up, a step that scales with
-            # the tension as a gain does; a gain named from it and given to the twin parts the two
-            # at every cycle after.
-            return Divergence(now_s, onset_s, "unexplained", "", margin, 0.0, "chi2", where,
-                              {"channel": i, "slack_take_up": True, "gain_if_gain": gain[0],
-                               "offset_if_offset_n": offset[0]})
         if margin > GAIN_CHI2:
             return Divergence(now_s, onset_s, "loadcell_gain", f"effects.tension_gain_error[{i}]", gain[0], gain[1],
                               "1", where, {"channel": i, "offset_if_offset_n": offset[0], "chi2_margin": margin})
