@@ -376,7 +376,8 @@ class ShadowDevice:
             print(f"shadow: retracted {event.line()}", file=self._console, flush=True)
         if self._log_path is not None:
             with self._log_path.open("a") as log:
-                log.write(json.dumps({"retracted": event.to_dict()}) + "\n")
+                # The event again, its detail now saying ``retracted``: the log's lines keep one shape.
+                log.write(json.dumps(event.to_dict()) + "\n")
 
     def _jacobian(self, tensions_n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         from twin.rod import RodModel, solve_with_jacobian

@@ -15,7 +15,8 @@ threshold), whichever is widest. A tendon slack on either side has its encoder a
 (:data:`NAMING_FRAMES`) are then named by what could cause them (:meth:`Monitor._name`), the twin
 re-calibrated where the cause has a parameter, and the bias learned again over :data:`RESYNC_S`
 before the monitor watches on, its bands widened by what the re-calibration left uncertain
-(:meth:`Monitor.recalibrated`).
+(:meth:`Monitor.recalibrated`). A load cell's re-calibration that fits the frames after it no
+better than the twin without it is taken back (:meth:`Monitor.take_retracted`).
 """
 
 from __future__ import annotations
