@@ -217,6 +217,118 @@ def test_rare_transients_of_the_loop_are_extrapolated_from_the_warm_up_not_alarm
     assert raised and "length[1]" in raised[0].where
 
 
+def test_a_twin_recalibrated_with_an_uncertain_change_watches_on_within_that_uncertainty():
+    """A change found to ±30 % (a tip force, say) and given to the twin leaves the twin off by a
+    draw of that error, varying with the pose: the bands widen by three of its standard deviations
+    in the change's pattern, so the leftover is not named again every resync, while a monitor not
+    told of the re-calibration names it."""
+    results = {}
+    for told in (False, True):
+        rng = np.random.default_rng(11)
+        monitor, start = _learned(rng)
+        step = np.zeros(N)
+        step[0] = 0.3
+        raised = _after(monitor, rng, start, lambda d: FrameValues(d.time_s, d.lengths_m, d.tensions_n + step, d.duty,
+                                                                    d.tip_m), frames=16)
+        assert raised, "a 0.3 N step on one cell was not seen"
+        event = dataclasses.replace(raised[0], size=0.3, std=0.09)
+        band = monitor._band.copy()
+        if told:
+            monitor.recalibrated(event)
+            widened = monitor._band[N:2 * N]
+            assert (widened > band[N:2 * N]).all()
+            extra = 3 * 0.09 / 0.3 * np.max(np.abs(monitor._named_watched[N:2 * N]))
+            np.testing.assert_allclose(widened, np.hypot(band[N:2 * N], extra))
+            np.testing.assert_array_equal(monitor._band[3 * N:], band[3 * N:])
+        # What the twin still gets wrong: ±0.1 N (about one σ of the estimate) swinging with the
+        # tension, beyond the learned band.
+        assert 0.1 * 0.5 > band[N]
+        def leftover(d):
+            return FrameValues(d.time_s, d.lengths_m, d.tensions_n + step * (1 + (d.tensions_n[0] - 1.5) / 0.5 / 3),
+                               d.duty, d.tip_m)
+        results[told] = _after(monitor, rng, start + 16 * PERIOD_S, leftover, frames=int(8.0 / PERIOD_S))
+    assert results[False], "the leftover was not out of the learned band: the test shows nothing"
+    assert results[True] == []
+
+
+@pytest.mark.parametrize("lasting", [True, False])
+def test_a_load_cell_recalibration_that_does_not_fit_better_is_taken_back(lasting):
+    """A cell's 0.1 N step is named (an offset or a gain) and given to the twin. Where the step lasts the twin
+    with it fits the device better than without, and the change is kept; where it was a transient
+    of the motion (gone as the naming ends) the twin with it is 0.1 N off from then on, and the
+    change is taken back, the bands as they were before it."""
+    from twin.shadow.monitor import GAIN_CHI2
+
+    rng = np.random.default_rng(4)
+    monitor, start = _learned(rng)
+    step = np.zeros(N)
+    step[0] = 0.1
+    raised = []
+    frames = _frames(rng, int(4.0 / PERIOD_S), start)
+    given: dict = {}
+    for device, twin in frames:
+        if lasting or not raised:
+            device = FrameValues(device.time_s, device.lengths_m, device.tensions_n + step, device.duty, device.tip_m)
+        if given:
+            # The twin's cell 0 with the change: an offset shifts it, a gain scales its tension.
+            read = twin.tensions_n.copy()
+            read[0] += given["size"] * (read[0] if given["kind"] == "loadcell_gain" else 1.0)
+            twin = FrameValues(twin.time_s, twin.lengths_m, read, twin.duty, twin.tip_m)
+        new = monitor.update(device, twin, tip_frame_time_s=device.time_s)
+        for event in new:
+            if not raised:
+                assert event.kind in ("loadcell_offset", "loadcell_gain") and event.detail["channel"] == 0
+                monitor.recalibrated(event)
+                given = {"kind": event.kind, "size": event.size}
+        raised += new
+        if monitor.take_retracted():
+            given = {}
+    assert raised, "a 0.1 N step, ten times the noise, was not seen"
+    first = raised[0]
+    assert "trial_chi2" in first.detail, "the re-calibration's trial did not end within 4 s"
+    if lasting:
+        assert first.detail["trial_chi2"] > GAIN_CHI2 and "retracted" not in first.detail
+    else:
+        assert first.detail["trial_chi2"] < GAIN_CHI2 and first.detail["retracted"] is True
+        np.testing.assert_array_equal(monitor._band, monitor.noise.band)
+
+
+@pytest.mark.xfail(strict=True, reason="a gain and an offset fit a held tension's step exactly alike, and the offset "
+                   "(the commoner fault) is named at once where it fits as well, so that offsets are named within "
+                   "250 ms; waiting for the tension to move tells the gain but costs an offset's latency")
+def test_a_gain_on_a_held_tension_waits_for_the_tension_to_move():
+    """A cell's gain drifts while its tension is held: a gain and an offset fit the step alike, so
+    the naming waits (up to a second) until the tension moves and the gain fits significantly
+    better; a gain is then named, not the offset a held tension would suggest."""
+    from twin.shadow.monitor import GAIN_CHI2, LOADCELL_WAIT_FRAMES, NAMING_FRAMES
+
+    rng = np.random.default_rng(9)
+    monitor, start = _learned(rng)
+    gain = 0.1
+
+    def held_then_ramp(count, start_s):
+        for k in range(count):
+            t = start_s + k * PERIOD_S
+            # Held for 0.5 s, then up by 2 N/s.
+            tensions = np.full(N, 1.5) + 2.0 * max(0.0, k * PERIOD_S - 0.5)
+            twin = FrameValues(t, np.zeros(N), tensions, np.zeros(N), np.array([0.06, 0.0, 0.0]))
+            measured = tensions + rng.normal(0, 0.01, N)
+            if k >= 2:
+                measured[1] += gain * tensions[1]
+            yield FrameValues(t, np.zeros(N), measured, np.zeros(N), twin.tip_m + rng.normal(0, 2e-4, 3)), twin
+
+    raised = []
+    for device, twin in held_then_ramp(80, start):
+        raised += monitor.update(device, twin, tip_frame_time_s=device.time_s)
+    assert raised, "a 10 % gain drift at 1.5 N (0.15 N) was not seen"
+    first = raised[0]
+    assert first.kind == "loadcell_gain" and first.key == "effects.tension_gain_error[1]"
+    assert first.detail["chi2_margin"] > GAIN_CHI2
+    assert first.size == pytest.approx(gain, abs=4 * first.std + 0.01)
+    # Named once the tension moved, within the wait.
+    assert start + 0.5 < first.t_s <= first.onset_s + (NAMING_FRAMES + LOADCELL_WAIT_FRAMES) * PERIOD_S
+
+
 # ------------------------------------------------------------------------ where divergences go
 def _divergence():
     from twin.shadow import Divergence

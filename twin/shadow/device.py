@@ -47,6 +47,9 @@ SETPOINTS = ("set_lengths", "set_pairs", "set_tensions")
 # Frames not compared after any other command or fixture action, which may take effect in
 # another frame on each side (a tick's order of command and telemetry).
 SETTLE_FRAMES = 2
+# Largest difference of the two sides' setpoints (m in the length modes, N in tension mode) taken
+# as the same setpoint: far below a count or a load cell's noise, above the float32 the board sends.
+TARGET_TOLERANCE = 1e-6
 # Device commands the twin hears too.
 COMMANDS = ("enable", "disable", "tare", "set_mode", "set_gains", "set_calibration", "set_limits", "set_lengths",
             "set_pairs", "set_tensions")
@@ -119,6 +122,8 @@ class ShadowDevice:
         self._offset_s: float | None = None
         self._rod: Any = None  # the twin.rod.RodModel, built with the first Jacobian
         self._twin_force_n = np.zeros(3)
+        # What the twin had before each load-cell re-calibration, by the event's id: (key, values).
+        self._given: dict[int, tuple[str, list]] = {}
         self._settle_until_s = -math.inf
         self._in_sync = False
         self.cpu_s = 0.0
@@ -128,6 +133,7 @@ class ShadowDevice:
         self.max_queue = 0
         self.twin_resyncs = 0
         self.skipped = 0
+        self.target_mismatches = 0
         self.divergences: list[Divergence] = []
 
     # ------------------------------------------------------------------ forwarding
@@ -305,9 +311,17 @@ class ShadowDevice:
                            twin_sample.motor_commands[:n], twin_tip, int(twin_sample.state),
                            int(twin_sample.fault_flags))
         self.compared += 1
+        if not np.allclose(sample.targets[:n], twin_sample.targets[:n], rtol=0.0, atol=TARGET_TOLERANCE):
+            # A setpoint reached one side a tick or more before the other (a wall-clock link's
+            # latency, which the host's clock does not see): the two loops run different commands
+            # until both hold it, and part for the step's transient after.
+            self.target_mismatches += 1
+            self._settle_until_s = sample.time_s + (SETTLE_FRAMES + 0.5) * self.monitor.period_s
         settling = sample.time_s <= self._settle_until_s
         for event in self.monitor.update(device, twin, tip_frame_time_s=frame_time, settling=settling):
             self._raise(event)
+        for event in self.monitor.take_retracted():
+            self._retract(event)
 
     # ------------------------------------------------------------------ divergences
     def _raise(self, event: Divergence) -> None:
@@ -335,6 +349,7 @@ class ShadowDevice:
         if event.kind in ("loadcell_offset", "loadcell_gain"):
             key = "effects.tension_offset_error_n" if event.kind == "loadcell_offset" else "effects.tension_gain_error"
             values = np.array(twin.params.get(key), dtype=float)
+            self._given[id(event)] = (key, values.tolist())
             values[event.detail["channel"]] += event.size
             twin.change(HiddenEvent(0.0, "set", (key, values.tolist())))
         elif event.kind == "tendon_slip":
@@ -345,6 +360,24 @@ class ShadowDevice:
             # The load as the world sees it: the twin's own tip force plus the one found.
             self._twin_force_n = self._twin_force_n + np.asarray(event.detail["force_n"], dtype=float)
             twin.change(HiddenEvent(0.0, "tip_force_n", self._twin_force_n))
+        else:
+            return
+        self.monitor.recalibrated(event)
+
+    def _retract(self, event: Divergence) -> None:
+        """Give the twin back what it had before ``event``'s re-calibration, which the monitor
+        found fits the device no better than the twin without it."""
+        from twin.sim.events import HiddenEvent
+
+        given = self._given.pop(id(event), None)
+        if given is not None:
+            self._twin.twin.change(HiddenEvent(0.0, "set", given))
+        if self._console is not None:
+            print(f"shadow: retracted {event.line()}", file=self._console, flush=True)
+        if self._log_path is not None:
+            with self._log_path.open("a") as log:
+                # The event again, its detail now saying ``retracted``: the log's lines keep one shape.
+                log.write(json.dumps(event.to_dict()) + "\n")
 
     def _jacobian(self, tensions_n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         from twin.rod import RodModel, solve_with_jacobian

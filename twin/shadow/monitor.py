@@ -10,11 +10,13 @@ residual stays out of the band the warm-up saw for :data:`MIN_PERSIST_FRAMES` fr
 the length loop's own encoders and duties where their warm-up excursions lasted longer). The band
 is :data:`ALARM_SIGMAS` robust spreads, or 1.5 times the warm-up's largest excursion, or the level
 the warm-up's excursions reach once extrapolated to a run of :data:`WATCH_S` (peaks over a
-threshold), whichever is widest. A slack tendon's encoder and duty are not compared (the loop
-parts from the twin's as the slack is taken up). The frames after the first crossing
+threshold), whichever is widest. A tendon slack on either side has its encoder and duty left out
+(the loop parts from the twin's as the slack is taken up). The frames after the first crossing
 (:data:`NAMING_FRAMES`) are then named by what could cause them (:meth:`Monitor._name`), the twin
-re-calibrated where the cause has a parameter, and the bias
-learned again over :data:`RESYNC_S` before the monitor watches on.
+re-calibrated where the cause has a parameter, and the bias learned again over :data:`RESYNC_S`
+before the monitor watches on, its bands widened by what the re-calibration left uncertain
+(:meth:`Monitor.recalibrated`). A load cell's re-calibration that fits the frames after it no
+better than the twin without it is taken back (:meth:`Monitor.take_retracted`).
 """
 
 from __future__ import annotations
@@ -64,7 +66,7 @@ TAIL_SIGMAS = 3.0
 TAIL_MIN_EXCURSIONS = 3
 # Frames out of band in a row that start a divergence: one frame's crossing is the tail of the noise.
 MIN_PERSIST_FRAMES = 2
-# A tendon whose tension on the twin is below this many load-cell noise levels is slack: where
+# A tendon whose tension on the twin or the device is below this many load-cell noise levels is slack: where
 # it goes slack or takes its slack up, the rig's length loop and the twin's part for a few frames
 # by when in a tick the load came or went (the noise times it), so its encoder and duty are not
 # compared while slack and for a running median's window after.
@@ -74,10 +76,25 @@ NAMING_FRAMES = 3
 # Frames kept for the fits that name a divergence (400 ms at 40 Hz): the change, which the
 # running median sees about half a window late, lies within them.
 HISTORY_FRAMES = 16
+# Frames a load cell's change that a gain fits better than an offset, not yet significantly, may
+# wait for its tension to move enough to tell them (1 s at 40 Hz: the standard motion's steps and
+# ramps come within it); undecided by then, it is named an offset, the commoner fault.
+LOADCELL_WAIT_FRAMES = 40
 # Frames the friction and latency fits take, the last of the history.
 FIT_FRAMES = 8
 # Time over which the bias is learned again after a divergence (s), alarms held meanwhile.
 RESYNC_S = 1.0
+# A twin given a change found (a tip force, a load cell's gain) is off by one draw of that
+# estimate's error from then on, in the pattern the change made and varying with the pose: each
+# channel group's band widens (in quadrature) by this many of the estimate's standard deviations,
+# carried through the residual the change made at its naming (three: one draw held for the rest of
+# the run stays inside 99.7 % of the time).
+UNCERTAINTY_SIGMAS = 3.0
+# A load cell's re-calibration is on trial for the resync and this many frames more (1 s at 40 Hz,
+# the load-cell wait's length: the standard motion moves the tension within it): the twin's cell with
+# and without the change against the device, from the bias before it; a change that does not fit
+# better by :data:`GAIN_CHI2` is taken back.
+TRIAL_FRAMES = 40
 # A load cell alone explains a tensions' change it leaves less than this fraction of unexplained
 # (in units of the bands).
 SINGLE_MISFIT = 0.35
@@ -227,6 +244,10 @@ class Monitor:
         self.names = ([f"length[{i}]" for i in range(n)] + [f"tension[{i}]" for i in range(n)]
                       + [f"duty[{i}]" for i in range(n)] + ["tip.x", "tip.y", "tip.z"])
         self.noise: NoiseModel | None = None if noise is None else dataclasses.replace(noise, bias=noise.bias.copy())
+        # The bands in use: the learned ones widened by what the twin's re-calibrations left uncertain.
+        self._uncertainty = np.zeros(3 * n + 3)
+        self._band = np.full(3 * n + 3, math.inf) if noise is None else noise.band.copy()
+        self._named_watched = np.zeros(3 * n + 3)
         self._start_s: float | None = None
         self._warm: list[np.ndarray] = []
         self._warm_twin: list[np.ndarray] = []
@@ -245,6 +266,13 @@ class Monitor:
         self._history: list[tuple[FrameValues, FrameValues]] = []
         # (watched residual, the twin's tensions) of the last frames compared.
         self._watched: list[tuple[np.ndarray, np.ndarray]] = []
+        # (channel, channels out of band) of a load cell's change waiting to be told gain or offset.
+        self._pending: tuple[int, tuple[str, ...]] | None = None
+        # A load cell's re-calibration on trial: (event, the bands' uncertainty and the bias before
+        # it, the change's effect on the twin's reading per frame as a function of its tension,
+        # (watched residual from the old bias, the twin's tension) per frame since).
+        self._trial: tuple[Divergence, np.ndarray, np.ndarray, list[tuple[float, float]]] | None = None
+        self._retracted: list[Divergence] = []
         self.frames = 0
         self.events: list[Divergence] = []
 
@@ -275,7 +303,10 @@ class Monitor:
         if settling:
             return raised
         residual = device.vector() - twin.vector()
-        self._since_slack = np.where(twin.tensions_n < self._slack_n, 0, self._since_slack + 1)
+        # Slack on either side: a tendon one side has taken up and the other not yet parts the two
+        # loops the same way.
+        slack = np.minimum(twin.tensions_n, device.tensions_n) < self._slack_n
+        self._since_slack = np.where(slack, 0, self._since_slack + 1)
         loose = np.flatnonzero(self._since_slack < MEDIAN_FRAMES)
         residual[loose] = np.nan
         residual[2 * self.n + loose] = np.nan
@@ -305,6 +336,8 @@ class Monitor:
             self.events.extend(raised)
             return raised
         noise = self.noise
+        if self._trial is not None:
+            self._try(residual, twin.tensions_n, device.time_s)
         if device.time_s < self._resync_until_s:
             self._resync.append(residual)
             self.events.extend(raised)
@@ -318,7 +351,7 @@ class Monitor:
         self._raw_window.append(deviation)
         self._window.append(noise.mix @ deviation)
         self._watched.append((self._window[-1], twin.tensions_n))
-        if len(self._watched) > HISTORY_FRAMES:
+        if len(self._watched) > HISTORY_FRAMES + LOADCELL_WAIT_FRAMES:
             del self._watched[0]
         if len(self._window) > MEDIAN_FRAMES:
             del self._window[0]
@@ -327,7 +360,7 @@ class Monitor:
             self.events.extend(raised)
             return raised
         self._statistic = np.median(np.array(self._window), axis=0)
-        out = np.abs(self._statistic) > noise.band
+        out = np.abs(self._statistic) > self._band
         # A channel out of band for longer than the warm-up's excursions lasted starts a divergence.
         self._out_frames = np.where(out, self._out_frames + 1, 0)
         if self._onset is None and (self._out_frames >= noise.persist).any():
@@ -335,12 +368,21 @@ class Monitor:
         if self._onset is not None:
             onset_s, frames = self._onset
             frames.append((deviation, twin, device))
-            if len(frames) >= NAMING_FRAMES:
+            if self._pending is not None:
+                event = self._loadcell(device.time_s, onset_s, frames, *self._pending)
+                if event is not None:
+                    raised.append(event)
+                    self._start_resync(device.time_s)
+            elif len(frames) >= NAMING_FRAMES:
                 self._onset = None
                 # A crossing gone by the naming frames was the noise's tail, not a divergence.
                 if out.any():
-                    raised.append(self._name(device.time_s, onset_s, frames))
-                    self._start_resync(device.time_s)
+                    event = self._name(device.time_s, onset_s, frames)
+                    if event is None:
+                        self._onset = (onset_s, frames)
+                    else:
+                        raised.append(event)
+                        self._start_resync(device.time_s)
         self.events.extend(raised)
         return raised
 
@@ -365,7 +407,9 @@ class Monitor:
         # The spread from the median absolute deviation: a glitch in the warm-up does not widen it.
         sigma = np.fmax(1.4826 * _nanmedian(np.abs(centred)), self._floor)
         rows = np.nan_to_num(centred)
-        medians = np.array([np.median(rows[k - MEDIAN_FRAMES:k], axis=0) for k in range(MEDIAN_FRAMES, len(rows) + 1)])
+        # All windows at once: on a wall-clock device this runs between two of the board's
+        # watchdog feeds.
+        medians = np.median(np.lib.stride_tricks.sliding_window_view(rows, MEDIAN_FRAMES, axis=0), axis=-1)
         medians_abs = np.abs(medians)
         # Robust spread of the running median (its correlation in time included), and its peak: a
         # motion whose residual is not Gaussian widens the band by what the warm-up saw of it.
@@ -382,12 +426,79 @@ class Monitor:
         persist = np.full(len(band), MIN_PERSIST_FRAMES, dtype=int)
         for group in groups[:3:2]:
             persist[group] = max(MIN_PERSIST_FRAMES, _longest_excursion(medians_abs[:, group], band[group] / 2) + 1)
+        ring_band = PEAK_MARGIN * _ringing(np.nan_to_num(warm[:, n:2 * n] - bias[n:2 * n])).max(initial=0.0)
         self.noise = NoiseModel(np.nan_to_num(bias), sigma, band, mix, _loop_stiffness(twin_rows, n), persist,
-                                PEAK_MARGIN * _ringing(np.nan_to_num(warm[:, n:2 * n] - bias[n:2 * n])).max(initial=0.0))
+                                ring_band)
+        self._band = np.hypot(band, self._uncertainty)
         self._window = []
         self._raw_window = []
 
+    def recalibrated(self, event: Divergence) -> None:
+        """The twin was given ``event``'s change (its size): what remains between the two is a draw
+        of the estimate's error, ``std`` in the pattern the change made at its naming. Each channel
+        group the change took out of band widens by :data:`UNCERTAINTY_SIGMAS` of that (its largest
+        channel in the frames before the naming, as the pattern moves between the tendons with the
+        pose)."""
+        if self.noise is None or not (math.isfinite(event.size) and math.isfinite(event.std) and event.size != 0):
+            return
+        n = self.n
+        if self._trial is not None:
+            self._judge(self._trial, math.nan)
+        if event.kind in ("loadcell_offset", "loadcell_gain"):
+            self._trial = (event, self._uncertainty.copy(), self.noise.bias.copy(), [])
+        fraction = UNCERTAINTY_SIGMAS * abs(event.std / event.size)
+        # The change's pattern: the channels it took out of their band (the others saw the noise).
+        pattern = np.where(self._named_watched > self._band, self._named_watched, 0.0)
+        for group in (slice(0, n), slice(n, 2 * n), slice(2 * n, 3 * n), slice(3 * n, 3 * n + 3)):
+            extra = fraction * float(np.max(pattern[group], initial=0.0))
+            self._uncertainty[group] = np.hypot(self._uncertainty[group], extra)
+        self._band = np.hypot(self.noise.band, self._uncertainty)
+
+    def take_retracted(self) -> list[Divergence]:
+        """The re-calibrations taken back since the last call (their events' ``detail`` says
+        ``retracted``): the twin is to be given back what it had before each."""
+        retracted, self._retracted = self._retracted, []
+        return retracted
+
+    def _try(self, residual: np.ndarray, twin_tensions_n: np.ndarray, now_s: float) -> None:
+        """One frame of a load cell's re-calibration on trial: its watched residual from the bias
+        before the change (the resync learns one with it)."""
+        trial = self._trial
+        assert trial is not None
+        event, _, bias, rows = trial
+        i = int(event.detail["channel"])
+        row = self._model().mix[self.n + i]
+        rows.append((float(row @ np.nan_to_num(residual - bias)), float(twin_tensions_n[i])))
+        if len(rows) >= round(RESYNC_S / self.period_s) + TRIAL_FRAMES:
+            self._judge(trial, now_s)
+
+    def _judge(self, trial, now_s: float) -> None:
+        """Keep a load cell's re-calibration that fits the frames since it better than the twin
+        without it did, by :data:`GAIN_CHI2` (χ² in the cell's noise); else take it back: a step
+        of the motion named a drift (a tendon taking up its slack) leaves the twin's cell off from
+        then on wherever its tension is, and sets off a divergence at every cycle."""
+        event, uncertainty, bias, rows = trial
+        self._trial = None
+        if not rows:
+            return
+        watched, tension = np.array(rows).T
+        # The twin's reading less the change: an offset shifts it, a gain scales the tension.
+        change = event.size * (tension if event.kind == "loadcell_gain" else np.ones_like(tension))
+        sigma = float(self._model().sigma[self.n + int(event.detail["channel"])])
+        with_sse, without_sse = float(watched @ watched), float((watched + change) @ (watched + change))
+        event.detail["trial_chi2"] = (without_sse - with_sse) / sigma ** 2
+        if without_sse - with_sse > GAIN_CHI2 * sigma ** 2:
+            return
+        event.detail["retracted"] = True
+        self._retracted.append(event)
+        self._uncertainty = uncertainty
+        self._band = np.hypot(self._model().band, uncertainty)
+        if math.isfinite(now_s):
+            self._start_resync(now_s)
+
     def _start_resync(self, now_s: float) -> None:
+        self._onset = None
+        self._pending = None
         self._resync_until_s = now_s + RESYNC_S
         self._resync = []
         self._watched = []
@@ -417,16 +528,20 @@ class Monitor:
         return None
 
     # ------------------------------------------------------------------ naming
-    def _name(self, now_s: float, onset_s: float, frames: list) -> Divergence:
+    def _name(self, now_s: float, onset_s: float, frames: list) -> Divergence | None:
         """Name the divergence from the pattern of the watched residuals (each channel in units of
         its alarm band): which groups left their band, whether one load cell alone explains the
-        tensions' change, and whether the rod model explains the tip's move by the tensions'."""
+        tensions' change, and whether the rod model explains the tip's move by the tensions'.
+        None: one load cell's change, which waits for its tension to move (:meth:`_loadcell`)."""
         n = self.n
         noise = self._model()
         # The running medians at the naming: the frames since the change outnumber those before.
         watched = np.median(np.array(self._window), axis=0)
         deviation = np.median(np.array(self._raw_window), axis=0)
-        level = watched / noise.band
+        level = watched / self._band
+        # The change's pattern, channel by channel, at its largest over the frames kept (the length
+        # loop drives its encoders back within them).
+        self._named_watched = np.abs(np.array([w[0] for w in self._watched[-HISTORY_FRAMES:]])).max(axis=0)
         out = [self.names[k] for k in np.flatnonzero(np.abs(level) > 1.0)]
         where = tuple(out) or ("none",)
         d_ten, d_tip = deviation[n:2 * n], deviation[3 * n:]
@@ -437,7 +552,7 @@ class Monitor:
         len_sig = bool(l_len.max() > 1.0 or l_duty.max() > 1.0)
         # One load cell: the watched tensions a change δ of cell i alone makes are column i of the
         # mix (the others' prediction of it is what they see of it).
-        mix = noise.mix[n:2 * n, n:2 * n] / noise.band[n:2 * n, None]
+        mix = noise.mix[n:2 * n, n:2 * n] / self._band[n:2 * n, None]
         target = l_ten
         fits = []
         for i in range(n):
@@ -453,6 +568,7 @@ class Monitor:
             return Divergence(now_s, onset_s, "tracker_jump", "tracker.position_m", float(np.linalg.norm(d_tip)),
                               float(np.linalg.norm(noise.sigma[3 * n:])), "m", where, {"jump_m": d_tip, **debug})
         if ten_sig and not tip_sig and single_misfit < SINGLE_MISFIT:
+            self._pending = (channel, where)
             return self._loadcell(now_s, onset_s, frames, channel, where)
         if ten_sig or len_sig:
             # Tensions that swing from frame to frame more than they shift: the loop rings where
@@ -523,42 +639,44 @@ class Monitor:
         return Divergence(now_s, onset_s, "tendon_slip", f"tendon_slip_m[{i}]", size, std, "m", where,
                           {"tendon": i, "tension_change_n": float(d_ten[i]), **debug})
 
-    def _loadcell(self, now_s, onset_s, frames, i, where) -> Divergence:
+    def _loadcell(self, now_s, onset_s, frames, i, where) -> Divergence | None:
         """Cell ``i``'s offset δ or gain error g, whichever fits its residual since the change
         better (least squares with the change's frame free: a gain drift scales with the twin's
-        tension, an offset does not), with the other's size in ``detail``."""
+        tension, an offset does not), with the other's size in ``detail``; None while neither fits
+        significantly better and the change may still wait (:data:`LOADCELL_WAIT_FRAMES`)."""
         n = self.n
-        # The watched residual: what cell i reads beyond what the other cells' noise predicts.
-        d = np.array([w[0][n + i] for w in self._watched])
-        tau = np.array([w[1][i] for w in self._watched])
+        # The watched residual: what cell i reads beyond what the other cells' noise predicts, over
+        # the history before the naming and the frames waited since.
+        kept = self._watched[-(HISTORY_FRAMES + len(frames) - NAMING_FRAMES):]
+        d = np.array([w[0][n + i] for w in kept])
+        tau = np.array([w[1][i] for w in kept])
         sigma = float(self._model().sigma[n + i])
-        fits: dict[str, tuple[float, float, float]] = {"loadcell_offset": (math.inf, math.nan, math.nan),
-                                                        "loadcell_gain": (math.inf, math.nan, math.nan)}
-        # The change lies at least the naming frames before the end (it crossed the band since);
-        # each model takes its best change frame.
-        for start in range(0, max(len(d) - NAMING_FRAMES, 1)):
-            before = float(d[:start] @ d[:start])
-            after, level = d[start:], tau[start:]
-            offset = float(after.mean())
-            sse = before + float(np.sum((after - offset) ** 2))
-            if sse < fits["loadcell_offset"][0]:
-                fits["loadcell_offset"] = (sse, offset, sigma / math.sqrt(len(after)))
-            gain = float(after @ level / max(level @ level, 1e-12))
-            sse = before + float(np.sum((after - gain * level) ** 2))
-            if sse < fits["loadcell_gain"][0]:
-                fits["loadcell_gain"] = (sse, gain, sigma / max(math.sqrt(level @ level), 1e-12))
-        # A gain is told from an offset only where it fits the frames significantly better (χ² by
-        # more than GAIN_CHI2): a held tension scales to the same step either way, and a drifting
-        # zero is the commoner fault of a load cell.
-        better = (fits["loadcell_offset"][0] - fits["loadcell_gain"][0]) / sigma ** 2 > GAIN_CHI2
-        kind = "loadcell_gain" if better else "loadcell_offset"
-        _, size, std = fits[kind]
-        other = fits["loadcell_offset" if better else "loadcell_gain"][1]
-        if kind == "loadcell_gain":
-            return Divergence(now_s, onset_s, kind, f"effects.tension_gain_error[{i}]", size, std, "1", where,
-                              {"channel": i, "offset_if_offset_n": other})
-        return Divergence(now_s, onset_s, kind, f"effects.tension_offset_error_n[{i}]", size, std, "N", where,
-                          {"channel": i, "gain_if_gain": other})
+        # Each model takes its best change frame, at least the naming frames before the end (it
+        # crossed the band since); sums over the frames from each start by cumulative sums.
+        starts = np.arange(max(len(d) - NAMING_FRAMES, 1))
+        zero = np.zeros(1)
+        d2, dd, tt, dt = (np.concatenate([zero, np.cumsum(x)]) for x in (d * d, d, tau * tau, d * tau))
+        count = len(d) - starts
+        before = d2[starts]
+        after_d2, after_d = d2[-1] - before, dd[-1] - dd[starts]
+        after_tt, after_dt = tt[-1] - tt[starts], dt[-1] - dt[starts]
+        offset_sse = before + after_d2 - after_d ** 2 / count
+        gain_sse = before + after_d2 - after_dt ** 2 / np.maximum(after_tt, 1e-12)
+        k_off, k_gain = int(np.argmin(offset_sse)), int(np.argmin(gain_sse))
+        offset = (float(after_d[k_off] / count[k_off]), sigma / math.sqrt(count[k_off]))
+        gain = (float(after_dt[k_gain] / max(after_tt[k_gain], 1e-12)), sigma / max(math.sqrt(after_tt[k_gain]), 1e-12))
+        # A gain is named where it fits the frames significantly better than an offset (χ² by more
+        # than GAIN_CHI2); an offset, the commoner fault, where it fits at least as well as a gain.
+        # A held tension scales to the same step either way: a gain that fits better, not yet
+        # significantly, waits for the motion to move the tension.
+        margin = float(offset_sse[k_off] - gain_sse[k_gain]) / sigma ** 2
+        if 0.0 < margin <= GAIN_CHI2 and len(frames) < NAMING_FRAMES + LOADCELL_WAIT_FRAMES:
+            return None
+        if margin > GAIN_CHI2:
+            return Divergence(now_s, onset_s, "loadcell_gain", f"effects.tension_gain_error[{i}]", gain[0], gain[1],
+                              "1", where, {"channel": i, "offset_if_offset_n": offset[0], "chi2_margin": margin})
+        return Divergence(now_s, onset_s, "loadcell_offset", f"effects.tension_offset_error_n[{i}]", offset[0],
+                          offset[1], "N", where, {"channel": i, "gain_if_gain": gain[0], "chi2_margin": margin})
 
     def _friction(self, now_s, onset_s, frames, where) -> Divergence:
         """Friction changes the tension a load cell reads against the tendon's sliding: pulled in
@@ -676,7 +794,7 @@ def _ringing(tensions_n: np.ndarray) -> np.ndarray:
     if len(steps) == 0:
         return np.zeros(1)
     width = min(FIT_FRAMES - 1, len(steps))
-    return np.array([np.median(steps[k - width:k]) for k in range(width, len(steps) + 1)])
+    return np.median(np.lib.stride_tricks.sliding_window_view(steps, width), axis=-1)
 
 
 def _nanmedian(rows: np.ndarray) -> np.ndarray:
