@@ -13,7 +13,6 @@ from __future__ import annotations
 import numpy as np
 
 from twin.control.gains import tension_gains_for
-from twin.device.board import TICK_S
 from twin.driver.errors import DeviceError
 from twin.control.pretension import pretension_straight
 from twin.params import Params, load_params
@@ -101,9 +100,10 @@ def hold_figures(params: Params | None = None, *, kappa_per_m: float = HOLD_KAPP
         device.drain()
         # The twin's true tensions at every board tick (5 ms): what the tendons hold, without the
         # cells' noise, sampled fast enough for the 25-40 Hz presliding resonance.
+        tick_s = device.twin.tick_s
         true = []
-        for _ in range(round(measure_s / TICK_S)):
-            device.wait(TICK_S)
+        for _ in range(round(measure_s / tick_s)):
+            device.wait(tick_s)
             true.append(device.twin.true_tensions_n())
         samples = device.drain()
         targets = samples[-1].targets
@@ -115,7 +115,7 @@ def hold_figures(params: Params | None = None, *, kappa_per_m: float = HOLD_KAPP
         # on 5 kg cells (25 mN RMS) the noise alone spans ~0.13 N over a second of samples.
         rings = np.sqrt(np.maximum(tensions.var(axis=0) - params.sensors.loadcell_noise_n ** 2, 0.0))
         true_ptps = np.ptp(true_n, axis=0)
-        true_mean_ptps = np.ptp(_window_means(true_n, round(MEAN_WINDOW_S / TICK_S)), axis=0)
+        true_mean_ptps = np.ptp(_window_means(true_n, round(MEAN_WINDOW_S / tick_s)), axis=0)
         cell_mean_ptps = np.ptp(_window_means(tensions, round(MEAN_WINDOW_S * params.rig.telemetry_rate_hz)), axis=0)
     return {
         "length_error_counts": float(length_errors.max()),

@@ -8,7 +8,6 @@ from typing import TYPE_CHECKING, Callable, Iterable
 import numpy as np
 
 from twin.driver.fixture import Fixture, check_channels, check_mass
-from twin.sim.plant import HOLDER_STAGE_S
 
 if TYPE_CHECKING:
     from twin.device.board import EmulatedBoard
@@ -46,6 +45,8 @@ class SimFixture(Fixture):
 
     def engage_holder(self) -> None:
         # A rod that friction holds bent is clamped in stages (Plant.engage_holder says why).
+        # Imported here: listing the sim:// scheme imports this module, and must not load MuJoCo.
+        from twin.sim.plant import HOLDER_STAGE_S
         plant = self._board.plant
         for _ in range(plant.engage_holder() - 1):
             self._settle(HOLDER_STAGE_S)

@@ -69,6 +69,13 @@ class SimTwin:
         clock, which restarts at each power cycle."""
         return self._board.plant.time_s
 
+    @property
+    def tick_s(self) -> float:
+        """The emulated board's control tick (s), the finest step at which the twin's truth can
+        be sampled between telemetry frames."""
+        from twin.device.board import TICK_S
+        return TICK_S
+
     def tip_pose(self) -> tuple[np.ndarray, np.ndarray]:
         """True tip position (3,) m and rotation (3, 3), world frame, base at the origin."""
         return self._board.plant.tip_pose()
