@@ -28,7 +28,10 @@ float Pid::step(const PidGains& gains, float setpoint, float measurement, float 
   const float unclamped = rest + integral_ + increment;
   const bool held = (unclamped < lowest && increment < 0.0f) || (unclamped > highest && increment > 0.0f);
   if (!held) integral_ = clamp_range(integral_ + increment, -gains.output_limit, gains.output_limit);
-  return clamp_range(rest + integral_, lowest, highest);
+  // A held output is the bound it is held at, not rest + integral_, which stops up to one
+  // increment short of it: a motor whose loop asks for more than its pull limit pulls at that
+  // limit, which is what the guard's at-cap check recognises.
+  return clamp_range(held ? unclamped : rest + integral_, lowest, highest);
 }
 
 }  // namespace twinfw

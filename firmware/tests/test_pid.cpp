@@ -30,6 +30,20 @@ void integrator_clamp_prevents_windup() {
   CHECK(steps >= 15 && steps <= 20);
 }
 
+void an_output_held_at_a_bound_is_the_bound() {
+  // Pure integral, -0.1 per step: -0.1, -0.2, and the step to -0.3 would pass -0.25. The
+  // integral stops at -0.2, but the loop still asks for more: the output is the bound, not
+  // one increment short of it (a motor held there pulls with all it may).
+  const PidGains g{0.0f, 10.0f, 0.0f, 1.0f};
+  Pid pid;
+  pid.reset(0.0f);
+  float out = 0.0f;
+  for (int i = 0; i < 5; ++i) out = pid.step(g, -1.0f, 0.0f, kDt, -0.25f, 1.0f);
+  CHECK_NEAR(out, -0.25, 0.0);
+  // The integral did not wind past the bound: turning the error round leaves it at once.
+  CHECK(pid.step(g, 1.0f, 0.0f, kDt, -0.25f, 1.0f) > -0.25f + 0.05f);
+}
+
 void derivative_on_measurement() {
   const PidGains g{1.0f, 0.0f, 0.1f, 100.0f};
   Pid pid;
@@ -118,6 +132,7 @@ void proportional_lag() {
 void test_pid() {
   proportional_and_output_clamp();
   integrator_clamp_prevents_windup();
+  an_output_held_at_a_bound_is_the_bound();
   derivative_on_measurement();
   step_response_settles();
   huge_gains_never_give_nan();
