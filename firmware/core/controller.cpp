@@ -139,6 +139,14 @@ void Controller::step(const Measurements& now, float dt_s, const float* lowest, 
   }
 }
 
+ChannelMask Controller::beyond_lowest() const {
+  ChannelMask mask = 0;
+  for (size_t i = 0; i < channels_; ++i) {
+    if (pid_[i].below_lowest()) mask = static_cast<ChannelMask>(mask | (1u << i));
+  }
+  return mask;
+}
+
 float Controller::measured(const Measurements& now, size_t channel) const {
   return mode_ == Mode::kTension ? -now.tensions_n[channel] : now.lengths_m[channel];
 }

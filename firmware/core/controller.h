@@ -87,6 +87,10 @@ class Controller {
   // winds up against it.
   void step(const Measurements& now, float dt_s, const float* lowest, float* duty);
 
+  // Motors (bit i) whose PIDs' last step asked for a duty below the `lowest` it was given: more
+  // pull than the motor may give, which it gives within one integral increment.
+  ChannelMask beyond_lowest() const;
+
   // Per-motor target of the last setpoints or hold: m (length modes) or N (tension).
   const float* targets() const { return targets_; }
 

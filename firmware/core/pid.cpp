@@ -7,6 +7,7 @@ void Pid::reset(float measurement, float output) {
   last_measurement_ = measurement;
   // A bumpless start is one at its setpoint: the lag starts from no error.
   lagged_error_ = 0.0f;
+  below_lowest_ = false;
 }
 
 // The integral stays within the output limit; and it does not grow further while the output is
@@ -26,12 +27,10 @@ float Pid::step(const PidGains& gains, float setpoint, float measurement, float 
   const float increment = gains.ki * error * dt_s;
   const float rest = gains.kp * lagged_error_ + derivative + feedforward;
   const float unclamped = rest + integral_ + increment;
+  below_lowest_ = unclamped < lowest;
   const bool held = (unclamped < lowest && increment < 0.0f) || (unclamped > highest && increment > 0.0f);
   if (!held) integral_ = clamp_range(integral_ + increment, -gains.output_limit, gains.output_limit);
-  // A held output is the bound it is held at, not rest + integral_, which stops up to one
-  // increment short of it: a motor whose loop asks for more than its pull limit pulls at that
-  // limit, which is what the guard's at-cap check recognises.
-  return clamp_range(held ? unclamped : rest + integral_, lowest, highest);
+  return clamp_range(rest + integral_, lowest, highest);
 }
 
 }  // namespace twinfw
