@@ -236,10 +236,6 @@ def test_tensions_that_dither_about_a_steady_mean_are_at_rest_and_the_load_cells
     assert np.all(np.abs(ramp[4:].mean(axis=0) - ramp[:4].mean(axis=0)) > allowed)
 
 
-@pytest.mark.xfail(strict=True, reason="with fixed tendons' friction pulling the joints through the tendon's "
-                   "coefficients (the predictor's tau(s) r x t), stiff-long's most bent quick-grid configuration at "
-                   "mu 0.6 does not come to rest within the sweep's 10 s: the short steps after a friction jump were "
-                   "tuned on forces along the chords")
 def test_a_stiff_robot_that_trips_the_tension_limit_at_a_friction_coefficient_of_0_6_lets_go_without_diverging(tmp_path):
     # stiff-long's most bent configurations of the quick grid, in its four planes, at mu = 0.6:
     # the friction takes the pulls over the board's limit, and the board trips and lets go of a

@@ -306,7 +306,8 @@ def test_a_robot_with_other_motors_is_bounded_by_its_own_motors():
     # The stiff, long robot (30 N limit, 5 kg cells) on motors of four times the thesis's stall
     # torque (2 N·m: 615 N at the tendon) and a heavier rotor. The host sends them (SET_MOTORS);
     # a board bounding the duty by the thesis's 154 N would let the plant's motor pull 4 × 0.9 of
-    # the limit (108 N). A step out of reach pulls at the cap of these motors: 0.9 of the limit.
+    # the limit (108 N). A step out of reach pulls at the cap of these motors, 0.9 of the limit,
+    # until the board trips the tension limit for a motor held at its cap against a still spool.
     from twin.control.pretension import pretension_straight
     from twin.robots import load_robot
 
@@ -324,13 +325,20 @@ def test_a_robot_with_other_motors_is_bounded_by_its_own_motors():
         target[0] -= 0.02
         device.drain()
         device.set_lengths(target)
-        device.wait(3.0)
+        samples = []
+        true_n = 0.0  # tendon 0's true tension the last time the board was seen driving
+        for _ in range(60):
+            device.wait(0.05)
+            samples += device.drain()
+            if samples and samples[-1].state is not c.State.ENABLED:
+                break
+            true_n = device.twin.true_tensions_n()[0]
         peak_n = device.twin.peak_tensions_n().max()
-        duty = min(s.motor_commands[0] for s in device.drain())
-        true_n = device.twin.true_tensions_n()[0]
+        duty = min(s.motor_commands[0] for s in samples)
     assert duty == pytest.approx(-0.9 * limit_n / stall_n, rel=0.02)
     assert true_n == pytest.approx(0.9 * limit_n, rel=0.05)
     assert peak_n <= BOUND * limit_n
+    assert samples[-1].state is c.State.FAULT and samples[-1].fault_flags & c.Fault.TENSION_LIMIT
 
 
 def test_weaker_motors_settle_a_bend_with_the_boards_default_gains():

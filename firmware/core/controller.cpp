@@ -43,6 +43,7 @@ void Controller::set_mode(Mode mode, const Measurements& now, float tension_limi
     pid_[i].reset(measured(now, i), duty[i]);
     last_duty_[i] = duty[i];
   }
+  beyond_lowest_ = 0;
 }
 
 void Controller::hold(const Measurements& now, float tension_limit_n) {
@@ -76,6 +77,7 @@ void Controller::restart(const Measurements& now) {
   for (size_t i = 0; i < channels_; ++i) {
     pid_[i].reset(measured(now, i));
     last_duty_[i] = 0.0f;
+    beyond_lowest_ = 0;
     references_[i] = mode_ == Mode::kTension ? now.tensions_n[i] : now.lengths_m[i];
     last_length_m_[i] = now.lengths_m[i];
     speed_m_s_[i] = steady_m_s_[i] = 0.0f;
@@ -136,6 +138,9 @@ void Controller::step(const Measurements& now, float dt_s, const float* lowest, 
     const float lag_s = mode_ == Mode::kTension ? kTensionProportionalLagS : 0.0f;
     duty[i] = pid_[i].step(g, sign * tracked, measured(now, i), dt_s, low, g.output_limit, feedforward, lag_s);
     last_duty_[i] = duty[i];
+    const ChannelMask bit = static_cast<ChannelMask>(1u << i);
+    const bool beyond = pid_[i].below_lowest() && low == lowest[i];
+    beyond_lowest_ = static_cast<ChannelMask>(beyond ? (beyond_lowest_ | bit) : (beyond_lowest_ & ~bit));
   }
 }
 

@@ -87,6 +87,11 @@ class Controller {
   // winds up against it.
   void step(const Measurements& now, float dt_s, const float* lowest, float* duty);
 
+  // Motors (bit i) whose PIDs' last step asked for a duty below the `lowest` it was given: more
+  // pull than the motor may give, which it gives within one integral increment. Not where the
+  // mode's output limit, tighter than `lowest`, held the PID: that is no pull at the guard's bound.
+  ChannelMask beyond_lowest() const { return beyond_lowest_; }
+
   // Per-motor target of the last setpoints or hold: m (length modes) or N (tension).
   const float* targets() const { return targets_; }
 
@@ -109,6 +114,7 @@ class Controller {
   float tension_rate_n_per_s_ = kTensionRatePerS * kDefaultTensionLimitN;
   float no_load_speed_m_per_s_ = kDefaultNoLoadSpeedMPerS;
   float last_duty_[kMaxChannels] = {};  // duty of the last step; 0 after restart()
+  ChannelMask beyond_lowest_ = 0;
   float last_length_m_[kMaxChannels] = {};  // tendon length at the last step
   float speed_m_s_[kMaxChannels] = {};      // tendon speed (m/s, paying out > 0) through kTensionDampingLagS
   float steady_m_s_[kMaxChannels] = {};     // ... and through kTensionDampingWashoutS

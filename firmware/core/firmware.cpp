@@ -97,7 +97,7 @@ void Firmware::set_outputs(bool may_move) {
 // Fault flags of what the guard sees (Guard::faults) and of fresh load-cell readings at either
 // end of the HX711's range (saturated: the tension could be anything).
 uint32_t Firmware::guard_faults(ChannelMask stale_mask) {
-  uint32_t flags = guard_.faults(time_us_, outputs_.duty, outputs_.drive);
+  uint32_t flags = guard_.faults(time_us_, outputs_.duty, outputs_.drive, controller_.beyond_lowest());
   for (size_t i = 0; i < channels_; ++i) {
     const bool fresh = (stale_mask & (1u << i)) == 0;
     if (fresh && (raw_counts_[i] >= kLoadcellMaxCounts || raw_counts_[i] <= kLoadcellMinCounts)) {

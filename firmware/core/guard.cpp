@@ -143,7 +143,7 @@ ChannelMask Lasting::update(uint64_t now_us, ChannelMask holding, uint32_t durat
   return lasted;
 }
 
-uint32_t Guard::faults(uint64_t now_us, const float* duty, const Drive* drive) {
+uint32_t Guard::faults(uint64_t now_us, const float* duty, const Drive* drive, ChannelMask beyond_lowest) {
   ChannelMask low = 0;
   ChannelMask at_cap = 0;
   for (size_t i = 0; i < channels_; ++i) {
@@ -160,7 +160,7 @@ uint32_t Guard::faults(uint64_t now_us, const float* duty, const Drive* drive) {
     if (fresh && net >= kPlausibleMinForceN && tensions_n_[i] < kPlausibleFraction * net - kPlausibleMarginN) {
       low = static_cast<ChannelMask>(low | bit);
     }
-    if (pull >= kAtCapFraction * cap_n_) at_cap = static_cast<ChannelMask>(at_cap | bit);
+    if (pull >= kAtCapFraction * cap_n_ || (beyond_lowest & bit)) at_cap = static_cast<ChannelMask>(at_cap | bit);
   }
   const ChannelMask implausible = implausible_.update(now_us, low, kImplausibleUs);
   const ChannelMask over = at_cap_.update(now_us, at_cap, kAtCapUs);

@@ -83,10 +83,12 @@ class Guard {
   void applied(const Drive* drive);
 
   // Fault flags (with their channel bits) of what `duty` and `drive`, the outputs the motors had
-  // since the last tick, did to still spools: TENSION_LIMIT for a motor at its cap for
-  // kAtCapUs, LOADCELL_IMPLAUSIBLE for a fresh tension implausibly low against a motor's pull for
-  // kImplausibleUs. 0 when none.
-  uint32_t faults(uint64_t now_us, const float* duty, const Drive* drive);
+  // since the last tick, did to still spools: TENSION_LIMIT for a motor at its cap, or whose
+  // loop asks for more than the lowest duty it may have (`beyond_lowest`, bit i: its PID stops
+  // its integral up to one increment short of the cap, which the at-cap fraction cannot tell
+  // from a pull that holds), for kAtCapUs; LOADCELL_IMPLAUSIBLE for a fresh tension implausibly
+  // low against a motor's pull for kImplausibleUs. 0 when none.
+  uint32_t faults(uint64_t now_us, const float* duty, const Drive* drive, ChannelMask beyond_lowest = 0);
 
  private:
   float pull_n(size_t channel, float duty) const;

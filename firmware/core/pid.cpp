@@ -7,6 +7,7 @@ void Pid::reset(float measurement, float output) {
   last_measurement_ = measurement;
   // A bumpless start is one at its setpoint: the lag starts from no error.
   lagged_error_ = 0.0f;
+  below_lowest_ = false;
 }
 
 // The integral stays within the output limit; and it does not grow further while the output is
@@ -26,6 +27,7 @@ float Pid::step(const PidGains& gains, float setpoint, float measurement, float 
   const float increment = gains.ki * error * dt_s;
   const float rest = gains.kp * lagged_error_ + derivative + feedforward;
   const float unclamped = rest + integral_ + increment;
+  below_lowest_ = unclamped < lowest;
   const bool held = (unclamped < lowest && increment < 0.0f) || (unclamped > highest && increment > 0.0f);
   if (!held) integral_ = clamp_range(integral_ + increment, -gains.output_limit, gains.output_limit);
   return clamp_range(rest + integral_, lowest, highest);

@@ -40,10 +40,15 @@ class Pid {
   float step(const PidGains& gains, float setpoint, float measurement, float dt_s, float lowest, float highest,
              float feedforward = 0.0f, float proportional_lag_s = 0.0f);
 
+  // The last step asked for less than its `lowest` (integral included): its output is held at
+  // that bound or, the integral stopped, up to one integral increment short of it.
+  bool below_lowest() const { return below_lowest_; }
+
  private:
   float integral_ = 0.0f;
   float lagged_error_ = 0.0f;  // the error through the proportional lag
   float last_measurement_ = 0.0f;
+  bool below_lowest_ = false;
 };
 
 }  // namespace twinfw

@@ -44,6 +44,8 @@ class Bench {
   float stiffness_n_per_m = 200.0f;
   float extra_tension_n[kMaxChannels] = {};
   ChannelMask silenced_mask = 0;
+  // Spools that do not turn whatever their motors do: a tendon the rod holds fast.
+  ChannelMask stalled_mask = 0;
   Outputs out{};
 
   template <class T>
@@ -82,7 +84,8 @@ class Bench {
     const int steps = static_cast<int>(seconds * 1e6 / tick_us + 0.5);
     for (int s = 0; s < steps; ++s) {
       for (size_t i = 0; i < channels_; ++i) {
-        const double rate = out.drive[i] == Drive::kDrive ? out.duty[i] * kTendonSpeedMPerS : 0.0;
+        const bool turns = out.drive[i] == Drive::kDrive && !(stalled_mask & (1u << i));
+        const double rate = turns ? out.duty[i] * kTendonSpeedMPerS : 0.0;
         counts[i] += rate * tick_us * 1e-6 / kTendonMPerCount;
       }
       now_us += tick_us;

@@ -197,6 +197,28 @@ void a_motor_at_its_cap_against_a_still_spool_trips_the_tension_limit() {
   CHECK(g.faults(10000 + kAtCapUs, duty, drive) == (fault::kTensionLimit | fault::tension_channel(0)));
 }
 
+void a_motor_whose_loop_asks_beyond_the_cap_against_a_still_spool_trips_too() {
+  // Spool 0's PID asks for more than the cap and stops its integral a little short of it:
+  // 0.1 % less pull than the cap, which alone does not count as at the cap. Spool 1 pulls as
+  // much, its loop content: no trip.
+  const float still[kDefaultChannels] = {};
+  const float tensions[kDefaultChannels] = {5.4f, 5.4f, 1.0f, 1.0f};
+  Guard g = moving(still, tensions);
+  const float short_of_cap = -0.998f * 0.9f * 6.0f / kDefaultStallForceN;
+  const float duty[kDefaultChannels] = {short_of_cap, short_of_cap, 0.0f, 0.0f};
+  const Drive drive[kDefaultChannels] = {Drive::kDrive, Drive::kDrive, Drive::kDrive, Drive::kDrive};
+  CHECK(g.faults(10000, duty, drive) == 0);
+  CHECK(g.faults(10000 + kAtCapUs, duty, drive) == 0);
+  CHECK(g.faults(20000 + kAtCapUs, duty, drive, 1u << 0) == 0);
+  CHECK(g.faults(20000 + 2 * kAtCapUs - 1000, duty, drive, 1u << 0) == 0);
+  CHECK(g.faults(20000 + 2 * kAtCapUs, duty, drive, 1u << 0) == (fault::kTensionLimit | fault::tension_channel(0)));
+  // A spool that moves is not held: its loop asking for more is no trip.
+  const float winding[kDefaultChannels] = {0.003f, 0.0f, 0.0f, 0.0f};
+  Guard m = moving(winding, tensions);
+  CHECK(m.faults(10000, duty, drive, 1u << 0) == 0);
+  CHECK(m.faults(10000 + kAtCapUs, duty, drive, 1u << 0) == 0);
+}
+
 void a_motor_at_its_cap_against_a_spool_creeping_out_trips_too() {
   // Spool 0 creeps out at 0.4 mm/s (still) under a tendon the motor holds at its cap: its duty
   // leaves the back-EMF's share of the cap. The next windows read a count more or less; the
@@ -325,6 +347,7 @@ void lasting_counts_unbroken_spans() {
 }  // namespace
 
 void test_guard() {
+  a_motor_whose_loop_asks_beyond_the_cap_against_a_still_spool_trips_too();
   a_motor_winds_in_with_at_most_the_cap_and_nan_gives_zero();
   the_winding_speed_limit_takes_the_pull_away();
   a_released_motor_brakes_until_its_spool_stands_still_in_the_brake();

@@ -30,6 +30,27 @@ void integrator_clamp_prevents_windup() {
   CHECK(steps >= 15 && steps <= 20);
 }
 
+void a_step_asking_beyond_lowest_says_so() {
+  // Pure integral, -0.1 per step: -0.1, -0.2, and the step to -0.3 would pass -0.25. The
+  // integral stops at -0.2, one increment short of the bound, and the PID says it asks for more.
+  const PidGains g{0.0f, 10.0f, 0.0f, 1.0f};
+  Pid pid;
+  pid.reset(0.0f);
+  CHECK_NEAR(pid.step(g, -1.0f, 0.0f, kDt, -0.25f, 1.0f), -0.1, 1e-6);
+  CHECK(!pid.below_lowest());
+  float out = 0.0f;
+  for (int i = 0; i < 5; ++i) out = pid.step(g, -1.0f, 0.0f, kDt, -0.25f, 1.0f);
+  CHECK_NEAR(out, -0.2, 1e-6);
+  CHECK(pid.below_lowest());
+  // The error turned round: it asks for less, and the integral leaves at once.
+  CHECK(pid.step(g, 1.0f, 0.0f, kDt, -0.25f, 1.0f) > -0.15f && !pid.below_lowest());
+  pid.step(g, -1.0f, 0.0f, kDt, -0.25f, 1.0f);
+  pid.step(g, -1.0f, 0.0f, kDt, -0.25f, 1.0f);
+  CHECK(pid.below_lowest());
+  pid.reset(0.0f);
+  CHECK(!pid.below_lowest());
+}
+
 void derivative_on_measurement() {
   const PidGains g{1.0f, 0.0f, 0.1f, 100.0f};
   Pid pid;
@@ -118,6 +139,7 @@ void proportional_lag() {
 void test_pid() {
   proportional_and_output_clamp();
   integrator_clamp_prevents_windup();
+  a_step_asking_beyond_lowest_says_so();
   derivative_on_measurement();
   step_response_settles();
   huge_gains_never_give_nan();

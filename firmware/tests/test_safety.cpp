@@ -73,6 +73,24 @@ void tension_limit_faults_one_channel() {
   CHECK(b.fw.state() == State::kEnabled && b.fw.faults() == 0);
 }
 
+// A length target the tendon cannot reach (the rod holds it fast, short of it): the loop winds
+// its output down to the pull limit and keeps asking for more, so the motor pulls at its cap
+// against a still spool and trips the tension limit, though the load cell, reading what the
+// motor pulls, stays under the limit.
+void a_motor_held_at_its_cap_by_the_length_loop_trips_the_limit() {
+  Bench b;
+  CHECK(b.start());
+  b.stalled_mask = 1u << 1;
+  const float cap_n = kPullForceFraction * kDefaultTensionLimitN;
+  b.extra_tension_n[1] = cap_n - b.pretension_n;  // the cell reads the motor's pull: plausible
+  b.send(msg::SetSetpoints{4, 0, {0.0f, -0.0004f, 0.0f, 0.0f}});
+  b.run_fed(0.5);
+  CHECK(b.fw.state() == State::kEnabled);  // still winding its output down to the cap
+  b.run_fed(1.5);
+  CHECK(b.fw.state() == State::kFault);
+  CHECK(b.fw.faults() == (fault::kTensionLimit | fault::tension_channel(1)));
+}
+
 void stale_loadcell_blocks_motion() {
   Bench b;
   CHECK(b.start());
@@ -141,6 +159,7 @@ void test_safety() {
   watchdog_trips_latches_and_reenables();
   watchdog_timeout_is_settable();
   tension_limit_faults_one_channel();
+  a_motor_held_at_its_cap_by_the_length_loop_trips_the_limit();
   stale_loadcell_blocks_motion();
   never_sampled_is_stale();
   disable_brakes_a_moving_spool_then_coasts();
