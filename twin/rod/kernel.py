@@ -147,6 +147,15 @@ def _adjugate_sym3(a00, a01, a02, a11, a12, a22):
     return c00, c01, c02, c11, c12, c22, a00 * c00 + a01 * c01 + a02 * c02
 
 
+@njit(cache=True, inline="always")
+def _tendon_direction(route, u0, u1, u2, v0, v1, v2):
+    """A tendon's local direction in the body frame, unnormalised (1): q = û r + r' + v, with
+    r, r' from its route row (RT_X … RT_DY) and u, v the rod's strains at the station."""
+    rx = route[RT_X]
+    ry = route[RT_Y]
+    return -u2 * ry + route[RT_DX] + v0, u2 * rx + route[RT_DY] + v1, u0 * ry - u1 * rx + v2
+
+
 @njit(cache=True, fastmath={"contract"})
 def integrate(m0, rod, states, strains):
     """Integrate the rod from the base with base moment m0 (N·m, world) by fixed-step RK4.
@@ -284,9 +293,7 @@ def integrate(m0, rod, states, strains):
                         continue
                     rx = routes[k, route, j, RT_X]
                     ry = routes[k, route, j, RT_Y]
-                    q0 = -u2 * ry + routes[k, route, j, RT_DX] + v0
-                    q1 = u2 * rx + routes[k, route, j, RT_DY] + v1
-                    q2 = u0 * ry - u1 * rx + v2
+                    q0, q1, q2 = _tendon_direction(routes[k, route, j], u0, u1, u2, v0, v1, v2)
                     inv = 1.0 / np.sqrt(q0 * q0 + q1 * q1 + q2 * q2)
                     t0 = q0 * inv
                     t1 = q1 * inv
@@ -421,9 +428,7 @@ def integrate(m0, rod, states, strains):
                     continue
                 rx = routes[k, route, j, RT_X]
                 ry = routes[k, route, j, RT_Y]
-                q0 = -u2 * ry + routes[k, route, j, RT_DX] + v0
-                q1 = u2 * rx + routes[k, route, j, RT_DY] + v1
-                q2 = u0 * ry - u1 * rx + v2
+                q0, q1, q2 = _tendon_direction(routes[k, route, j], u0, u1, u2, v0, v1, v2)
                 qn = np.sqrt(q0 * q0 + q1 * q1 + q2 * q2)
                 work[dy_at + 15 + nt + j] = qn
                 if mu == 0.0:
