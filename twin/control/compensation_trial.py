@@ -634,21 +634,20 @@ def _compensate_mass(device, row: dict, model: RodModel, plan, target: Measureme
         tried.append((miss, applied))
         row["corrections"] += 1
     k = min(range(len(tried)), key=lambda i: tried[i][0].mm)
-    best, command = tried[k]
+    command = tried[k][1]
     row["kept"] = "last"
     if k != len(tried) - 1:
         if command is None:
             row["kept"] = "PCC lengths"
             device.set_mode("lengths")
             device.set_lengths(pcc_lengths)
-            miss = _rest_and_measure(device, target, correction_rest_s, measure_s, settle_timeout_s)
         else:
             row["kept"] = "feed-forward" if k == 1 else f"correction {k - 1}"
             _ramp_tensions(device, applied.tensions_n, command.tensions_n, steps)
             applied = command
-            miss = _rest_and_measure(device, target, correction_rest_s, measure_s, settle_timeout_s)
+        miss = _rest_and_measure(device, target, correction_rest_s, measure_s, settle_timeout_s)
     # Back at the PCC lengths, the tensions are the length mode's under the load.
-    row["tensions_n"] = (loaded.tensions_n if command is None and row["kept"] != "last" else applied.tensions_n).round(4).tolist()
+    row["tensions_n"] = (loaded.tensions_n if row["kept"] == "PCC lengths" else applied.tensions_n).round(4).tolist()
     row["corrected_mm"], row["corrected_sem_mm"] = miss.mm, miss.sem_mm
     row["corrected_reduction_pct"] = float(100.0 * (1.0 - miss.mm / uncompensated.mm))
 
