@@ -49,7 +49,7 @@ from twin.discrepancy.naming import (MIN_HELDOUT_GAIN, PAIR_POOL, TIE_Z, Baselin
                                      rank_candidates, rank_pairs, row_errors, split_rows, worse_z)
 from twin.discrepancy.probes import PROBES, fit_probe
 from twin.discrepancy.residuals import ResidualMap, find_discrepancy, thesis_signature
-from twin.discrepancy.uncertainty import Uncertainty, honest_uncertainty
+from twin.discrepancy.uncertainty import Uncertainty, honest_uncertainty, model_form_reference
 from twin.discrepancy.verdict import Verdict
 from twin.data.dataset import Dataset
 from twin.data.fitting import ParameterFit
@@ -432,6 +432,7 @@ def run_discrepancy(dataset: Dataset, params: Params | None = None, *, holdout_f
         left = after.structure.structured_rms_m if after.structure.beyond_noise else 0.0
         uncertainty = tuple(honest_uncertainty(dataset, fit, rows=train, model_form_m=model_form_m,
                                                structured_rms_m=left, max_evaluations=max_evaluations,
+                                               reference_errors_m=model_form_reference(dataset, params),
                                                seed=seed, progress=progress))
     return DiscrepancyResult(dataset, params, current, train, test, seed, residuals, tuple(rounds), tuple(named),
                              fit, errors_before, errors_after, ok_before, ok_after, verdict, tied, after,
