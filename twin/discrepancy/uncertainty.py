@@ -133,7 +133,11 @@ def model_form_reference(dataset: Dataset, params: Params) -> np.ndarray:
     twin on ideal tension sources at the configuration's tensions, no noise): the model-form
     error of the robot's own shape (module doc). Zero on rows the two cannot be compared at: a
     free pose (no command), a plane the tendons cannot bend, a twin not at rest or a predictor
-    that did not converge."""
+    that did not converge.
+
+    Raises:
+        twin.sim.plant.SimulationError: MuJoCo warned while the twin settled.
+    """
     from twin.sim.crosscheck import crosscheck
 
     out = np.zeros((len(dataset), 3))

@@ -430,10 +430,15 @@ def run_discrepancy(dataset: Dataset, params: Params | None = None, *, holdout_f
     uncertainty: tuple[Uncertainty, ...] = ()
     if verdict == Verdict.EFFECT and fit is not None:
         left = after.structure.structured_rms_m if after.structure.beyond_noise else 0.0
+        from twin.sim.plant import SimulationError
+
+        try:
+            reference = model_form_reference(dataset, params)
+        except SimulationError:  # a twin of these parameters that MuJoCo cannot settle: no shift known
+            reference = None
         uncertainty = tuple(honest_uncertainty(dataset, fit, rows=train, model_form_m=model_form_m,
                                                structured_rms_m=left, max_evaluations=max_evaluations,
-                                               reference_errors_m=model_form_reference(dataset, params),
-                                               seed=seed, progress=progress))
+                                               reference_errors_m=reference, seed=seed, progress=progress))
     return DiscrepancyResult(dataset, params, current, train, test, seed, residuals, tuple(rounds), tuple(named),
                              fit, errors_before, errors_after, ok_before, ok_after, verdict, tied, after,
                              stand_ins, outside, uncertainty)
