@@ -73,10 +73,12 @@ def test_helical_friction_is_covered_by_the_model_form_shift(capsys):
     error and the random model-form term. The model-form shift b, that difference carried through
     the fit, accounts for most of the error, and the honest interval covers the truth by it."""
     load().main(["1", "--splits", "2", "--seed", "3", "--robot", "helical", "--effects", "tendon_friction"])
-    [row] = rows_of(capsys.readouterr().out)
+    out = capsys.readouterr().out
+    [row] = rows_of(out)
     truth, value = float(row[2]), float(row[3].split("±")[0])
     se, scatter, form, shift = float(row[3].split("±")[1]), float(row[4]), float(row[5]), float(row[10])
     error = value - truth
     assert row[7] == "no" and row[9] == "yes"
     assert abs(error) > 1.96 * (se**2 + scatter**2 + form**2) ** 0.5
+    assert "without the model-form shift the honest interval covers 0 of 1" in out
     assert 0.6 < shift / error < 1.2

@@ -33,9 +33,9 @@ The interval here adds, in quadrature, three terms to the standard error se:
   (J the fit's Jacobian). f assumes an error that resembles the effect no more than chance over
   :data:`PATTERNS` configurations; an error that resembles it more, as the helical robot's twin
   does friction (its ten elements discretise the helix: 0.09 mm median, 0.28 mm worst from the
-  predictor, 0.02 / 0.06 mm at twenty; the shift −0.0077 in μ, 3.3 f), is b. On data of the twin
-  b is what the fit reads off for the twin's model form; on a rig's, where the model differs by
-  other errors as well, one instance of their size and shape.
+  predictor, 0.02 / 0.06 mm at twenty; the shift −0.0075 … −0.0082 in μ, 3–3.5 f), is b. On
+  data of the twin b is what the fit reads off for the twin's model form; on a rig's, where the
+  model differs by other errors as well, one instance of their size and shape.
 
     u = √(se² + s² + f² + b²),  95 % interval value ± 1.96 u.
 
@@ -127,13 +127,14 @@ class Uncertainty:
                                      self.value + LEVEL_SIGMA * self.std_error]}
 
 
-def model_form_reference(dataset: Dataset, params: Params) -> np.ndarray:
+def model_form_reference(dataset: Dataset, params: Params, rows: np.ndarray | None = None) -> np.ndarray:
     """(rows, 3) the predictor's tip minus the twin's (m) at each row's commanded configuration
     (κ, φ, tip mass), both of ``params`` at rest (:func:`twin.sim.crosscheck.crosscheck`: the
     twin on ideal tension sources at the configuration's tensions, no noise): the model-form
     error of the robot's own shape (module doc). Zero on rows the two cannot be compared at: a
     free pose (no command), a plane the tendons cannot bend, a twin not at rest or a predictor
-    that did not converge.
+    that did not converge. With ``rows`` (a boolean mask), those rows only (the rest zero): the
+    twin's settling is the cost, ~10 ms of CPU per configuration at 10 elements, 75 at 20.
 
     Raises:
         twin.sim.plant.SimulationError: MuJoCo warned while the twin settled.
@@ -141,7 +142,7 @@ def model_form_reference(dataset: Dataset, params: Params) -> np.ndarray:
     from twin.sim.crosscheck import crosscheck
 
     out = np.zeros((len(dataset), 3))
-    commanded = ~dataset.free
+    commanded = ~dataset.free & (np.ones(len(dataset), dtype=bool) if rows is None else np.asarray(rows, dtype=bool))
     if not commanded.any():
         return out
     table = np.stack([np.asarray(dataset[c], dtype=float) for c in ("kappa_cmd_per_m", "phi_cmd_deg", "tip_mass_kg")],

@@ -433,12 +433,12 @@ def run_discrepancy(dataset: Dataset, params: Params | None = None, *, holdout_f
         from twin.sim.plant import SimulationError
 
         try:
-            reference = model_form_reference(dataset, params)
+            form_reference = model_form_reference(dataset, params, rows=train)
         except SimulationError:  # a twin of these parameters that MuJoCo cannot settle: no shift known
-            reference = None
+            form_reference = None
         uncertainty = tuple(honest_uncertainty(dataset, fit, rows=train, model_form_m=model_form_m,
                                                structured_rms_m=left, max_evaluations=max_evaluations,
-                                               reference_errors_m=reference, seed=seed, progress=progress))
+                                               reference_errors_m=form_reference, seed=seed, progress=progress))
     return DiscrepancyResult(dataset, params, current, train, test, seed, residuals, tuple(rounds), tuple(named),
                              fit, errors_before, errors_after, ok_before, ok_after, verdict, tied, after,
                              stand_ins, outside, uncertainty)
