@@ -1,8 +1,8 @@
 """The interval-coverage measurement (scripts/interval_coverage.py) on a reduced set of hidden
 twin cases: it runs, reports each fitted value against the truth, its honest interval (the
-workflow's: standard error, split scatter and model form, twin.discrepancy.uncertainty) is never
-narrower than the statistical one, and on these cases it covers the truth where the statistical
-one does not."""
+workflow's: standard error, split scatter, model form and model-form shift,
+twin.discrepancy.uncertainty) is never narrower than the statistical one, and on these cases it
+covers the truth where the statistical one does not."""
 
 import importlib.util
 import re
