@@ -45,9 +45,9 @@ signature in every configuration at once would shift it by up to se / σ · m ·
 on 36 configurations). Measured on hidden twin cases on six robots (scripts/interval_coverage.py):
 the errors of a weight, a base tilt and a tracker offset stay within 2 f, the interval covering
 every one, and so do friction's on the endoscope, three-tendon, stiff-long and two-segment
-robots (μ mostly within 2 %, up to 6 % at μ = 0.05); on the long robot μ lies 0-5 % low, the
-most at the smallest μ, where the frictionless model-form error weighs most; on the helical
-robot μ lies 0.009-0.010 low at every μ (4-12 %), of which b accounts for 0.0077 (README).
+robots (μ mostly within 2 %, up to 6 % at μ = 0.05); on the long robot μ lies up to 5 % low, not
+by the frictionless model form (b −0.0004 … −0.001), within 1.5 u; on the helical robot μ lies
+0.008-0.011 low at every μ (4-14 %), of which b accounts for 0.0075-0.0082 (README).
 """
 
 from __future__ import annotations
