@@ -40,7 +40,8 @@ def test_json_names_the_hidden_tip_load_and_writes_params_and_report(tmp_path, c
     assert value["value"] == pytest.approx(-0.12, abs=0.02) and 0 < value["std_error"] < 0.02
     # The honest interval holds the statistical one and every term it is built of.
     u = value["uncertainty"]
-    assert u == pytest.approx(np.sqrt(value["std_error"]**2 + value["split_scatter"]**2 + value["model_form"]**2))
+    assert u == pytest.approx(np.sqrt(value["std_error"]**2 + value["split_scatter"]**2 + value["model_form"]**2
+                                      + value["model_form_shift"]**2))
     assert value["ci95"] == pytest.approx([value["value"] - 1.96 * u, value["value"] + 1.96 * u])
     assert value["ci95"][0] < value["ci95_statistical"][0] < value["ci95_statistical"][1] < value["ci95"][1]
     assert value["ci95"][0] < -0.12 < value["ci95"][1] and value["model_form"] > 0

@@ -3,12 +3,13 @@ model-form term scales, and where it covers what the statistical interval misses
 
 import math
 
+import numpy as np
 import pytest
 
 from twin import load_params
 from twin.data.fitting import fit_parameters
 from twin.discrepancy import candidate_library, synthetic_validation_dataset
-from twin.discrepancy.uncertainty import LEVEL_SIGMA, PATTERNS, honest_uncertainty
+from twin.discrepancy.uncertainty import LEVEL_SIGMA, PATTERNS, honest_uncertainty, model_form_reference
 from twin.pcc import validation_grid
 
 NOMINAL = load_params()
@@ -77,3 +78,36 @@ def test_beyond_a_sixth_of_the_thesis_grid_more_configurations_do_not_shrink_the
     assert len(data) == 72 > PATTERNS
     for u, se in zip(honest_uncertainty(data, fit, model_form_m=0.17e-3, splits=2), fit.std_errors):
         assert u.model_form == pytest.approx(se / fit.residual_sigma_m * 0.17e-3 * math.sqrt(72 / PATTERNS), rel=1e-9)
+
+
+def test_the_model_form_shift_is_what_the_fit_reads_off_for_the_reference_error(tilted):
+    """An error d = J·δ in the residuals moves a least-squares fit by −δ: b is that move, and
+    it adds to u in quadrature."""
+    data, fit, _ = tilted
+    delta = [0.05, -0.03]  # degrees of tilt about x and y
+    reference = (fit.jacobian @ delta).reshape(-1, 3)
+    plain = honest_uncertainty(data, fit, model_form_m=0.17e-3, splits=2)
+    shifted = honest_uncertainty(data, fit, model_form_m=0.17e-3, splits=2, reference_errors_m=reference)
+    for u, v, d in zip(plain, shifted, delta):
+        assert u.model_form_shift == 0.0
+        assert v.model_form_shift == pytest.approx(-d, rel=1e-6)
+        assert v.total == pytest.approx(math.sqrt(u.total**2 + d**2))
+        assert v.to_dict()["model_form_shift"] == v.model_form_shift
+    with pytest.raises(ValueError, match="reference_errors_m"):
+        honest_uncertainty(data, fit, model_form_m=0.17e-3, splits=2, reference_errors_m=reference[1:])
+
+
+def test_the_model_form_reference_is_the_twin_against_the_predictor_at_each_rows_command(tilted):
+    from twin.sim.crosscheck import crosscheck
+
+    data, _, _ = tilted
+    reference = model_form_reference(data, NOMINAL)
+    assert reference.shape == (len(data), 3)
+    # The endoscope's twin and predictor differ by 0.04 mm median, 0.17 mm at worst (reports/crosscheck).
+    size = np.linalg.norm(reference, axis=1)
+    assert 0.005e-3 < np.median(size) < 0.1e-3 and size.max() < 0.2e-3
+    row = int(np.argmax(size))
+    command = (0, float(data["kappa_cmd_per_m"][row]), float(data["phi_cmd_deg"][row]), float(data["tip_mass_kg"][row]))
+    one = crosscheck(NOMINAL, configs=[command])
+    # The twin settles to 1 µm per 20 ms from wherever the configuration before left it: a few µm.
+    assert reference[row] == pytest.approx(one.rod_tip_m[0] - one.twin_tip_m[0], abs=5e-6)

@@ -59,6 +59,9 @@ class ParameterFit:
     failed_rows: int
     evaluations: int
     params: Params
+    #: (3 · fitted rows, p) ∂(p̂ − p*)/∂value at the optimum (m per parameter unit), rows' x, y, z
+    #: in turn: how each parameter moves the residuals, for what a given error would shift it.
+    jacobian: np.ndarray | None = dataclasses.field(default=None, repr=False, compare=False)
 
     def confidence_interval(self, level_sigma: float = 1.96) -> np.ndarray:
         """(p, 2) intervals value ± level_sigma · std_error (default ≈ 95%)."""
@@ -241,6 +244,7 @@ def fit_parameters(dataset: Dataset, params: Params, parameters: Sequence[FitPar
         cov = cov_z * np.outer(dvdz, dvdz)
         std = np.sqrt(np.clip(np.diag(cov), 0, None))
         corr = cov / np.outer(std, std)
+        jac_values = jac / dvdz[None, :]
     err3 = r.reshape(-1, 3)
     return ParameterFit(
         parameters=parameters,
@@ -254,6 +258,7 @@ def fit_parameters(dataset: Dataset, params: Params, parameters: Sequence[FitPar
         failed_rows=failed[0],
         evaluations=evaluations,
         params=apply_values(params, parameters, values, source),
+        jacobian=jac_values,
     )
 
 

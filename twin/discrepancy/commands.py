@@ -180,7 +180,8 @@ def run_discrepancy_command(args: argparse.Namespace) -> int:
         low, high = entry["ci95"]
         print(f"  {label} = {entry['value']:.6g}, 95 % interval {low:.6g} … {high:.6g} "
               f"(standard error {entry['std_error']:.2g}, split scatter {entry.get('split_scatter', 0.0):.2g}, "
-              f"model form {entry.get('model_form', 0.0):.2g})")
+              f"model form {entry.get('model_form', 0.0):.2g}, "
+              f"model-form shift {entry.get('model_form_shift', 0.0):+.2g})")
     print(f"held-out RMS error: {result.rms_before_m * 1e3:.3f} mm before, {result.rms_after_m * 1e3:.3f} mm after "
           f"(noise {result.residuals.noise.rms_3d_m * 1e3:.3f} mm)")
     for i, rnd in enumerate(result.rounds):

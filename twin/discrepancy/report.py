@@ -174,13 +174,16 @@ def write_report(result: DiscrepancyResult, folder: str | Path) -> Path:
         lines += ["Fitted on the training rows (standard errors from the fit's Jacobian):", "",
                   markdown_table(result.fit.table(), digits=4)]
         if result.uncertainty:
-            lines += ["Honest uncertainty u = √(se² + s² + f²) of each value: the standard error se, the "
-                      "scatter s of the same fit over halves of the training configurations and the model-form "
+            lines += ["Honest uncertainty u = √(se² + s² + f² + b²) of each value: the standard error se, the "
+                      "scatter s of the same fit over halves of the training configurations, the model-form "
                       "term f, the spread a model-form error of "
-                      f"{result.uncertainty[0].model_form_level_m * 1e3:.3g} mm per configuration makes "
-                      "(twin.discrepancy.uncertainty); the 95 % interval is value ± 1.96 u:", "",
+                      f"{result.uncertainty[0].model_form_level_m * 1e3:.3g} mm per configuration makes, and the "
+                      "model-form shift b, what the twin's own difference from the predictor at the fitted "
+                      "configurations moves the value by (twin.discrepancy.uncertainty); the 95 % interval is "
+                      "value ± 1.96 u:", "",
                       markdown_table([{"parameter": u.parameter, "value": u.value, "std_error": u.std_error,
                                        "split_scatter": u.split_scatter, "model_form": u.model_form,
+                                       "model_form_shift": u.model_form_shift,
                                        "uncertainty": u.total, "ci95_low": u.interval()[0],
                                        "ci95_high": u.interval()[1]} for u in result.uncertainty], digits=4)]
         lines += [

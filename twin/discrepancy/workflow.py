@@ -49,7 +49,7 @@ from twin.discrepancy.naming import (MIN_HELDOUT_GAIN, PAIR_POOL, TIE_Z, Baselin
                                      rank_candidates, rank_pairs, row_errors, split_rows, worse_z)
 from twin.discrepancy.probes import PROBES, fit_probe
 from twin.discrepancy.residuals import ResidualMap, find_discrepancy, thesis_signature
-from twin.discrepancy.uncertainty import Uncertainty, honest_uncertainty
+from twin.discrepancy.uncertainty import Uncertainty, honest_uncertainty, model_form_reference
 from twin.discrepancy.verdict import Verdict
 from twin.data.dataset import Dataset
 from twin.data.fitting import ParameterFit
@@ -430,9 +430,15 @@ def run_discrepancy(dataset: Dataset, params: Params | None = None, *, holdout_f
     uncertainty: tuple[Uncertainty, ...] = ()
     if verdict == Verdict.EFFECT and fit is not None:
         left = after.structure.structured_rms_m if after.structure.beyond_noise else 0.0
+        from twin.sim.plant import SimulationError
+
+        try:
+            form_reference = model_form_reference(dataset, params, rows=train)
+        except SimulationError:  # a twin of these parameters that MuJoCo cannot settle: no shift known
+            form_reference = None
         uncertainty = tuple(honest_uncertainty(dataset, fit, rows=train, model_form_m=model_form_m,
                                                structured_rms_m=left, max_evaluations=max_evaluations,
-                                               seed=seed, progress=progress))
+                                               reference_errors_m=form_reference, seed=seed, progress=progress))
     return DiscrepancyResult(dataset, params, current, train, test, seed, residuals, tuple(rounds), tuple(named),
                              fit, errors_before, errors_after, ok_before, ok_after, verdict, tied, after,
                              stand_ins, outside, uncertainty)
