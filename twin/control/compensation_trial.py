@@ -10,12 +10,16 @@ mode and measure the unloaded tip — the target — and the tensions. Then, per
    known load; wait for the tip to come to rest, measure;
 3. **corrected**: up to ``corrections`` times, re-aim the predictor by the model error the
    tracker's miss reveals (:func:`twin.control.compensation.correct_tensions`), ramp, rest,
-   measure; stop early once that error is within ``correction_tolerance_m``. Then keep the best
-   command measured: one measured better than the last, the PCC lengths included, is commanded
-   again and measured afresh. Under tendon friction the length mode can hold the loaded tip
-   closer than the tension loop can put it (the endoscope at κ 26.2, φ 0, 10 g, μ = 0.1 hidden:
-   0.10 mm uncompensated, 0.27 mm after four corrections; kept at the PCC lengths, 0.09 mm). A row is worse than uncompensated when its
-   error is larger by more than the tracker can resolve (:func:`resolvably_larger`: two
+   measure; stop early once that error is within ``correction_tolerance_m``. From the second
+   correction on, each re-aims by the error over the share of its predicted move the last one
+   made (:func:`twin.control.compensation.response_gain`, at most twice the error): under a
+   tendon friction the model lacks, a full step falls short. Then keep the best command
+   measured: the PCC lengths if measured better than the last, an earlier tension command if
+   resolvably better (:func:`resolvably_larger`), commanded again and measured afresh. Under
+   tendon friction the length mode can hold the loaded tip closer than the tension loop can put
+   it (the endoscope at κ 26.2, φ 0, 10 g, μ = 0.1 hidden: 0.10 mm uncompensated, 0.27 mm after
+   four corrections; kept at the PCC lengths, 0.09 mm). A row is worse than uncompensated when
+   its error is larger by more than the tracker can resolve (:func:`resolvably_larger`: two
    standard errors of the two means);
 4. back to length mode at the PCC lengths, for the next mass.
 
@@ -45,7 +49,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from twin.control.compensation import correct_tensions, hold_tensions, unloaded_tips
+from twin.control.compensation import correct_tensions, hold_tensions, response_gain, unloaded_tips
 from twin.control.pretension import pretension_straight
 from twin.control.gains import tension_gains_for
 from twin.driver import CommandRejected
@@ -87,8 +91,8 @@ class CompensationTrial:
     ``feedforward_tensions_n``, ``tensions_n`` (those the row ended with), ``fault`` (empty, or what
     stopped the row); ``uncompensated_sem_mm``, ``corrected_sem_mm`` (standard errors of those two
     errors, mm, from the tracker frames' scatter) and ``kept`` (the command the row ended with:
-    ``last``, or an earlier one measured better — ``feed-forward``, ``correction k``,
-    ``PCC lengths`` — commanded again and measured afresh).
+    ``last``, or an earlier one measured better, resolvably so for a tension command —
+    ``feed-forward``, ``correction k``, ``PCC lengths`` — commanded again and measured afresh).
 
     ``floor_n``, ``limit_n`` are the tension bounds (N), ``corrections`` the most corrections per
     mass, ``timing_s`` the ramp, rest and averaging durations (device s) the trial ran with,
@@ -234,8 +238,10 @@ class CompensationTrial:
                  f"floor {self.floor_n:.2f} N, ceiling {self.limit_n:.2f} N; target = the predictor's tip at the "
                  "measured unloaded tensions). **Corrected**: then up to "
                  f"{self.corrections} closed-loop corrections, each re-aiming the predictor by the model error "
-                 "the tracker's miss reveals. The row ends on the best command measured: one measured better than "
-                 "the last — an earlier correction, the feed-forward or the PCC lengths — is commanded again and "
+                 "the tracker's miss reveals, by the error over the share of its predicted move the last "
+                 "correction made (at most twice the error). The row ends on the best command measured: the PCC "
+                 "lengths if measured better than the last, an earlier correction or the feed-forward if better by "
+                 f"more than {RESOLVE_SIGMAS:g} standard errors of the difference, is commanded again and "
                  f"measured afresh ({sum(r.get('kept') not in ('', 'last', None) for r in self.rows)} rows; "
                  f"{sum(r.get('kept') == 'PCC lengths' for r in self.rows)} back at the PCC lengths), and a row "
                  f"counts as worse than uncompensated when its error is larger by more than {RESOLVE_SIGMAS:g} "
@@ -598,8 +604,9 @@ def _compensate_mass(device, row: dict, model: RodModel, plan, target: Measureme
     """``target`` is the unloaded measurement, every miss is measured from its tip.
 
     The loop keeps the best command it measured: after the corrections, a command measured
-    better than the last one — the PCC lengths themselves, where friction held the loaded tip
-    closer than the tension loop can put it — is commanded again and measured afresh, and that
+    better than the last one (a tension command resolvably so, :func:`resolvably_larger`) — the
+    PCC lengths themselves, where friction held the loaded tip closer than the tension loop can
+    put it — is commanded again and measured afresh, and that
     fresh measurement, not the one it was picked by (the smallest of several noisy means reads
     low), is the row's result."""
     _wait_for_tip_rest(device, settle_timeout_s)
@@ -622,18 +629,25 @@ def _compensate_mass(device, row: dict, model: RodModel, plan, target: Measureme
     applied = plan
     # Each command measured, with its miss: None stands for the PCC lengths in length mode.
     tried: list[tuple[_Miss, Any]] = [(uncompensated, None), (miss, plan)]
+    # The share of the predictor's tip moves the device makes, from the last correction: under a
+    # tendon friction the model lacks, each full step falls short (see :func:`response_gain`).
+    gain = 1.0
     for _ in range(corrections):
         # What the predictor expected to miss by (a target out of reach within the bounds) is
         # no model error: a correction would not change it, so it does not count.
-        if np.linalg.norm(miss.vector_m - (applied.predicted_tip_m - plan.target_m)) <= correction_tolerance_m:
+        if np.linalg.norm(miss.vector_m - (applied.predicted_tip_m - applied.target_m)) <= correction_tolerance_m:
             break
-        corrected = correct_tensions(model, applied, plan.target_m, miss.vector_m, tip_force_n=load, **bounds)
+        corrected = correct_tensions(model, applied, plan.target_m, miss.vector_m, tip_force_n=load,
+                                     response_gain=gain, **bounds)
         _ramp_tensions(device, applied.tensions_n, corrected.tensions_n, steps)
-        applied = corrected
+        before, applied = (miss, applied), corrected
         miss = _rest_and_measure(device, target, correction_rest_s, measure_s, settle_timeout_s)
         tried.append((miss, applied))
         row["corrections"] += 1
-    k = min(range(len(tried)), key=lambda i: tried[i][0].mm)
+        share = response_gain(applied.predicted_tip_m - before[1].predicted_tip_m, miss.vector_m - before[0].vector_m,
+                              math.hypot(miss.sem_mm, before[0].sem_mm) * 1e-3)
+        gain = gain if share is None else share
+    k = _kept(tried)
     command = tried[k][1]
     row["kept"] = "last"
     if k != len(tried) - 1:
@@ -653,6 +667,23 @@ def _compensate_mass(device, row: dict, model: RodModel, plan, target: Measureme
 
     device.set_mode("lengths")
     device.set_lengths(pcc_lengths)
+
+
+def _kept(tried: Sequence[tuple["_Miss", Any]]) -> int:
+    """Which of the commands ``tried`` (each with its miss, the last the one on the device; a
+    command None for the PCC lengths) a row ends on: the smallest miss among the last, the PCC
+    lengths if measured better than it, and the tension commands resolvably better than it.
+
+    Back to the PCC lengths on any measured improvement: length mode holds the tendon lengths
+    again, and the tip came back within the noise (endoscope, μ = 0.1 hidden, κ 26.2 φ 0 10 g:
+    0.10 mm, 0.09 mm measured afresh). Back to an earlier tension command only when resolvably
+    better: friction does not put the tip back where it was when its tensions are reached again
+    from the other side (two-segment, μ = 0.3 hidden, κ 17.5 φ 180 5 g: correction 3 at
+    0.144 mm against the last's 0.150 mm, commanded again 0.197 mm)."""
+    last = tried[-1][0]
+    eligible = [i for i, (miss, command) in enumerate(tried[:-1]) if miss.mm < last.mm and (
+        command is None or resolvably_larger(last.mm, last.sem_mm, miss.mm, miss.sem_mm))]
+    return min(eligible, key=lambda i: tried[i][0].mm, default=len(tried) - 1)
 
 
 # How many standard errors apart two measured tip errors must be for the trial to call one
