@@ -8,7 +8,8 @@ from twin.robots import load_robot
 from twin.control.cocontraction import run_cocontraction_study
 from twin.control.compensation import (MIN_RESPONSE_GAIN, compensate_tensions, correct_tensions, hold_tensions,
                                        response_gain)
-from twin.control.compensation_trial import (GOAL_REDUCTION_PCT, CompensationTrial, _kept, _Miss, compensation_grid,
+from twin.control.compensation_trial import (GOAL_REDUCTION_PCT, CompensationTrial, _correction, _kept, _Miss,
+                                             compensation_grid,
                                              resolvably_larger, run_compensation_trial, tension_ceiling_n,
                                              within_reach)
 from twin.control.gains import DEFAULT_TENSION_GAINS, PROPORTIONAL_LOOP_GAIN, TUNED_TENSION_GAINS, tension_gains_for
@@ -135,6 +136,32 @@ def test_a_correction_over_the_share_the_device_made_lands_where_a_full_step_fal
                               response_gain=share, **bounds)
     assert np.linalg.norm(miss(full.tensions_n)) > 0.2 * np.linalg.norm(miss(plan.tensions_n))
     assert np.linalg.norm(miss(scaled.tensions_n)) < 0.25 * np.linalg.norm(miss(full.tensions_n))
+
+
+def test_a_trial_correction_is_taken_over_the_share_only_beyond_the_noise_and_short_of_the_ceiling():
+    bounds = dict(base_rotation=HORIZONTAL, floor_n=0.3, limit_n=5.0)
+    plan = hold_tensions(MODEL, [2.0, 1.35, 1.0, 1.35], WEIGHT_10G, **bounds)
+    # A device whose load is 30 % lighter than planned: the correction pulls tendon 1, the highest, harder.
+    vector = solve(MODEL, plan.tensions_n, tip_force_n=0.7 * WEIGHT_10G, base_rotation=HORIZONTAL).tip_position_m \
+        - plan.target_m
+    size_mm = float(np.linalg.norm(vector)) * 1e3
+
+    def corrected(sem_mm, gain, limit_n=5.0):
+        return _correction(MODEL, plan, plan.target_m, _Miss(vector, size_mm, sem_mm), WEIGHT_10G,
+                           dict(bounds, limit_n=limit_n), gain).tensions_n
+
+    full = correct_tensions(MODEL, plan, plan.target_m, vector, tip_force_n=WEIGHT_10G, **bounds)
+    over = correct_tensions(MODEL, plan, plan.target_m, vector, tip_force_n=WEIGHT_10G, response_gain=0.5, **bounds)
+    assert np.abs(over.tensions_n - full.tensions_n).max() > 0.01
+    np.testing.assert_allclose(corrected(0.01 * size_mm, 0.5), over.tensions_n, atol=1e-9)
+    # The same miss within four standard errors: a full-share step.
+    np.testing.assert_allclose(corrected(0.5 * size_mm, 0.5), full.tensions_n, atol=1e-9)
+    # A ceiling the full step stays under but the step over the share would reach: the full step.
+    ceiling = float(full.tensions_n.max()) + 0.002
+    assert over.tensions_n.max() > ceiling
+    capped = correct_tensions(MODEL, plan, plan.target_m, vector, tip_force_n=WEIGHT_10G, **dict(bounds, limit_n=ceiling))
+    assert not capped.at_bounds[capped.tensions_n > 2.0].any()
+    np.testing.assert_allclose(corrected(0.01 * size_mm, 0.5, ceiling), capped.tensions_n, atol=1e-9)
 
 
 def test_a_row_goes_back_to_the_pcc_lengths_when_better_and_to_a_tension_command_only_when_resolvably_so():

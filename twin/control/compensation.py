@@ -32,7 +32,7 @@ from twin.checks import finite_vector
 from twin.rod import RodModel, solve, solve_batch, tip_jacobian
 
 __all__ = ["Compensation", "compensate_tensions", "correct_tensions", "hold_tensions", "unloaded_tips",
-           "response_gain", "MIN_RESPONSE_GAIN"]
+           "response_gain", "MIN_RESPONSE_GAIN", "GAIN_RESOLVE_SIGMAS"]
 
 # Position residuals are scaled to mm so that they and the tension pull (per N) are of one size.
 _POSITION_SCALE_M = 1e-3
@@ -45,9 +45,11 @@ _POSITION_SCALE_M = 1e-3
 # than of a small one; with 0.25 a small move's share taken for a big one's sent its tip 11 mm
 # off at κ 26.2 φ 270, 10 g.
 MIN_RESPONSE_GAIN = 0.5
-# How many noise levels a predicted move must span for its measured share to be estimated:
-# a move within a few standard errors of the tracker's means says nothing about the share.
-_GAIN_RESOLVE = 4.0
+# How many noise levels a predicted move must span for its measured share to be estimated, and a
+# miss for a correction to be taken over that share: within a few standard errors of the
+# tracker's means a move says nothing about the share, and a miss taken over it would double
+# the noise the next step chases.
+GAIN_RESOLVE_SIGMAS = 4.0
 
 
 @dataclasses.dataclass(frozen=True)
@@ -229,7 +231,7 @@ def unloaded_tips(model: RodModel, unloaded_tensions_n, tip_forces_n, *, base_ro
 def response_gain(predicted_move_m, measured_move_m, noise_m: float) -> float | None:
     """The share of a predicted tip move the device made, along the predicted move: the
     projection of ``measured_move_m`` on ``predicted_move_m`` over its length, within
-    [:data:`MIN_RESPONSE_GAIN`, 1]; None when the predicted move is within ``_GAIN_RESOLVE``
+    [:data:`MIN_RESPONSE_GAIN`, 1]; None when the predicted move is within ``GAIN_RESOLVE_SIGMAS``
     times ``noise_m`` (the measured move's standard error, m), too small to tell.
 
     Args:
@@ -240,7 +242,7 @@ def response_gain(predicted_move_m, measured_move_m, noise_m: float) -> float | 
     predicted = finite_vector("predicted_move_m", predicted_move_m, 3)
     measured = finite_vector("measured_move_m", measured_move_m, 3)
     size = float(np.linalg.norm(predicted))
-    if not size > _GAIN_RESOLVE * noise_m:
+    if not size > GAIN_RESOLVE_SIGMAS * noise_m:
         return None
     return float(np.clip(measured @ predicted / size**2, MIN_RESPONSE_GAIN, 1.0))
 
