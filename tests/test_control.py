@@ -8,7 +8,7 @@ from twin.robots import load_robot
 from twin.control.cocontraction import run_cocontraction_study
 from twin.control.compensation import (MIN_RESPONSE_GAIN, compensate_tensions, correct_tensions, hold_tensions,
                                        response_gain)
-from twin.control.compensation_trial import (GOAL_REDUCTION_PCT, CompensationTrial, _correction, _kept, _Miss,
+from twin.control.compensation_trial import (GOAL_REDUCTION_PCT, CompensationTrial, _correction, _Miss,
                                              compensation_grid,
                                              resolvably_larger, run_compensation_trial, tension_ceiling_n,
                                              within_reach)
@@ -162,20 +162,6 @@ def test_a_trial_correction_is_taken_over_the_share_only_beyond_the_noise_and_sh
     capped = correct_tensions(MODEL, plan, plan.target_m, vector, tip_force_n=WEIGHT_10G, **dict(bounds, limit_n=ceiling))
     assert not capped.at_bounds[capped.tensions_n > 2.0].any()
     np.testing.assert_allclose(corrected(0.01 * size_mm, 0.5, ceiling), capped.tensions_n, atol=1e-9)
-
-
-def test_a_row_goes_back_to_the_pcc_lengths_when_better_and_to_a_tension_command_only_when_resolvably_so():
-    def miss(mm):
-        return _Miss(np.array([mm * 1e-3, 0.0, 0.0]), mm, 0.045)
-
-    plan = object()
-    # Correction 1 better than the last by less than the tracker resolves (0.127 mm): the last is kept.
-    assert _kept([(miss(0.5), None), (miss(0.4), plan), (miss(0.14), plan), (miss(0.15), plan)]) == 3
-    # Resolvably better: back to it.
-    assert _kept([(miss(0.5), None), (miss(0.4), plan), (miss(0.05), plan), (miss(0.30), plan)]) == 2
-    # The PCC lengths on any improvement, even when a tension command not resolvably better is smaller.
-    assert _kept([(miss(0.10), None), (miss(0.4), plan), (miss(0.09), plan), (miss(0.15), plan)]) == 0
-    assert _kept([(miss(0.5), None), (miss(0.4), plan)]) == 1
 
 
 def test_the_tension_ceiling_is_what_the_clamped_loop_can_hold():

@@ -14,12 +14,11 @@ mode and measure the unloaded tip — the target — and the tensions. Then, per
    correction on, each re-aims by the error over the share of its predicted move the last one
    made (:func:`twin.control.compensation.response_gain`, at most twice the error): under a
    tendon friction the model lacks, a full step falls short. Then keep the best command
-   measured: the PCC lengths if measured better than the last, an earlier tension command if
-   resolvably better (:func:`resolvably_larger`), commanded again and measured afresh. Under
-   tendon friction the length mode can hold the loaded tip closer than the tension loop can put
-   it (the endoscope at κ 26.2, φ 0, 10 g, μ = 0.1 hidden: 0.10 mm uncompensated, 0.27 mm after
-   four corrections; kept at the PCC lengths, 0.09 mm). A row is worse than uncompensated when
-   its error is larger by more than the tracker can resolve (:func:`resolvably_larger`: two
+   measured: one measured better than the last, the PCC lengths included, is commanded again
+   and measured afresh. Under tendon friction the length mode can hold the loaded tip closer
+   than the tension loop can put it (the endoscope at κ 26.2, φ 0, 10 g, μ = 0.1 hidden:
+   0.10 mm uncompensated, 0.27 mm after four corrections; kept at the PCC lengths, 0.09 mm). A
+   row is worse than uncompensated when its error is larger by more than the tracker can resolve (:func:`resolvably_larger`: two
    standard errors of the two means);
 4. back to length mode at the PCC lengths, for the next mass.
 
@@ -92,8 +91,8 @@ class CompensationTrial:
     ``feedforward_tensions_n``, ``tensions_n`` (those the row ended with), ``fault`` (empty, or what
     stopped the row); ``uncompensated_sem_mm``, ``corrected_sem_mm`` (standard errors of those two
     errors, mm, from the tracker frames' scatter) and ``kept`` (the command the row ended with:
-    ``last``, or an earlier one measured better, resolvably so for a tension command —
-    ``feed-forward``, ``correction k``, ``PCC lengths`` — commanded again and measured afresh).
+    ``last``, or an earlier one measured better — ``feed-forward``, ``correction k``,
+    ``PCC lengths`` — commanded again and measured afresh).
 
     ``floor_n``, ``limit_n`` are the tension bounds (N), ``corrections`` the most corrections per
     mass, ``timing_s`` the ramp, rest and averaging durations (device s) the trial ran with,
@@ -240,9 +239,9 @@ class CompensationTrial:
                  "measured unloaded tensions). **Corrected**: then up to "
                  f"{self.corrections} closed-loop corrections, each re-aiming the predictor by the model error "
                  "the tracker's miss reveals, by the error over the share of its predicted move the last "
-                 "correction made (at most twice the error). The row ends on the best command measured: the PCC "
-                 "lengths if measured better than the last, an earlier correction or the feed-forward if better by "
-                 f"more than {RESOLVE_SIGMAS:g} standard errors of the difference, is commanded again and "
+                 "correction made (at most twice the error). The row ends on the best command measured: one "
+                 "measured better than the last — an earlier correction, the feed-forward or the PCC lengths — is "
+                 "commanded again and "
                  f"measured afresh ({sum(r.get('kept') not in ('', 'last', None) for r in self.rows)} rows; "
                  f"{sum(r.get('kept') == 'PCC lengths' for r in self.rows)} back at the PCC lengths), and a row "
                  f"counts as worse than uncompensated when its error is larger by more than {RESOLVE_SIGMAS:g} "
@@ -607,9 +606,8 @@ def _compensate_mass(device, row: dict, model: RodModel, plan, target: Measureme
     """``target`` is the unloaded measurement, every miss is measured from its tip.
 
     The loop keeps the best command it measured: after the corrections, a command measured
-    better than the last one (a tension command resolvably so, :func:`resolvably_larger`) — the
-    PCC lengths themselves, where friction held the loaded tip closer than the tension loop can
-    put it — is commanded again and measured afresh, and that
+    better than the last one — the PCC lengths themselves, where friction held the loaded tip
+    closer than the tension loop can put it — is commanded again and measured afresh, and that
     fresh measurement, not the one it was picked by (the smallest of several noisy means reads
     low), is the row's result."""
     _wait_for_tip_rest(device, settle_timeout_s)
@@ -649,7 +647,7 @@ def _compensate_mass(device, row: dict, model: RodModel, plan, target: Measureme
         made = response_gain(applied.predicted_tip_m - before[1].predicted_tip_m, miss.vector_m - before[0].vector_m,
                              math.hypot(miss.sem_mm, before[0].sem_mm) * 1e-3)
         gain = gain if made is None else made
-    k = _kept(tried)
+    k = min(range(len(tried)), key=lambda i: tried[i][0].mm)
     command = tried[k][1]
     row["kept"] = "last"
     if k != len(tried) - 1:
@@ -680,9 +678,8 @@ def _correction(model: RodModel, applied, goal_m, miss: "_Miss", load, bounds: d
       :data:`twin.control.compensation.GAIN_RESOLVE_SIGMAS` standard errors of the miss: the
       step would double the noise it chases;
     - a step that asks a tendon for the ceiling: there the tension loop has no duty to spare
-      against the friction, and pulling the others harder tripped the board's limit or left the
-      tip swinging past the wait for rest (long, μ = 0.3 hidden, κ 15.72 φ 270 10 g); the
-      full-share step had not.
+      against the friction, and pulling the others harder left the tip swinging past the wait
+      for rest (long, μ = 0.3 hidden, κ 15.72 φ 270 10 g, ``sim://?seed=0``).
     """
     error_m = float(np.linalg.norm(miss.vector_m - (applied.predicted_tip_m - applied.target_m)))
     share = gain if error_m > GAIN_RESOLVE_SIGMAS * miss.sem_mm * 1e-3 else 1.0
@@ -691,23 +688,6 @@ def _correction(model: RodModel, applied, goal_m, miss: "_Miss", load, bounds: d
     if share < 1.0 and np.any(corrected.at_bounds & (corrected.tensions_n > high)):
         corrected = correct_tensions(model, applied, goal_m, miss.vector_m, tip_force_n=load, **bounds)
     return corrected
-
-
-def _kept(tried: Sequence[tuple["_Miss", Any]]) -> int:
-    """Which of the commands ``tried`` (each with its miss, the last the one on the device; a
-    command None for the PCC lengths) a row ends on: the smallest miss among the last, the PCC
-    lengths if measured better than it, and the tension commands resolvably better than it.
-
-    Back to the PCC lengths on any measured improvement: length mode holds the tendon lengths
-    again, and the tip came back within the noise (endoscope, μ = 0.1 hidden, κ 26.2 φ 0 10 g:
-    0.10 mm, 0.09 mm measured afresh). Back to an earlier tension command only when resolvably
-    better: friction does not put the tip back where it was when its tensions are reached again
-    from the other side (two-segment, μ = 0.3 hidden, κ 17.5 φ 180 5 g: correction 3 at
-    0.144 mm against the last's 0.150 mm, commanded again 0.197 mm)."""
-    last = tried[-1][0]
-    eligible = [i for i, (miss, command) in enumerate(tried[:-1]) if miss.mm < last.mm and (
-        command is None or resolvably_larger(last.mm, last.sem_mm, miss.mm, miss.sem_mm))]
-    return min(eligible, key=lambda i: tried[i][0].mm, default=len(tried) - 1)
 
 
 # How many standard errors apart two measured tip errors must be for the trial to call one
