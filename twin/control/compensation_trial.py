@@ -18,8 +18,8 @@ mode and measure the unloaded tip — the target — and the tensions. Then, per
    and measured afresh. Under tendon friction the length mode can hold the loaded tip closer
    than the tension loop can put it (the endoscope at κ 26.2, φ 0, 10 g, μ = 0.1 hidden:
    0.10 mm uncompensated, 0.27 mm after four corrections; kept at the PCC lengths, 0.09 mm). A
-   row is worse than uncompensated when its error is larger by more than the tracker can resolve (:func:`resolvably_larger`: two
-   standard errors of the two means);
+   row is worse than uncompensated when its error is larger by more than the tracker can
+   resolve (:func:`resolvably_larger`: two standard errors of the two means);
 4. back to length mode at the PCC lengths, for the next mass.
 
 Errors are tracker distances of the resting, loaded tip from the target (means over ``measure_s``).
