@@ -42,13 +42,14 @@ _POSITION_SCALE_M = 1e-3
 # still ends every step closer (the miss left is |1 − γ/g| of it, under 1 for g >= 0.5). The
 # two-segment robot under a hidden tendon friction of 0.3 made 0.14-0.42 of each predicted move
 # (eight corrections at κ 17.5 φ 180 and κ 26.2 φ 270, ``sim://?seed=0``), more of a big move
-# than of a small one; with 0.25 a small move's share taken for a big one's sent its tip 11 mm
-# off at κ 26.2 φ 270, 10 g.
+# than of a small one, so a small move's share taken for a big one's overshoots: a lower floor
+# would let it overshoot by more than the miss.
 MIN_RESPONSE_GAIN = 0.5
 # How many noise levels a predicted move must span for its measured share to be estimated, and a
 # miss for a correction to be taken over that share: within a few standard errors of the
 # tracker's means a move says nothing about the share, and a miss taken over it would double
-# the noise the next step chases.
+# the noise the next step chases. 4: chosen, twice the two standard errors the compensation
+# trial tells two misses apart by.
 GAIN_RESOLVE_SIGMAS = 4.0
 
 
