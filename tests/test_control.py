@@ -6,8 +6,10 @@ import pytest
 from twin import load_params
 from twin.robots import load_robot
 from twin.control.cocontraction import run_cocontraction_study
-from twin.control.compensation import compensate_tensions, correct_tensions, hold_tensions
-from twin.control.compensation_trial import (GOAL_REDUCTION_PCT, CompensationTrial, compensation_grid,
+from twin.control.compensation import (MIN_RESPONSE_GAIN, compensate_tensions, correct_tensions, hold_tensions,
+                                       response_gain)
+from twin.control.compensation_trial import (GOAL_REDUCTION_PCT, CompensationTrial, _correction, _Miss,
+                                             compensation_grid,
                                              resolvably_larger, run_compensation_trial, tension_ceiling_n,
                                              within_reach)
 from twin.control.gains import DEFAULT_TENSION_GAINS, PROPORTIONAL_LOOP_GAIN, TUNED_TENSION_GAINS, tension_gains_for
@@ -92,6 +94,74 @@ def test_a_miss_the_predictor_expected_is_not_corrected():
     assert not plan.reached
     again = correct_tensions(MODEL, plan, goal, plan.predicted_tip_m - goal, tip_force_n=WEIGHT_10G, **bounds)
     np.testing.assert_allclose(again.tensions_n, plan.tensions_n, atol=2e-3)
+    # Nor is it taken over a device's share of the predicted moves: only the unexpected part is.
+    halved = correct_tensions(MODEL, plan, goal, plan.predicted_tip_m - goal, tip_force_n=WEIGHT_10G,
+                              response_gain=0.5, **bounds)
+    np.testing.assert_allclose(halved.tensions_n, plan.tensions_n, atol=2e-3)
+
+
+def test_the_response_gain_is_the_share_of_the_predicted_move_made_along_it():
+    assert response_gain([1e-3, 0, 0], [0.7e-3, 0.2e-3, 0], noise_m=1e-5) == pytest.approx(0.7)
+    # Bounded: at most the whole move, and at least the share that keeps every step a contraction.
+    assert response_gain([1e-3, 0, 0], [1.5e-3, 0, 0], noise_m=1e-5) == 1.0
+    assert response_gain([1e-3, 0, 0], [0.2e-3, 0, 0], noise_m=1e-5) == MIN_RESPONSE_GAIN
+    assert response_gain([1e-3, 0, 0], [-1e-3, 0, 0], noise_m=1e-5) == MIN_RESPONSE_GAIN
+    # A predicted move within a few noise levels tells nothing.
+    assert response_gain([1e-4, 0, 0], [0.5e-4, 0, 0], noise_m=5e-5) is None
+    with pytest.raises(ValueError, match="response_gain"):
+        correct_tensions(MODEL, hold_tensions(MODEL, [2.0, 1.35, 1.0, 1.35], WEIGHT_10G, base_rotation=HORIZONTAL),
+                         np.zeros(3), np.zeros(3), response_gain=0.0)
+
+
+def test_a_correction_over_the_share_the_device_made_lands_where_a_full_step_falls_short():
+    # The "device" is the predictor under 10 % more load than planned whose tip makes half of each
+    # move the tension changes ask for, as a tendon friction the model lacks holds the rest back.
+    bounds = dict(base_rotation=HORIZONTAL, floor_n=0.3, limit_n=5.0)
+    plan = hold_tensions(MODEL, [2.0, 1.35, 1.0, 1.35], WEIGHT_10G, **bounds)
+
+    def loaded(tensions):
+        return solve(MODEL, tensions, tip_force_n=1.1 * WEIGHT_10G, base_rotation=HORIZONTAL).tip_position_m
+
+    start = loaded(plan.tensions_n)
+
+    def miss(tensions):
+        return start + 0.5 * (loaded(tensions) - start) - plan.target_m
+
+    first = correct_tensions(MODEL, plan, plan.target_m, miss(plan.tensions_n), tip_force_n=WEIGHT_10G, **bounds)
+    share = response_gain(first.predicted_tip_m - plan.predicted_tip_m, miss(first.tensions_n) - miss(plan.tensions_n),
+                          noise_m=1e-6)
+    assert share == pytest.approx(0.5, abs=0.05)
+    full = correct_tensions(MODEL, first, plan.target_m, miss(first.tensions_n), tip_force_n=WEIGHT_10G, **bounds)
+    scaled = correct_tensions(MODEL, first, plan.target_m, miss(first.tensions_n), tip_force_n=WEIGHT_10G,
+                              response_gain=share, **bounds)
+    assert np.linalg.norm(miss(full.tensions_n)) > 0.2 * np.linalg.norm(miss(plan.tensions_n))
+    assert np.linalg.norm(miss(scaled.tensions_n)) < 0.25 * np.linalg.norm(miss(full.tensions_n))
+
+
+def test_a_trial_correction_is_taken_over_the_share_only_beyond_the_noise_and_short_of_the_ceiling():
+    bounds = dict(base_rotation=HORIZONTAL, floor_n=0.3, limit_n=5.0)
+    plan = hold_tensions(MODEL, [2.0, 1.35, 1.0, 1.35], WEIGHT_10G, **bounds)
+    # A device whose load is 30 % lighter than planned: the correction pulls tendon 1, the highest, harder.
+    vector = solve(MODEL, plan.tensions_n, tip_force_n=0.7 * WEIGHT_10G, base_rotation=HORIZONTAL).tip_position_m \
+        - plan.target_m
+    size_mm = float(np.linalg.norm(vector)) * 1e3
+
+    def corrected(sem_mm, gain, limit_n=5.0):
+        return _correction(MODEL, plan, plan.target_m, _Miss(vector, size_mm, sem_mm), WEIGHT_10G,
+                           dict(bounds, limit_n=limit_n), gain).tensions_n
+
+    full = correct_tensions(MODEL, plan, plan.target_m, vector, tip_force_n=WEIGHT_10G, **bounds)
+    over = correct_tensions(MODEL, plan, plan.target_m, vector, tip_force_n=WEIGHT_10G, response_gain=0.5, **bounds)
+    assert np.abs(over.tensions_n - full.tensions_n).max() > 0.01
+    np.testing.assert_allclose(corrected(0.01 * size_mm, 0.5), over.tensions_n, atol=1e-9)
+    # The same miss within four standard errors: a full-share step.
+    np.testing.assert_allclose(corrected(0.5 * size_mm, 0.5), full.tensions_n, atol=1e-9)
+    # A ceiling the full step stays under but the step over the share would reach: the full step.
+    ceiling = float(full.tensions_n.max()) + 0.002
+    assert over.tensions_n.max() > ceiling
+    capped = correct_tensions(MODEL, plan, plan.target_m, vector, tip_force_n=WEIGHT_10G, **dict(bounds, limit_n=ceiling))
+    assert not capped.at_bounds[capped.tensions_n > 2.0].any()
+    np.testing.assert_allclose(corrected(0.01 * size_mm, 0.5, ceiling), capped.tensions_n, atol=1e-9)
 
 
 def test_the_tension_ceiling_is_what_the_clamped_loop_can_hold():

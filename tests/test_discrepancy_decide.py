@@ -134,3 +134,31 @@ def test_a_deciding_experiment_the_twin_diverges_in_leaves_the_dataset_as_it_was
     assert {name: (data / name).read_bytes() for name in before} == before
     # No copy of the dataset is left beside it.
     assert sorted(p.name for p in tmp_path.iterdir()) == ["data"]
+
+
+def test_a_deciding_experiment_whose_robot_does_not_come_to_rest_leaves_the_dataset_as_it_was(tmp_path, capsys,
+                                                                                            monkeypatch):
+    # Under strong friction a loaded bend can keep creeping past the wait for rest (long at μ = 0.6,
+    # κ 15.72 φ 180, 20 g): the protocol stops, and the command says so in one line.
+    from twin.experiments import protocols
+
+    data = tmp_path / "data"
+    _older_friction_dataset(data)
+    before = {name: (data / name).read_bytes() for name in ("measurements.csv", "metadata.json")}
+    wait = protocols.wait_for_rest
+    calls = []
+
+    def creeping(device, **kwargs):
+        calls.append(1)
+        if len(calls) == 4:  # past the first configurations of the experiment, their rows written
+            raise protocols.ProtocolError("the robot did not come to rest within 10.0 s (tip to 0.30 mm)")
+        return wait(device, **kwargs)
+
+    monkeypatch.setattr(protocols, "wait_for_rest", creeping)
+    code, out = run(capsys, "discrepancy", data, "--device", "sim://", "--twin-set", FRICTION)
+    assert code == 4 and len(calls) == 4, out.err
+    last = out.err.strip().splitlines()[-1]
+    assert "a deciding experiment stopped (ProtocolError: the robot did not come to rest" in last
+    assert "holds none of its rows" in last and "Traceback" not in out.err and out.out == ""
+    assert {name: (data / name).read_bytes() for name in before} == before
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["data"]

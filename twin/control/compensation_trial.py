@@ -10,13 +10,16 @@ mode and measure the unloaded tip — the target — and the tensions. Then, per
    known load; wait for the tip to come to rest, measure;
 3. **corrected**: up to ``corrections`` times, re-aim the predictor by the model error the
    tracker's miss reveals (:func:`twin.control.compensation.correct_tensions`), ramp, rest,
-   measure; stop early once that error is within ``correction_tolerance_m``. Then keep the best
-   command measured: one measured better than the last, the PCC lengths included, is commanded
-   again and measured afresh. Under tendon friction the length mode can hold the loaded tip
-   closer than the tension loop can put it (the endoscope at κ 26.2, φ 0, 10 g, μ = 0.1 hidden:
-   0.10 mm uncompensated, 0.27 mm after four corrections; kept at the PCC lengths, 0.09 mm). A row is worse than uncompensated when its
-   error is larger by more than the tracker can resolve (:func:`resolvably_larger`: two
-   standard errors of the two means);
+   measure; stop early once that error is within ``correction_tolerance_m``. From the second
+   correction on, each re-aims by the error over the share of its predicted move the last one
+   made (:func:`twin.control.compensation.response_gain`, at most twice the error): under a
+   tendon friction the model lacks, a full step falls short. Then keep the best command
+   measured: one measured better than the last, the PCC lengths included, is commanded again
+   and measured afresh. Under tendon friction the length mode can hold the loaded tip closer
+   than the tension loop can put it (the endoscope at κ 26.2, φ 0, 10 g, μ = 0.1 hidden:
+   0.10 mm uncompensated, 0.27 mm after four corrections; kept at the PCC lengths, 0.09 mm). A
+   row is worse than uncompensated when its error is larger by more than the tracker can
+   resolve (:func:`resolvably_larger`: two standard errors of the two means);
 4. back to length mode at the PCC lengths, for the next mass.
 
 Errors are tracker distances of the resting, loaded tip from the target (means over ``measure_s``).
@@ -45,7 +48,8 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from twin.control.compensation import correct_tensions, hold_tensions, unloaded_tips
+from twin.control.compensation import (GAIN_RESOLVE_SIGMAS, correct_tensions, hold_tensions, response_gain,
+                                       unloaded_tips)
 from twin.control.pretension import pretension_straight
 from twin.control.gains import tension_gains_for
 from twin.driver import CommandRejected
@@ -234,8 +238,10 @@ class CompensationTrial:
                  f"floor {self.floor_n:.2f} N, ceiling {self.limit_n:.2f} N; target = the predictor's tip at the "
                  "measured unloaded tensions). **Corrected**: then up to "
                  f"{self.corrections} closed-loop corrections, each re-aiming the predictor by the model error "
-                 "the tracker's miss reveals. The row ends on the best command measured: one measured better than "
-                 "the last — an earlier correction, the feed-forward or the PCC lengths — is commanded again and "
+                 "the tracker's miss reveals, by the error over the share of its predicted move the last "
+                 "correction made (at most twice the error). The row ends on the best command measured: one "
+                 "measured better than the last — an earlier correction, the feed-forward or the PCC lengths — is "
+                 "commanded again and "
                  f"measured afresh ({sum(r.get('kept') not in ('', 'last', None) for r in self.rows)} rows; "
                  f"{sum(r.get('kept') == 'PCC lengths' for r in self.rows)} back at the PCC lengths), and a row "
                  f"counts as worse than uncompensated when its error is larger by more than {RESOLVE_SIGMAS:g} "
@@ -375,8 +381,10 @@ def run_compensation_trial(device, params: Params, *, configs: Sequence[tuple[fl
             tension gains (5.12 N for the endoscope's).
         corrections: most closed-loop corrections per mass (0 = feed-forward only). Without
             friction one or two reach the tolerance. Under a tendon friction the model does not
-            know, each correction takes ~0.6 of the miss (μ = 0.3: 1.42, 1.01, 0.43, 0.30,
-            0.20 mm), and four do better than two (quick grid on ``sim://?seed=0``, median
+            know, a full step takes ~0.6 of the miss on the endoscope (μ = 0.3: 1.42, 1.01, 0.43,
+            0.30, 0.20 mm) and 0.14-0.42 on the two-segment robot, hence the re-aim over the
+            share the last correction made (:func:`twin.control.compensation.response_gain`);
+            four do better than two (quick grid on ``sim://?seed=0``, median
             reduction at μ = 0.3: endoscope 92.9 against 78.4 %, three-tendon 90.8 against
             79.9 %; at μ = 0.1 96.6 against 94.8 %; with the fitted friction at μ = 0.3 95.3
             against 92.6 %).
@@ -622,17 +630,23 @@ def _compensate_mass(device, row: dict, model: RodModel, plan, target: Measureme
     applied = plan
     # Each command measured, with its miss: None stands for the PCC lengths in length mode.
     tried: list[tuple[_Miss, Any]] = [(uncompensated, None), (miss, plan)]
+    # The share of the predictor's tip moves the device makes, from the last correction: under a
+    # tendon friction the model lacks, each full step falls short (see :func:`response_gain`).
+    gain = 1.0
     for _ in range(corrections):
         # What the predictor expected to miss by (a target out of reach within the bounds) is
         # no model error: a correction would not change it, so it does not count.
-        if np.linalg.norm(miss.vector_m - (applied.predicted_tip_m - plan.target_m)) <= correction_tolerance_m:
+        if np.linalg.norm(miss.vector_m - (applied.predicted_tip_m - applied.target_m)) <= correction_tolerance_m:
             break
-        corrected = correct_tensions(model, applied, plan.target_m, miss.vector_m, tip_force_n=load, **bounds)
+        corrected = _correction(model, applied, plan.target_m, miss, load, bounds, gain)
         _ramp_tensions(device, applied.tensions_n, corrected.tensions_n, steps)
-        applied = corrected
+        before, applied = (miss, applied), corrected
         miss = _rest_and_measure(device, target, correction_rest_s, measure_s, settle_timeout_s)
         tried.append((miss, applied))
         row["corrections"] += 1
+        made = response_gain(applied.predicted_tip_m - before[1].predicted_tip_m, miss.vector_m - before[0].vector_m,
+                             math.hypot(miss.sem_mm, before[0].sem_mm) * 1e-3)
+        gain = gain if made is None else made
     k = min(range(len(tried)), key=lambda i: tried[i][0].mm)
     command = tried[k][1]
     row["kept"] = "last"
@@ -653,6 +667,27 @@ def _compensate_mass(device, row: dict, model: RodModel, plan, target: Measureme
 
     device.set_mode("lengths")
     device.set_lengths(pcc_lengths)
+
+
+def _correction(model: RodModel, applied, goal_m, miss: "_Miss", load, bounds: dict, gain: float):
+    """The next correction of ``applied`` (:func:`twin.control.compensation.correct_tensions`)
+    for the measured ``miss``, taken over ``gain``, the share of its predicted move the last
+    correction made, except where that would not help:
+
+    - a model error (the miss beyond what ``applied`` expected) within
+      :data:`twin.control.compensation.GAIN_RESOLVE_SIGMAS` standard errors of the miss: the
+      step would double the noise it chases;
+    - a step that asks a tendon for the ceiling: there the tension loop has no duty to spare
+      against the friction, and pulling the others harder left the tip swinging past the wait
+      for rest (long, μ = 0.3 hidden, κ 15.72 φ 270 10 g, ``sim://?seed=0``).
+    """
+    error_m = float(np.linalg.norm(miss.vector_m - (applied.predicted_tip_m - applied.target_m)))
+    share = gain if error_m > GAIN_RESOLVE_SIGMAS * miss.sem_mm * 1e-3 else 1.0
+    corrected = correct_tensions(model, applied, goal_m, miss.vector_m, tip_force_n=load, response_gain=share, **bounds)
+    high = 0.5 * (bounds["floor_n"] + bounds["limit_n"])
+    if share < 1.0 and np.any(corrected.at_bounds & (corrected.tensions_n > high)):
+        corrected = correct_tensions(model, applied, goal_m, miss.vector_m, tip_force_n=load, **bounds)
+    return corrected
 
 
 # How many standard errors apart two measured tip errors must be for the trial to call one
