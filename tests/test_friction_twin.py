@@ -341,3 +341,13 @@ def test_the_long_robot_on_ideal_tension_sources_comes_to_rest_in_a_bent_row_at_
     plant.set_tensions(pcc_tensions_n(13.0, 0.0, params))
     plant.set_tip_mass_kg(0.01)
     assert plant.settle().settled
+
+
+def test_twin_bench_friction_reads_the_robots_own_load_cells():
+    # stiff-long's 5 kg cells read through the default robot's calibration put a slack tendon at
+    # -0.55 N, which the dataset refuses: the bench stopped on its first row with a dataset error.
+    from twin.experiments.bench import bench_friction
+    from twin.robots import load_robot
+
+    result = bench_friction(load_robot("stiff-long"), coeffs=(0.6,))
+    assert result["completed"] and result["frictionless_rows"] > 0, result

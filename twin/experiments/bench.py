@@ -10,7 +10,7 @@ import time
 from twin.data.dataset import DatasetError, read_dataset
 from twin.driver import open_device
 from twin.driver.errors import DeviceError
-from twin.experiments.protocols import ProtocolError, run_validation
+from twin.experiments.protocols import ProtocolError, apply_calibration, nominal_calibration, run_validation
 from twin.params import Params, load_params
 from twin.sim.plant import SimulationError
 
@@ -66,9 +66,14 @@ def _sweep_cpu(model: Params, twin: Params, grid, seed: int) -> dict:
     with tempfile.TemporaryDirectory(prefix="twin-bench-friction-") as folder, \
             open_device("sim://", params=twin, seed=seed) as device:
         device.connect()
+        # The robot's own load cells, as `twin validate` reads them: the default robot's
+        # calibration on another robot's cells read a stiff-long tendon at -0.55 N, which the
+        # dataset refuses.
+        calibration = nominal_calibration(model)
+        apply_calibration(device, calibration)
         start = time.process_time()
         try:
-            run_validation(device, folder, model, grid=grid, progress=False)
+            run_validation(device, folder, model, grid=grid, progress=False, calibration=calibration)
         except (ProtocolError, DeviceError, SimulationError) as exc:
             stopped = f"{type(exc).__name__}: {exc}"
         cpu_s = time.process_time() - start
