@@ -205,7 +205,8 @@ class TendonFriction:
     balances; for a fixed tendon over the joints (continuous routing) as the fixed tendon's own
     pull on each joint, −(T_k − T₀) ∂ℓ/∂ξ, through ``qfrc_applied`` (``joint_pulls`` in the
     constructor says why). T₀ is the spool's tension, at most
-    ``tension_cap_n`` (:data:`FRICTION_TENSION_CAP_LIMITS`), through a first-order lag of
+    ``tension_cap_n`` (:data:`FRICTION_TENSION_CAP_LIMITS`) and, on an ideal tension source, at
+    most the source's setting, through a first-order lag of
     :data:`FRICTION_TENSION_LAG_S`, and σ follows the spool's travel through one of
     :data:`FRICTION_TRAVEL_LAG_S` on an ideal source, of :data:`FRICTION_MOTOR_TRAVEL_LAG_S`
     while the motor drives it.

@@ -10,16 +10,23 @@ import time
 from twin.data.dataset import DatasetError, read_dataset
 from twin.driver import open_device
 from twin.driver.errors import DeviceError
-from twin.experiments.protocols import ProtocolError, run_validation
+from twin.experiments.protocols import ProtocolError, apply_calibration, nominal_calibration, run_validation
 from twin.params import Params, load_params
 from twin.sim.plant import SimulationError
 
-__all__ = ["FRICTION_COEFFS", "bench_friction"]
+__all__ = ["FRICTION_COEFFS", "bench_friction", "friction_grid"]
 
 
 # Friction coefficients (per radian of wrap) of bench_friction: a braided line in a printed hole is
 # of order 0.1 (twin.effects.tendon_friction); 0.6 is the strongest a lab is asked to try.
 FRICTION_COEFFS = (0.1, 0.3, 0.6)
+
+
+def friction_grid() -> list[tuple[int, float, float, float]]:
+    """The 16 rows (config, κ 1/m, φ °, tip mass kg) of :func:`bench_friction`: κ 13 and 26.2 1/m
+    (the thesis grid's middle and most bent) in the four planes, 0 and 10 g, in that order."""
+    return [(i, k, p, m) for i, (k, p, m) in enumerate(
+        (k, p, m) for k in (13.0, 26.2) for p in (0.0, 90.0, 180.0, 270.0) for m in (0.0, 0.01))]
 
 
 def bench_friction(params: Params | None = None, *, coeffs=FRICTION_COEFFS, seed: int = 2) -> dict:
@@ -38,8 +45,7 @@ def bench_friction(params: Params | None = None, *, coeffs=FRICTION_COEFFS, seed
         stopped), ``completed``: every sweep measured every row.
     """
     params = params if params is not None else load_params()
-    grid = [(i, k, p, m) for i, (k, p, m) in enumerate(
-        (k, p, m) for k in (13.0, 26.2) for p in (0.0, 90.0, 180.0, 270.0) for m in (0.0, 0.01))]
+    grid = friction_grid()
     _sweep_cpu(params, params, grid[:2], seed)  # warm-up: the first sweep of a process loads and compiles
     base = _sweep_cpu(params, params, grid, seed)
     runs = []
@@ -60,9 +66,14 @@ def _sweep_cpu(model: Params, twin: Params, grid, seed: int) -> dict:
     with tempfile.TemporaryDirectory(prefix="twin-bench-friction-") as folder, \
             open_device("sim://", params=twin, seed=seed) as device:
         device.connect()
+        # The robot's own load cells, as `twin validate` reads them: the default robot's
+        # calibration on another robot's cells read a stiff-long tendon at -0.55 N, which the
+        # dataset refuses.
+        calibration = nominal_calibration(model)
+        apply_calibration(device, calibration)
         start = time.process_time()
         try:
-            run_validation(device, folder, model, grid=grid, progress=False)
+            run_validation(device, folder, model, grid=grid, progress=False, calibration=calibration)
         except (ProtocolError, DeviceError, SimulationError) as exc:
             stopped = f"{type(exc).__name__}: {exc}"
         cpu_s = time.process_time() - start

@@ -522,7 +522,14 @@ static void tendon_friction(const mjModel* m, mjData* d, bl_state* s) {
     }
     // A tendon snapping taut spikes for a step far beyond anything the rig holds: not followed
     // (twin.effects.tendon_friction.FRICTION_TENSION_CAP_LIMITS says why).
-    double followed = tension < s->friction_tension_cap_n ? tension : s->friction_tension_cap_n;
+    // An ideal tension source (the fixture's dead weights, twin sim, the cross-check) holds the
+    // spool's tension at its setting: the spikes its light carriage rings with against the stiff
+    // line are the carriage's, not the source's, and are not followed either. Followed, they came
+    // back as friction of up to e^(μθ) − 1 times them: the long robot pulled by 20 N at μ = 0.6,
+    // curled past a full turn, threw 380 N at a slack antagonist and diverged within 0.2 s.
+    double cap = s->friction_tension_cap_n;
+    if (s->mode == BL_TENSION && d->ctrl[s->ctrl_tension + i] < cap) cap = max0(d->ctrl[s->ctrl_tension + i]);
+    double followed = tension < cap ? tension : cap;
     s->friction_tension_n[i] += (followed - s->friction_tension_n[i]) * (dt / (s->friction_lag_s + dt));
     // The spool pulls tendon in while its position (tendon paid out) falls.
     // A spool the motor drives carries the rotor; on an ideal source it is a light carriage.
