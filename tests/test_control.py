@@ -258,6 +258,22 @@ def test_a_tension_command_the_loop_swings_under_is_neither_corrected_nor_kept(m
     assert np.isfinite(row["feedforward_mm"]) and np.isfinite(row["corrected_mm"])
 
 
+def test_a_rest_is_left_as_soon_as_the_tension_loop_swings():
+    class Clock:
+        def __init__(self):
+            self.waited_s = 0.0
+
+        def wait(self, duration_s):
+            self.waited_s += duration_s
+
+    clock = Clock()
+    assert compensation_trial._rest(clock, 2.5, swinging=lambda: False)
+    assert clock.waited_s == pytest.approx(2.5)
+    clock = Clock()
+    assert not compensation_trial._rest(clock, 2.5, swinging=lambda: clock.waited_s > 0.6)
+    assert 0.6 < clock.waited_s <= 0.6 + compensation_trial._SWING_CHECK_S
+
+
 def test_a_row_is_worse_only_by_more_than_the_tracker_can_tell():
     # Two standard errors of the difference: 0.045 mm each puts the line at 0.127 mm.
     assert not resolvably_larger(0.20, 0.045, 0.08, 0.045)
