@@ -301,7 +301,7 @@ def swing_limit_n(params: Params, limit_n: float) -> float:
     """Highest tension (N) a tendon's cell may read for the tension loop to count as holding its
     command: the ceiling ``limit_n`` plus half its distance to ``rig.tension_limit_n``. A loop that
     swings further leaves no margin for the next swing; the 0.44 N this leaves over the tuned
-    5.12 N ceiling is about twice the swing above it (0.13–0.21 N, 0.26–0.41 N peak to peak)
+    5.12 N ceiling is about twice the swing above it (0.08–0.21 N, 0.16–0.41 N peak to peak)
     the loop kept at the ceiling under μ = 0.3 on long while it held (``sim://?seed=1``)."""
     return limit_n + 0.5 * max(params.rig.tension_limit_n - limit_n, 0.0)
 
