@@ -10,8 +10,9 @@ from twin.control.compensation import (MIN_RESPONSE_GAIN, compensate_tensions, c
                                        response_gain)
 from twin.control.compensation_trial import (GOAL_REDUCTION_PCT, CompensationTrial, _correction, _Miss,
                                              compensation_grid,
-                                             resolvably_larger, run_compensation_trial, tension_ceiling_n,
-                                             within_reach)
+                                             resolvably_larger, run_compensation_trial, swing_limit_n,
+                                             tension_ceiling_n, within_reach)
+from twin.control import compensation_trial
 from twin.control.gains import DEFAULT_TENSION_GAINS, PROPORTIONAL_LOOP_GAIN, TUNED_TENSION_GAINS, tension_gains_for
 from twin.tuning import tension_cost
 from twin.driver import open_device
@@ -240,6 +241,37 @@ def test_where_friction_holds_the_loaded_tip_closer_than_tension_mode_the_trial_
     assert trial.worse_rows() == []
     for row in trial.rows:
         assert 0.01 < row["uncompensated_sem_mm"] < 0.1 and 0.01 < row["corrected_sem_mm"] < 0.1
+
+
+def test_a_tension_command_the_loop_swings_under_is_neither_corrected_nor_kept(monkeypatch):
+    # Every reading above zero counts as a swing here: the feed-forward is then a command the
+    # loop does not hold, so no correction follows it and the row ends back at the PCC lengths,
+    # measured afresh. The threshold itself sits over the ceiling, under the board's limit.
+    ceiling = tension_ceiling_n(PARAMS, TUNED_TENSION_GAINS)
+    assert ceiling < swing_limit_n(PARAMS, ceiling) < PARAMS.rig.tension_limit_n
+    monkeypatch.setattr(compensation_trial, "swing_limit_n", lambda params, limit_n: 0.0)
+    with open_device("sim://?seed=4") as device:
+        trial = run_compensation_trial(device, PARAMS, configs=[(13.0, 90.0)], masses_kg=(0.010,))
+    (row,) = trial.rows
+    assert not row["fault"] and row["swung"] and row["peak_tension_n"] > 0.0
+    assert row["corrections"] == 0 and row["kept"] == "PCC lengths"
+    assert np.isfinite(row["feedforward_mm"]) and np.isfinite(row["corrected_mm"])
+
+
+def test_a_rest_is_left_as_soon_as_the_tension_loop_swings():
+    class Clock:
+        def __init__(self):
+            self.waited_s = 0.0
+
+        def wait(self, duration_s):
+            self.waited_s += duration_s
+
+    clock = Clock()
+    assert compensation_trial._rest(clock, 2.5, swinging=lambda: False)
+    assert clock.waited_s == pytest.approx(2.5)
+    clock = Clock()
+    assert not compensation_trial._rest(clock, 2.5, swinging=lambda: clock.waited_s > 0.6)
+    assert 0.6 < clock.waited_s <= 0.6 + compensation_trial._SWING_CHECK_S
 
 
 def test_a_row_is_worse_only_by_more_than_the_tracker_can_tell():

@@ -44,7 +44,7 @@ import dataclasses
 import json
 import math
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any, Callable, Sequence
 
 import numpy as np
 
@@ -61,7 +61,8 @@ from twin.pcc import GRID_KAPPA_PER_M, GRID_PHI_DEG, tendon_length_changes_m, va
 from twin.rod import RodModel
 from twin.rod.grid import GRAVITY_TIP_FORCE_N, pcc_realisable, pcc_tensions_n
 
-__all__ = ["CompensationTrial", "run_compensation_trial", "tension_ceiling_n", "compensation_grid", "within_reach",
+__all__ = ["CompensationTrial", "run_compensation_trial", "tension_ceiling_n", "swing_limit_n", "compensation_grid",
+           "within_reach",
            "resolvably_larger", "QUICK_CONFIGS", "GOAL_REDUCTION_PCT", "RESOLVE_SIGMAS"]
 
 # A few (κ 1/m, φ deg) across curvature and bending direction (up, down, sideways), for --quick.
@@ -243,7 +244,10 @@ class CompensationTrial:
                  "measured better than the last — an earlier correction, the feed-forward or the PCC lengths — is "
                  "commanded again and "
                  f"measured afresh ({sum(r.get('kept') not in ('', 'last', None) for r in self.rows)} rows; "
-                 f"{sum(r.get('kept') == 'PCC lengths' for r in self.rows)} back at the PCC lengths), and a row "
+                 f"{sum(r.get('kept') == 'PCC lengths' for r in self.rows)} back at the PCC lengths). A command "
+                 "under which a tendon's cell read more than half way from the ceiling to the board's tension "
+                 "limit is one the tension loop swings under: no correction follows it and it is not kept "
+                 f"({sum(bool(r.get('swung')) for r in self.rows)} rows). A row "
                  f"counts as worse than uncompensated when its error is larger by more than {RESOLVE_SIGMAS:g} "
                  "standard errors of the difference of the two tracker means. Ramps are smooth, "
                  f"{t['ramp_s']:g} s; the tip rests {t['rest_s']:g} s after the feed-forward ramp and "
@@ -291,6 +295,15 @@ def tension_ceiling_n(params: Params, gains: dict, *, margin_n: float = 0.5, hea
     """
     stall_n = params.rig.motor_stall_force_n
     return min(params.rig.tension_limit_n - margin_n, headroom * gains["output_limit"] * stall_n)
+
+
+def swing_limit_n(params: Params, limit_n: float) -> float:
+    """Highest tension (N) a tendon's cell may read for the tension loop to count as holding its
+    command: the ceiling ``limit_n`` plus half its distance to ``rig.tension_limit_n``. A loop that
+    swings further leaves no margin for the next swing; the 0.44 N this leaves over the tuned
+    5.12 N ceiling is about twice the swing above it (0.08–0.21 N, 0.16–0.41 N peak to peak)
+    the loop kept at the ceiling under μ = 0.3 on long while it held (``sim://?seed=1``)."""
+    return limit_n + 0.5 * max(params.rig.tension_limit_n - limit_n, 0.0)
 
 
 def compensation_grid(params: Params, limit_n: float, masses_kg: Sequence[float] = (0.005, 0.010), *,
@@ -436,6 +449,8 @@ def run_compensation_trial(device, params: Params, *, configs: Sequence[tuple[fl
     # Each tendon's friction sliding state, followed from the encoders over the whole trial: a
     # model with friction predicts every static shape in the state it was reached in.
     sliding = _Sliding(device, params)
+    peaks = _TensionPeaks(device)
+    swing_n = swing_limit_n(params, limit_n)
     for kappa, phi in configs:
         fault = ""
         try:
@@ -474,6 +489,7 @@ def run_compensation_trial(device, params: Params, *, configs: Sequence[tuple[fl
                    "feedforward_reduction_pct": math.nan, "corrected_reduction_pct": math.nan,
                    "model_residual_mm": plan.residual_m * 1e3 if plan else math.nan,
                    "reached": bool(plan and plan.reached), "corrections": 0,
+                   "peak_tension_n": math.nan, "swung": False,
                    "feedforward_tensions_n": plan.tensions_n.round(4).tolist() if plan else [],
                    "tensions_n": plan.tensions_n.round(4).tolist() if plan else [], "fault": fault}
             rows.append(row)
@@ -486,7 +502,7 @@ def run_compensation_trial(device, params: Params, *, configs: Sequence[tuple[fl
                     return sliding.plan(model, unloaded.tensions_n, unloaded_sigma, force, bounds, target_m), force
             try:
                 _run_mass(device, row, model, plan, unloaded, mass, load, pcc_lengths, bounds,
-                          side_force_n=side, replan=replan,
+                          peaks=peaks, swing_n=swing_n, side_force_n=side, replan=replan,
                           steps=steps, corrections=corrections, correction_tolerance_m=correction_tolerance_m,
                           rest_s=rest_s, correction_rest_s=correction_rest_s, measure_s=measure_s,
                           settle_timeout_s=settle_timeout_s)
@@ -504,6 +520,7 @@ def run_compensation_trial(device, params: Params, *, configs: Sequence[tuple[fl
                 f"{r['mass_g']:g} g {r['uncompensated_mm']:.2f} → {r['feedforward_mm']:.2f} → "
                 f"{r['corrected_mm']:.2f} mm" + (f" ({r['fault']})" if r["fault"] else "")
                 + (f" (kept: {r['kept']})" if r.get("kept") not in ("", "last") else "")
+                + (f" (the tension loop swung to {r['peak_tension_n']:.2f} N)" if r.get("swung") else "")
                 + (" (WORSE than uncompensated)" if not r["fault"] and _worse(r) else "") for r in last))
     timing = {"ramp_s": ramp_s, "rest_s": rest_s, "correction_rest_s": correction_rest_s, "measure_s": measure_s,
               "target_measure_s": target_measure_s}
@@ -550,6 +567,25 @@ def _estimated_load_n(params: Params, model: RodModel, loaded, base_rotation, si
     return est.force_observable_n
 
 
+class _TensionPeaks:
+    """The highest tension (N) each tendon's cell read since :meth:`reset`, from every telemetry sample."""
+
+    def __init__(self, device):
+        self.peak_n: np.ndarray | None = None
+        device.add_sample_listener(self._sample)
+
+    def _sample(self, sample) -> None:
+        tensions = np.asarray(sample.tensions_n, dtype=float)
+        self.peak_n = tensions if self.peak_n is None else np.fmax(self.peak_n, tensions)
+
+    def reset(self) -> None:
+        self.peak_n = None
+
+    def highest_n(self) -> float:
+        """The highest reading of any tendon since :meth:`reset` (0 before a sample)."""
+        return 0.0 if self.peak_n is None else float(np.max(self.peak_n))
+
+
 class _Sliding:
     """The trial's record of each tendon's friction sliding state (:class:`twin.effects.SlidingState`),
     followed from the encoders. Without friction in the model σ changes no prediction: nothing is followed."""
@@ -581,7 +617,7 @@ class _Sliding:
 
 
 def _run_mass(device, row: dict, model: RodModel, plan, target: Measurement, mass: float, load, pcc_lengths, bounds: dict, *,
-              side_force_n=None, replan=None, steps: int, corrections: int, correction_tolerance_m: float, rest_s: float,
+              peaks: "_TensionPeaks", swing_n: float, side_force_n=None, replan=None, steps: int, corrections: int, correction_tolerance_m: float, rest_s: float,
               correction_rest_s: float, measure_s: float, settle_timeout_s: float) -> None:
     """One tip mass of a configuration, from length mode at the PCC lengths back to it; fills ``row``.
 
@@ -593,6 +629,7 @@ def _run_mass(device, row: dict, model: RodModel, plan, target: Measurement, mas
         device.fixture.apply_tip_load(side_force_n)
     try:
         _compensate_mass(device, row, model, plan, target, load, pcc_lengths, bounds, replan=replan, steps=steps,
+                         peaks=peaks, swing_n=swing_n,
                          corrections=corrections, correction_tolerance_m=correction_tolerance_m, rest_s=rest_s,
                          correction_rest_s=correction_rest_s, measure_s=measure_s, settle_timeout_s=settle_timeout_s)
     finally:
@@ -601,6 +638,7 @@ def _run_mass(device, row: dict, model: RodModel, plan, target: Measurement, mas
 
 
 def _compensate_mass(device, row: dict, model: RodModel, plan, target: Measurement, load, pcc_lengths, bounds: dict, *, replan,
+                     peaks: "_TensionPeaks", swing_n: float,
                      steps: int, corrections: int, correction_tolerance_m: float, rest_s: float,
                      correction_rest_s: float, measure_s: float, settle_timeout_s: float) -> None:
     """``target`` is the unloaded measurement, every miss is measured from its tip.
@@ -609,7 +647,15 @@ def _compensate_mass(device, row: dict, model: RodModel, plan, target: Measureme
     better than the last one — the PCC lengths themselves, where friction held the loaded tip
     closer than the tension loop can put it — is commanded again and measured afresh, and that
     fresh measurement, not the one it was picked by (the smallest of several noisy means reads
-    low), is the row's result."""
+    low), is the row's result.
+
+    A command under which some tendon's cell read more than ``swing_n`` (N, from the ramp to the
+    end of its measurement, ``peaks``) is one the tension loop does not hold: under a tendon
+    friction the model lacks, the loop can swing stick-slip by ±0.9 N about a setpoint at the
+    ceiling, and a swing that reaches the board's limit trips it (long, μ = 0.3 hidden,
+    κ 15.72 φ 270 10 g: the fourth correction's rest read 6.01 N on ``sim://?seed=0``). No
+    correction follows such a command and it is not kept: the row ends on the best calm one. A
+    correction's rest is left as soon as the swing shows, without measuring the command."""
     _wait_for_tip_rest(device, settle_timeout_s)
     loaded = measure(device, duration_s=measure_s)
     uncompensated = _Miss.of(loaded, target)
@@ -622,14 +668,17 @@ def _compensate_mass(device, row: dict, model: RodModel, plan, target: Measureme
 
     device.set_mode("tensions")
     # A slack tendon reads a few mN either side of zero; the board refuses negative setpoints.
+    peaks.reset()
     _ramp_tensions(device, np.maximum(loaded.tensions_n, 0.0), plan.tensions_n, steps)
     miss = _rest_and_measure(device, target, rest_s, measure_s, settle_timeout_s)
     row["feedforward_mm"] = miss.mm
     row["feedforward_reduction_pct"] = float(100.0 * (1.0 - miss.mm / uncompensated.mm))
+    row["peak_tension_n"] = peaks.highest_n()
 
     applied = plan
-    # Each command measured, with its miss: None stands for the PCC lengths in length mode.
-    tried: list[tuple[_Miss, Any]] = [(uncompensated, None), (miss, plan)]
+    # Each command measured, with its miss and whether the tension loop held it calm: None
+    # stands for the PCC lengths in length mode, which the length loop holds.
+    tried: list[tuple[_Miss, Any, bool]] = [(uncompensated, None, True), (miss, plan, peaks.highest_n() <= swing_n)]
     # The share of the predictor's tip moves the device makes, from the last correction: under a
     # tendon friction the model lacks, each full step falls short (see :func:`response_gain`).
     gain = 1.0
@@ -638,19 +687,29 @@ def _compensate_mass(device, row: dict, model: RodModel, plan, target: Measureme
         # no model error: a correction would not change it, so it does not count.
         if np.linalg.norm(miss.vector_m - (applied.predicted_tip_m - applied.target_m)) <= correction_tolerance_m:
             break
+        if not tried[-1][2]:
+            break  # the loop swings towards the board's limit: no further command is tried
         corrected = _correction(model, applied, plan.target_m, miss, load, bounds, gain)
+        peaks.reset()
         _ramp_tensions(device, applied.tensions_n, corrected.tensions_n, steps)
         before, applied = (miss, applied), corrected
-        miss = _rest_and_measure(device, target, correction_rest_s, measure_s, settle_timeout_s)
-        tried.append((miss, applied))
+        rested = _rest(device, correction_rest_s, swinging=lambda: peaks.highest_n() > swing_n)
         row["corrections"] += 1
+        if not rested:
+            row["peak_tension_n"] = max(row["peak_tension_n"], peaks.highest_n())
+            row["swung"] = True  # left within its rest, unmeasured
+            break
+        miss = _rest_and_measure(device, target, 0.0, measure_s, settle_timeout_s)
+        row["peak_tension_n"] = max(row["peak_tension_n"], peaks.highest_n())
+        tried.append((miss, applied, peaks.highest_n() <= swing_n))
         made = response_gain(applied.predicted_tip_m - before[1].predicted_tip_m, miss.vector_m - before[0].vector_m,
                              math.hypot(miss.sem_mm, before[0].sem_mm) * 1e-3)
         gain = gain if made is None else made
-    k = min(range(len(tried)), key=lambda i: tried[i][0].mm)
+    row["swung"] = row["swung"] or not all(calm for _, _, calm in tried)
+    k = min((i for i in range(len(tried)) if tried[i][2]), key=lambda i: tried[i][0].mm)
     command = tried[k][1]
     row["kept"] = "last"
-    if k != len(tried) - 1:
+    if command is not applied:
         if command is None:
             row["kept"] = "PCC lengths"
             device.set_mode("lengths")
@@ -734,6 +793,25 @@ def _ramp_tensions(device, start_n, end_n, steps: int) -> None:
         if sample.fault_flags:
             raise ProtocolError(f"the board reports fault {sample.fault_flags!r} (state {sample.state!r}) "
                                 "during a tension ramp")
+
+
+# How often a rest asks whether the tension loop swings (s): 10 telemetry samples at 40 Hz, a
+# tenth of the 2.5 s rest after a correction and half the ~0.5 s beat of the stick-slip swing's
+# peaks on long at μ = 0.3 (sim://?seed=0).
+_SWING_CHECK_S = 0.25
+
+
+def _rest(device, rest_s: float, *, swinging: Callable[[], bool]) -> bool:
+    """Wait ``rest_s``, asking ``swinging()`` every :data:`_SWING_CHECK_S`: False as soon as it
+    says the tension loop swings (the command is then left without waiting out the rest), else True."""
+    waited = 0.0
+    while waited < rest_s:
+        step = min(_SWING_CHECK_S, rest_s - waited)
+        device.wait(step)
+        waited += step
+        if swinging():
+            return False
+    return True
 
 
 def _rest_and_measure(device, target, rest_s: float, measure_s: float, settle_timeout_s: float) -> _Miss:
