@@ -7,6 +7,7 @@ say so (``ambiguous``). A dataset with no effect must name none; one with an eff
 library must end ``unexplained``, not with a confident name.
 """
 
+import csv
 import json
 
 import numpy as np
@@ -16,7 +17,11 @@ from twin import load_params
 from twin.discrepancy import (candidate_library, find_discrepancy, run_discrepancy, split_rows,
                               synthetic_validation_dataset, write_report)
 from twin.discrepancy.candidates import UNTESTABLE_EFFECTS, Candidate
-from twin.discrepancy.residuals import MIN_ROWS
+from twin.discrepancy.commands import EXIT_CODES
+from twin.discrepancy.noise import NoiseEstimate
+from twin.discrepancy.residuals import MIN_ROWS, STRUCTURE_ALPHA, level_test
+from twin.discrepancy.workflow import MODEL_FORM_M
+from twin.data.dataset import read_dataset
 from twin.effects import EFFECTS
 from twin.data.prediction import predict_dataset
 from twin.data.fitting import FitParameter, fit_determined
@@ -141,6 +146,11 @@ def test_clean_data_with_other_noise_is_none(tmp_path, seed, noise_m):
     result = run_discrepancy(data)
     assert result.verdict == "none" and result.named == (), result.statement()
     assert result.params_after == result.params_before
+    if noise_m is not None:
+        # Twice the stated noise and nothing in the rows measures it: a noisier rig and a shapeless
+        # disagreement look the same, so the answer stands on the structure test and says so.
+        assert result.residuals.noise.source == "prior" and not result.left.within
+        assert "beyond the stated noise" in result.statement()
 
 
 def test_an_effect_outside_the_library_is_unexplained_and_shown_where(results):
@@ -355,3 +365,68 @@ def test_small_effects_are_named_on_a_108_row_sweep_of_averaged_rows(tmp_path, h
         return
     assert result.verdict == "effect" and result.named == (effect,), result.statement()
     assert np.allclose(result.fit.values, truth, atol=tol), result.fit.values
+
+
+def _drifted(folder, sigma_m, seed):
+    """The dataset in ``folder`` with every row's measured tip moved by an offset drawn anew for
+    the row (σ ``sigma_m`` per axis): a disagreement that is no function of the configuration,
+    as a tracker drifting between rows or friction the rows do not record the sliding state of
+    leaves."""
+    path = folder / "measurements.csv"
+    rows = list(csv.reader(open(path, newline="")))
+    columns = [rows[0].index(f"tip_{axis}_m") for axis in "xyz"]
+    rng = np.random.default_rng(seed)
+    for row in rows[1:]:
+        for column, offset in zip(columns, rng.normal(0.0, sigma_m, 3)):
+            row[column] = repr(float(row[column]) + float(offset))
+    with open(path, "w", newline="") as f:
+        csv.writer(f, lineterminator="\r\n").writerows(rows)
+    return read_dataset(folder)
+
+
+def test_the_level_test_passes_errors_at_noise_and_model_form_and_fails_three_times_them():
+    noise = NoiseEstimate(np.full(3, 1e-4), "frames", "stated for the test")
+    level = np.sqrt(noise.rms_3d_m**2 + MODEL_FORM_M**2)
+    errors = np.random.default_rng(0).normal(0.0, level / np.sqrt(3), (40, 3))
+    at_level = level_test(errors, noise, MODEL_FORM_M)
+    assert at_level.within and at_level.p_value > STRUCTURE_ALPHA and at_level.rows == 40
+    assert level < at_level.allowed_rms_m < 2 * level
+    beyond = level_test(3 * errors, noise, MODEL_FORM_M)
+    assert not beyond.within and beyond.p_value < STRUCTURE_ALPHA
+    # Without the model-form level the same errors are beyond noise alone.
+    assert not level_test(errors, noise, 0.0).within
+
+
+def test_a_large_disagreement_that_is_no_function_of_the_configuration_is_unexplained_not_none(tmp_path):
+    data = synthetic_validation_dataset(tmp_path, NOMINAL, NOMINAL, grid=GRID, seed=11, frames=10)
+    assert run_discrepancy(data).verdict == "none"
+    # 1 mm a row and axis, ten times the rows' noise, scattered over the rows without a pattern.
+    result = run_discrepancy(_drifted(tmp_path, 1e-3, seed=3))
+    assert result.residuals.noise.source == "frames"
+    assert not result.residuals.structure.beyond_noise, result.residuals.statement
+    assert result.verdict == "unexplained" and EXIT_CODES[result.verdict] != 0, result.statement()
+    assert result.named == () and result.fit is None and result.params_after == result.params_before
+    assert not result.left.within and result.remaining_rms_m > 5 * result.left.allowed_rms_m
+    assert "not a function of the configuration" in result.statement()
+    assert result.to_dict()["left"]["within"] is False
+
+
+def test_an_effect_that_explains_part_of_the_disagreement_is_a_stand_in_not_the_effect(tmp_path):
+    hidden, truth, tol = HIDDEN["tendon_friction"]
+    data = synthetic_validation_dataset(tmp_path, NOMINAL, NOMINAL.replace(hidden), grid=GRID, seed=11, frames=10)
+    alone = run_discrepancy(data)
+    assert alone.verdict == "effect" and alone.named == ("tendon_friction",), alone.statement()
+    # The friction's 3.5 mm with half a millimetre a row and axis of drift on top.
+    result = run_discrepancy(_drifted(tmp_path, 0.5e-3, seed=3))
+    assert result.residuals.structure.beyond_noise
+    assert result.verdict == "unexplained" and EXIT_CODES[result.verdict] != 0, result.statement()
+    # Never named, never written into the parameters, but shown with its figures.
+    assert result.named == () and result.fit is None and result.parameters() == {}
+    assert result.params_after == result.params_before
+    stand_in = {c["effect"]: c for c in result.candidates() if c["role"] == "stand-in"}["tendon_friction"]
+    assert np.allclose([v["value"] for v in stand_in["parameters"].values()], truth, atol=tol)
+    # It explains part: what is left is well below the start, and well above the level.
+    assert result.remaining_rms_m < 0.5 * result.rms_before_m
+    assert not result.left.within
+    assert "tendon_friction explains part of it (not named)" in result.statement()
+    assert "not a function of the configuration" in result.statement()

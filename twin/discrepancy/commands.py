@@ -25,10 +25,13 @@ EXIT_STOPPED = 4
 EXIT_INTERRUPTED = 130
 
 _EPILOG = """verdicts and exit codes:
-  effect       0  the named effect(s) leave residuals consistent with noise
-  none         0  no structured disagreement beyond noise
+  effect       0  the named effect(s) leave residuals consistent with noise, and a held-out
+                  error within noise and model form
+  none         0  no structured disagreement beyond noise, and a held-out error within noise
+                  and model form
   ambiguous    3  two or more candidates explain the data equally (listed); none is named for it
-  unexplained  3  structure remains that no candidate nor pair removes (where and how much shown)
+  unexplained  3  structure remains that no candidate nor pair removes, or an error beyond noise
+                  and model form that is no function of the configuration (where and how much shown)
   bad input    2  a dataset, parameter file or option that cannot be used (one line on stderr)
   stopped      4  a deciding experiment on --device stopped (the device, the protocol or a diverging
                   twin; one line on stderr); 130 on Ctrl-C. Either leaves the dataset with the

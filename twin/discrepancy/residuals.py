@@ -28,8 +28,8 @@ from twin.data.dataset import Dataset
 from twin.data.prediction import Predictions, predict_dataset
 from twin.params import Params
 
-__all__ = ["MIN_ROWS", "STRUCTURE_ALPHA", "StructureTest", "ResidualMap", "find_discrepancy", "structure_test",
-           "thesis_signature"]
+__all__ = ["MIN_ROWS", "STRUCTURE_ALPHA", "LevelTest", "StructureTest", "ResidualMap", "find_discrepancy",
+           "level_test", "structure_test", "thesis_signature"]
 
 STRUCTURE_ALPHA = 1e-3
 # Fewest predicted rows the Find step analyses: below it neither the structured fit's leftovers
@@ -67,6 +67,52 @@ class StructureTest:
 
     def to_dict(self) -> dict:
         return dataclasses.asdict(self)
+
+
+@dataclasses.dataclass(frozen=True)
+class LevelTest:
+    """Whether an error left is within what noise and the model's form allow, whatever its shape.
+
+    The structure test sees only disagreement that is a smooth function of the configuration; a
+    disagreement that depends on the path to a configuration (hysteresis, friction without its
+    sliding state) or on time (drift) escapes it however large it is. This test does not look at
+    the shape: with a right model every row's 3-D error has mean square σ² + m² (σ the noise's
+    :attr:`~twin.discrepancy.noise.NoiseEstimate.rms_3d_m`, m the model-form level), so
+    Σ|e|² / ((σ² + m²)/3) over n rows is at most χ² with 3n degrees of freedom, and the error is
+    beyond that level when its upper-tail p is below :data:`STRUCTURE_ALPHA` (the Find step's own
+    false-alarm rate).
+
+    Attributes:
+        rms_m: RMS of |e| over the rows tested (m).
+        allowed_rms_m: the largest RMS within the level at that rate (m).
+        p_value: upper-tail p of the χ² statistic.
+        rows: rows tested.
+        within: ``rms_m`` ≤ ``allowed_rms_m``.
+    """
+
+    rms_m: float
+    allowed_rms_m: float
+    p_value: float
+    rows: int
+    within: bool
+
+    def to_dict(self) -> dict:
+        return dataclasses.asdict(self)
+
+
+def level_test(errors_m: np.ndarray, noise: NoiseEstimate, model_form_m: float) -> LevelTest:
+    """:class:`LevelTest` of ``errors_m`` (rows, 3; m) against ``noise`` and the model-form level
+    ``model_form_m`` (a 3-D RMS, m)."""
+    e = np.asarray(errors_m, dtype=float).reshape(-1, 3)
+    n = e.shape[0]
+    level2 = noise.rms_3d_m**2 + model_form_m**2
+    rms = float(np.sqrt(np.mean(np.sum(e**2, axis=1)))) if n else 0.0
+    if n == 0 or level2 <= 0:
+        return LevelTest(rms, 0.0, 1.0 if rms == 0 else 0.0, n, rms == 0)
+    dof = 3 * n
+    chi2 = float(np.sum(e**2)) / (level2 / 3.0)
+    allowed = float(np.sqrt(level2 * stats.chi2.isf(STRUCTURE_ALPHA, dof) / dof))
+    return LevelTest(rms, allowed, float(stats.chi2.sf(chi2, dof)), n, rms <= allowed)
 
 
 def _basis(kappa, phi_deg, mass_kg) -> np.ndarray:

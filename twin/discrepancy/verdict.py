@@ -12,10 +12,13 @@ __all__ = ["Verdict"]
 class Verdict(enum.StrEnum):
     """What the workflow concluded; the value is what the JSON, the report and the statement spell.
 
-    ``none``: no structured disagreement beyond noise, or none that matters, and nothing named.
-    ``effect``: the named effects leave residuals consistent with noise.
+    ``none``: no structured disagreement beyond noise, or none that matters, and nothing named;
+    the error is at the noise (and model-form) level.
+    ``effect``: the named effects leave residuals consistent with noise, at the noise (and
+    model-form) level.
     ``ambiguous``: two or more candidates explain the data equally well; none is named for it.
-    ``unexplained``: structure beyond noise remains that no candidate (nor a pair) removes.
+    ``unexplained``: structure beyond noise remains that no candidate (nor a pair) removes, or
+    an error beyond the noise level that is no function of the configuration.
     """
 
     NONE = "none"

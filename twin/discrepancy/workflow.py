@@ -15,17 +15,29 @@ The verdict (:class:`Verdict`):
 
 ``none``
     no structured disagreement beyond noise, or none that matters (:func:`_material`) and
-    nothing named: nothing to name.
+    nothing named, and the held-out error is within noise and model form (below): nothing to name.
 ``effect``
-    the named effects leave residuals consistent with noise (no material structure).
+    the named effects leave residuals consistent with noise (no material structure), and a
+    held-out error within noise and model form.
 ``ambiguous``
     two or more candidates explain the data equally well within their uncertainty (a tie,
     :data:`twin.discrepancy.naming.TIE_Z`), and the best of them leaves no structure beyond
-    noise; they are listed, none is named for that round, and the search stops there.
+    noise and a held-out error within noise and model form; they are listed, none is named for
+    that round, and the search stops there.
 ``unexplained``
-    structure beyond noise remains that no candidate (nor a pair) removes: what was named, if
-    anything, explains part of it (tied candidates that each explain part are listed); the
-    verdict shows where the rest is and how large.
+    structure beyond noise remains that no candidate (nor a pair) removes, or an error beyond
+    noise and model form that is no function of the configuration (path dependence: hysteresis,
+    friction without its sliding state; or drift): what was named, if anything, explains part
+    of it (tied candidates that each explain part are listed, the stand-ins with their figures,
+    never named); the verdict shows where the rest is and how large.
+
+The Find step's structure test sees only disagreement that is a smooth function of (κ, φ, load);
+an answer of ``none``, ``effect`` or ``ambiguous`` also needs the held-out error it leaves to be
+within what the noise and the model-form level allow (:func:`twin.discrepancy.residuals.level_test`,
+at the Find step's false-alarm rate), so a large disagreement of another shape is never ``none``
+and an effect that explains part of it is never the ``effect``. That needs a noise measured in
+the data (repeats, or the frames each row averages); against a stated noise the answer stands on
+the structure test and its statement says that the error is beyond the stated noise.
 
 Example:
     >>> from twin.data.dataset import read_dataset
@@ -48,7 +60,7 @@ from twin.discrepancy.candidates import UNTESTABLE_EFFECTS, candidate_library
 from twin.discrepancy.naming import (MIN_HELDOUT_GAIN, PAIR_POOL, TIE_Z, Baseline, CandidateScore, Round,
                                      rank_candidates, rank_pairs, row_errors, split_rows, worse_z)
 from twin.discrepancy.probes import PROBES, fit_probe
-from twin.discrepancy.residuals import ResidualMap, find_discrepancy, thesis_signature
+from twin.discrepancy.residuals import LevelTest, ResidualMap, find_discrepancy, level_test, thesis_signature
 from twin.discrepancy.uncertainty import Uncertainty, honest_uncertainty, model_form_reference
 from twin.discrepancy.verdict import Verdict
 from twin.data.dataset import Dataset
@@ -98,6 +110,8 @@ class DiscrepancyResult:
         uncertainty: for an ``effect`` answer, each fitted value's honest uncertainty
             (:mod:`twin.discrepancy.uncertainty`: standard error, split-to-split scatter and
             model-form error together), in the order of :attr:`fit`'s parameters.
+        left: :attr:`errors_after_m` against the noise and the model-form level
+            (:func:`twin.discrepancy.residuals.level_test`).
     """
 
     dataset: Dataset
@@ -120,6 +134,7 @@ class DiscrepancyResult:
     stand_ins: tuple[CandidateScore, ...] = ()
     outside: tuple[CandidateScore, ...] = ()
     uncertainty: tuple[Uncertainty, ...] = ()
+    left: LevelTest | None = None
 
     @property
     def effect(self) -> str:
@@ -225,10 +240,18 @@ class DiscrepancyResult:
         noise = self.residuals.noise.rms_3d_m * 1e3
         left = (f"{self.remaining_rms_m * 1e3:.3g} mm held-out RMS left (from {self.rms_before_m * 1e3:.3g} mm) "
                 f"against {noise:.3g} mm of noise")
+        beyond_level = self.left is not None and not self.left.within
+        if beyond_level:
+            assert self.left is not None
+            left += f" (noise and model form allow {self.left.allowed_rms_m * 1e3:.3g} mm)"
+        # A stated noise (no repeats, no frame errors) cannot tell a noisier rig from a shapeless
+        # disagreement: the answer stands on the structure test, and says what would tell.
+        caveat = ("; beyond the stated noise, which these rows (no repeats, no frame standard errors) cannot tell "
+                  "from path dependence or drift: repeat configurations to tell") if beyond_level else ""
         if self.verdict == Verdict.NONE:
-            return f"none: no structured disagreement beyond noise ({left})."
+            return f"none: no structured disagreement beyond noise ({left}){caveat}."
         if self.verdict == Verdict.EFFECT:
-            return f"effect: {_listed(self.named)} the disagreement; {left}."
+            return f"effect: {_listed(self.named)} the disagreement; {left}{caveat}."
         if self.verdict == Verdict.AMBIGUOUS:
             tie = ", ".join(f"{_shown(s)} {s.heldout_rms_m * 1e3:.3g} mm" for s in self.tied + self.outside)
             rms = [s.heldout_rms_m for s in self.tied + self.outside]
@@ -241,10 +264,15 @@ class DiscrepancyResult:
         axis = max(w["by_axis"], key=lambda a: a["rms_mm"])
         plane = max(w["by_plane"], key=lambda g: g["rms_mm"])
         kappa = max(w["by_curvature"], key=lambda g: g["rms_mm"])
+        # An error beyond noise and model form without structure in the configuration: its shape
+        # is the finding, not a candidate's failure to remove it.
+        shapeless = beyond_level and not w["beyond_noise"]
         if self.tied:
             part = f"the best candidates tie ({', '.join(s.effect for s in self.tied)}) and none removes it; "
         elif self.stand_ins:
             part = f"{_listed([s.effect for s in self.stand_ins])} part of it (not named); "
+        elif shapeless:
+            part = ""
         else:
             part = "no candidate nor pair removes it; "
         if self.outside:
@@ -252,6 +280,16 @@ class DiscrepancyResult:
             values = ", ".join(f"{row['parameter']} = {row['value']:.3g}" for row in (best.fit.table() if best.fit else []))
             part += (f"a cause outside the library, {best.effect} ({values}), explains it "
                      f"(held-out {best.heldout_rms_m * 1e3:.3g} mm); ")
+        if shapeless:
+            rest = "the rest is" if part else "a"
+            shape = (f"{rest} disagreement beyond noise that is not a function of the configuration (over all rows "
+                     f"a smooth function of κ, φ and load takes {w['structured_rms_m'] * 1e3:.3g} mm of "
+                     f"{w['rms_m'] * 1e3:.3g} mm, p = {w['p_value']:.2g}): path dependence (hysteresis, friction "
+                     f"without the sliding state) or drift")
+            return (f"unexplained: {part}{shape}; {left}; largest along {axis['axis']} ({axis['rms_mm']:.3g} mm "
+                    f"RMS), in the plane φ = {plane['phi_cmd_deg']:g}° ({plane['rms_mm']:.3g} mm), at κ = "
+                    f"{kappa['kappa_cmd_per_m']:g} 1/m ({kappa['rms_mm']:.3g} mm); worst configurations "
+                    f"{', '.join(str(c['config']) for c in w['worst'])}{self._separated()}.")
         return (f"unexplained: {part}{left}; over all rows {w['structured_rms_m'] * 1e3:.3g} mm of structure "
                 f"remains (p = {w['p_value']:.2g}), largest along {axis['axis']} ({axis['rms_mm']:.3g} mm RMS), in the "
                 f"plane φ = {plane['phi_cmd_deg']:g}° ({plane['rms_mm']:.3g} mm), at κ = {kappa['kappa_cmd_per_m']:g} "
@@ -284,6 +322,7 @@ class DiscrepancyResult:
             "remaining_rms_m": self.remaining_rms_m,
             "noise_rms_m": self.residuals.noise.rms_3d_m,
             "remaining": self.where(),
+            "left": self.left.to_dict() if self.left else None,
             "ranking": [{"effect": s.effect, "score": s.score, "heldout_rms_m": s.heldout_rms_m,
                          "parameters": s.parameters, "beats_noise": s.beats_noise} for s in first.scores],
             "rounds": [r.to_dict() for r in self.rounds],
@@ -388,6 +427,10 @@ def run_discrepancy(dataset: Dataset, params: Params | None = None, *, holdout_f
     errors_before, ok_before = row_errors(dataset, params, test, [solutions[i] for i in held])
     errors_after, ok_after = row_errors(dataset, current, test, [solutions[i] for i in held])
     after = find_discrepancy(dataset, current, noise=residuals.noise, guesses=list(solutions)) if named else residuals
+    # Only a noise measured in the data (repeats, frames) sets a level a shapeless error can be
+    # judged against: a stated one may be off by the rig's own factor, which rows without repeats
+    # cannot tell from a disagreement (the statement says so instead).
+    measured = residuals.noise.source != "prior"
     if not residuals.structure.beyond_noise or (not named and not tied and not _material(residuals, model_form_m)):
         verdict = Verdict.NONE
     elif tied:
@@ -395,11 +438,18 @@ def run_discrepancy(dataset: Dataset, params: Params | None = None, *, holdout_f
         # leaves material structure, what is missing is none of them alone.
         assert tied[0].fit is not None, "a tied candidate is a fitted one"
         best = find_discrepancy(dataset, tied[0].fit.params, noise=residuals.noise, guesses=list(solutions))
-        verdict = Verdict.UNEXPLAINED if _material(best, model_form_m) else Verdict.AMBIGUOUS
+        leaves = tied[0].heldout_errors_m
+        beyond = measured and leaves is not None and not level_test(leaves, residuals.noise, model_form_m).within
+        verdict = Verdict.UNEXPLAINED if beyond or _material(best, model_form_m) else Verdict.AMBIGUOUS
     elif not named or _material(after, model_form_m):
         verdict = Verdict.UNEXPLAINED
     else:
         verdict = Verdict.EFFECT
+    if (measured and verdict in (Verdict.NONE, Verdict.EFFECT)
+            and not level_test(errors_after, residuals.noise, model_form_m).within):
+        # What the structure test cannot see (a disagreement that is no smooth function of the
+        # configuration) is still a disagreement: nothing, or what was named, does not explain it.
+        verdict = Verdict.UNEXPLAINED
     stand_ins: tuple[CandidateScore, ...] = ()
     outside: tuple[CandidateScore, ...] = ()
     if verdict != Verdict.NONE:
@@ -441,7 +491,7 @@ def run_discrepancy(dataset: Dataset, params: Params | None = None, *, holdout_f
                                                reference_errors_m=form_reference, seed=seed, progress=progress))
     return DiscrepancyResult(dataset, params, current, train, test, seed, residuals, tuple(rounds), tuple(named),
                              fit, errors_before, errors_after, ok_before, ok_after, verdict, tied, after,
-                             stand_ins, outside, uncertainty)
+                             stand_ins, outside, uncertainty, level_test(errors_after, residuals.noise, model_form_m))
 
 
 def _joint_score(base: Baseline, rounds: list[Round], named: list[str], fit: ParameterFit,
