@@ -483,46 +483,6 @@ def test_a_tip_load_or_slip_given_to_the_twin_that_does_not_fit_better_is_taken_
         np.testing.assert_array_equal(monitor._band, monitor.noise.band)
 
 
-def _take_ups(rng, count, start_s, parting_n):
-    """Tendon 0 slack (0 N) but for a take-up every 3 s: on the twin at the first frame, on the
-    device a frame later (the noise times it), the rod then ringing apart on every cell by
-    ``parting_n`` for six frames; after it both sides hold 1 N."""
-    every = int(3.0 / PERIOD_S)
-    for k, (device, twin) in enumerate(_frames(rng, count, start_s)):
-        phase = (round(device.time_s / PERIOD_S)) % every
-        held = 1.0 if 0 < phase < every // 2 else 0.0
-        twin_t, device_t = twin.tensions_n.copy(), device.tensions_n.copy()
-        twin_t[0] = held
-        device_t[0] = (1.0 if 1 < phase < every // 2 else 0.0) + rng.normal(0, 0.01)
-        if 1 < phase <= 7:
-            device_t = device_t + parting_n * np.array([1, -1, 1, -1])[:N]
-        yield (FrameValues(device.time_s, device.lengths_m, device_t, device.duty, device.tip_m),
-               FrameValues(twin.time_s, twin.lengths_m, twin_t, twin.duty, twin.tip_m))
-
-
-def test_a_tendon_taken_up_a_frame_apart_is_not_compared_until_the_two_agree():
-    """A slack tendon taken up a frame later on the device than on the twin (as the noise times a
-    step) parts the whole rod for a few frames, by more than a minute's warm-up saw: not compared
-    while the two sides disagree for no longer than the warm-up's disagreements did, nor for a
-    running median's window after. A tendon slack on the device and taut on the twin for longer (a
-    slip that slackened it) is watched."""
-    rng = np.random.default_rng(13)
-    monitor = Monitor(PARAMS, warmup_s=30.0)
-    warm = int(30.0 / PERIOD_S) + 1
-    for device, twin in _take_ups(rng, warm, 0.0, parting_n=0.05):
-        monitor.update(device, twin, tip_frame_time_s=device.time_s)
-    assert monitor.ready and monitor.noise.slack_disagreement_frames == 1
-    raised = []
-    for device, twin in _take_ups(rng, int(120.0 / PERIOD_S), warm * PERIOD_S, parting_n=0.3):
-        raised += monitor.update(device, twin, tip_frame_time_s=device.time_s)
-    assert raised == []
-    assert monitor.slack_skipped >= 40 * 7
-    # The device's tendon 0 stays slack where the twin's is taut.
-    raised = _after(monitor, rng, (warm + int(120.0 / PERIOD_S)) * PERIOD_S, lambda d: FrameValues(
-        d.time_s, d.lengths_m, d.tensions_n * (np.arange(N) > 0), d.duty, d.tip_m), frames=40)
-    assert raised and "tension[0]" in raised[0].where
-
-
 @pytest.mark.parametrize("tension_n", [0.3, 1.5])
 def test_an_encoder_below_the_guards_taut_level_is_not_compared(tension_n):
     """The board winds a tendon in faster only once it reads taut (a tenth of the tension cap), so

@@ -254,5 +254,4 @@ def summary(shadow, start_s: float, wall_s: float) -> dict:
     return {"compared_frames": shadow.compared, "unmatched_frames": shadow.unmatched,
             "cpu_per_frame_ms": round(per_frame_s * 1e3, 3), "realtime_load": round(per_frame_s / 0.025, 3),
             "behind": shadow.behind, "max_queue_frames": shadow.max_queue, "skipped_frames": shadow.skipped,
-            "setpoint_mismatch_frames": shadow.target_mismatches,
-            "slack_disagreement_frames": shadow.monitor.slack_skipped, "wall_s": round(wall_s, 1)}
+            "setpoint_mismatch_frames": shadow.target_mismatches, "wall_s": round(wall_s, 1)}

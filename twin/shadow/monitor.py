@@ -12,9 +12,7 @@ is :data:`ALARM_SIGMAS` robust spreads, or 1.5 times the warm-up's largest excur
 the warm-up's excursions reach once extrapolated to a run of :data:`WATCH_S` (peaks over a
 threshold), whichever is widest. A tendon slack on either side, or below the tension at which the
 board takes it as taut, has its encoder and duty left out (the loop parts from the twin's as the
-slack is taken up); a frame where one side has a tendon slack and the other taut is not compared at
-all, nor a running median's window after, where the disagreement lasts no longer than the warm-up's
-did (one side took the slack up a tick before the other). The frames after the first crossing
+slack is taken up). The frames after the first crossing
 (:data:`NAMING_FRAMES`) are then named by what could cause them (:meth:`Monitor._name`), the twin
 re-calibrated where the cause has a parameter, and the bias learned again over :data:`RESYNC_S`
 before the monitor watches on, its bands widened by what the re-calibration left uncertain
@@ -209,9 +207,6 @@ class NoiseModel:
         ring_band_n: the tensions' frame-to-frame change (N, the norm over the cells, a median
             over :data:`FIT_FRAMES`) beyond which they ring: :data:`PEAK_MARGIN` times the
             largest the warm-up saw.
-        slack_disagreement_frames: the longest the two sides disagreed in the warm-up on whether
-            a tendon is slack (frames in a row): a disagreement up to this long is a take-up
-            timed apart by the noise, and its frames are not compared.
     """
 
     bias: np.ndarray
@@ -221,7 +216,6 @@ class NoiseModel:
     stiffness_n_per_m: np.ndarray
     persist: np.ndarray
     ring_band_n: float = math.inf
-    slack_disagreement_frames: int = 0
 
 
 @dataclasses.dataclass
@@ -279,10 +273,6 @@ class Monitor:
         self._slack_n = SLACK_NOISE * params.sensors.loadcell_noise_n
         self._loose_n = max(self._slack_n, GUARD_TAUT_FRACTION * params.rig.tension_limit_n)
         self._since_slack = np.full(n, MEDIAN_FRAMES)
-        self._slack_run = 0
-        self._longest_slack_run = 0
-        self._slack_skip_until_s = -math.inf
-        self.slack_skipped = 0
         self.names = ([f"length[{i}]" for i in range(n)] + [f"tension[{i}]" for i in range(n)]
                       + [f"duty[{i}]" for i in range(n)] + ["tip.x", "tip.y", "tip.z"])
         self.noise: NoiseModel | None = None if noise is None else dataclasses.replace(noise, bias=noise.bias.copy())
@@ -347,24 +337,6 @@ class Monitor:
         # loops the same way.
         slack = np.minimum(twin.tensions_n, device.tensions_n) < self._loose_n
         self._since_slack = np.where(slack, 0, self._since_slack + 1)
-        # A tendon slack on one side and taut on the other: one took its slack up (or let it go) a
-        # tick before the other, by how the noise timed it, and the whole rod parts from the twin's
-        # for a few frames (on helical 0.3 N on every cell for eight frames, where a step takes a
-        # tendon up). Not compared then, nor for a running median's window after, where it lasts no
-        # longer than the warm-up's disagreements did; a longer one (a slip slackening a tendon)
-        # is watched, and the warm-up learns from every frame. Taut means beyond twice the slack
-        # level: a tendon near it on both sides, which the noise reads either way, is no
-        # disagreement.
-        low, high = np.minimum(twin.tensions_n, device.tensions_n), np.maximum(twin.tensions_n, device.tensions_n)
-        differ = bool(((low < self._slack_n) & (high > 2 * self._slack_n)).any())
-        self._slack_run = self._slack_run + 1 if differ else 0
-        if self.noise is None:
-            self._longest_slack_run = max(self._longest_slack_run, self._slack_run)
-        if differ and self._slack_run <= (math.inf if self.noise is None else self.noise.slack_disagreement_frames):
-            self._slack_skip_until_s = device.time_s + (MEDIAN_FRAMES - 0.5) * self.period_s
-        if device.time_s <= self._slack_skip_until_s and self.noise is not None:
-            self.slack_skipped += 1
-            return raised
         loose = np.flatnonzero(self._since_slack < MEDIAN_FRAMES)
         residual[loose] = np.nan
         residual[2 * self.n + loose] = np.nan
@@ -486,7 +458,7 @@ class Monitor:
             persist[group] = max(MIN_PERSIST_FRAMES, _longest_excursion(medians_abs[:, group], band[group] / 2) + 1)
         ring_band = PEAK_MARGIN * _ringing(np.nan_to_num(warm[:, n:2 * n] - bias[n:2 * n])).max(initial=0.0)
         self.noise = NoiseModel(np.nan_to_num(bias), sigma, band, mix, _loop_stiffness(twin_rows, n), persist,
-                                ring_band, self._longest_slack_run)
+                                ring_band)
         self._widen(self._uncertainty)
         self._window = []
         self._raw_window = []
