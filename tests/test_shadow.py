@@ -406,3 +406,150 @@ def test_tensions_that_ring_are_named_latency_not_a_slip():
         d.time_s, d.lengths_m, d.tensions_n + swing * (-1) ** round(d.time_s / PERIOD_S), d.duty, d.tip_m))
     assert raised and raised[0].kind == "latency"
     assert raised[0].detail["ringing_n"] > monitor.noise.ring_band_n
+
+
+def _sliding_frames(rng, count, start_s, friction=0.0):
+    """Tendon 0 wound in under 3 N while tendon 2 pays out at 0.4 N and the others hold, back and
+    forth every second; a friction change makes a cell read more when its tendon is wound in and
+    less when paid out, in proportion to its tension."""
+    count_m = PARAMS.rig.tendon_m_per_count
+    for k in range(count):
+        t = start_s + k * PERIOD_S
+        direction = 1.0 if int(t) % 2 == 0 else -1.0
+        lengths = np.zeros(N)
+        lengths[0] = -direction * 20 * count_m * (t % 1.0) / PERIOD_S
+        lengths[2] = -lengths[0]
+        tensions = np.array([3.0, 1.5, 0.4, 1.5])
+        twin = FrameValues(t, lengths, tensions.copy(), np.zeros(N), np.array([0.06, 0.0, 0.0]))
+        read = tensions + rng.normal(0, 0.01, N)
+        read[0] += friction * direction * tensions[0]
+        read[2] -= friction * direction * tensions[2]
+        yield FrameValues(t, lengths.copy(), read, np.zeros(N), twin.tip_m + rng.normal(0, 2e-4, 3)), twin
+
+
+def test_a_friction_change_that_shows_in_one_cell_is_friction_not_its_gain():
+    """Friction grows while tendon 0 slides under most of the tension: its cell reads 0.15 N more
+    wound in (the paid-out antagonist 0.02 N less, within its band), which that cell's offset or gain
+    would explain too; friction explains both cells' readings and is named."""
+    rng = np.random.default_rng(12)
+    monitor = Monitor(PARAMS, warmup_s=10.0)
+    frames = int(10.0 / PERIOD_S) + 1
+    for device, twin in _sliding_frames(rng, frames, 0.0):
+        monitor.update(device, twin, tip_frame_time_s=device.time_s)
+    assert monitor.ready
+    raised = []
+    for device, twin in _sliding_frames(rng, 80, frames * PERIOD_S, friction=0.05):
+        raised += monitor.update(device, twin, tip_frame_time_s=device.time_s)
+    assert raised, "a 5 % friction change (0.15 N on cell 0) was not seen"
+    assert raised[0].where == ("tension[0]",)
+    assert raised[0].kind == "friction"
+    assert raised[0].detail["chi2_over_cell"] > 4.0
+
+
+@pytest.mark.parametrize("lasting", [True, False])
+def test_a_tip_load_or_slip_given_to_the_twin_that_does_not_fit_better_is_taken_back(lasting):
+    """Every cell's tension steps (a tip load's pattern) and is named; the twin is given the change
+    (here its tensions move by the step). Where the step lasts, the twin with it fits the device
+    better than without and the change is kept; where it was a transient of the motion, the twin
+    with it is off by the step from then on, and the change is taken back, the bands as before."""
+    from twin.shadow.monitor import GAIN_CHI2
+
+    rng = np.random.default_rng(5)
+    monitor, start = _learned(rng)
+    step = np.array([0.2, -0.1, 0.15, -0.12])[:N]
+    raised: list = []
+    given = False
+    for device, twin in _frames(rng, int(4.0 / PERIOD_S), start):
+        if lasting or not raised:
+            device = FrameValues(device.time_s, device.lengths_m, device.tensions_n + step, device.duty, device.tip_m)
+        if given:
+            twin = FrameValues(twin.time_s, twin.lengths_m, twin.tensions_n + step, twin.duty, twin.tip_m)
+        new = monitor.update(device, twin, tip_frame_time_s=device.time_s)
+        if new and not raised:
+            event = dataclasses.replace(new[0], kind="tendon_slip", size=4e-4, std=2e-5)
+            monitor.recalibrated(event)
+            new = [event]
+            given = True
+        raised += new
+        if monitor.take_retracted():
+            given = False
+    assert raised, "a 0.1-0.2 N step on every cell was not seen"
+    first = raised[0]
+    assert "trial_chi2" in first.detail, "the re-calibration's trial did not end within 4 s"
+    if lasting:
+        assert first.detail["trial_chi2"] > GAIN_CHI2 and "retracted" not in first.detail
+    else:
+        assert first.detail["trial_chi2"] < GAIN_CHI2 and first.detail["retracted"] is True
+        np.testing.assert_array_equal(monitor._band, monitor.noise.band)
+
+
+@pytest.mark.parametrize("tension_n", [0.3, 1.5])
+def test_an_encoder_below_the_guards_taut_level_is_not_compared(tension_n):
+    """The board winds a tendon in faster only once it reads taut (a tenth of the tension cap), so
+    below that each side's loop speeds up when its noise says: tendon 1's encoder parting from the
+    twin's by 30 counts for ten frames is left out at 0.3 N (cap 6 N), an alarm at 1.5 N."""
+    from twin.shadow.monitor import GUARD_TAUT_FRACTION
+
+    assert 0.3 < GUARD_TAUT_FRACTION * PARAMS.rig.tension_limit_n < 1.5
+    rng = np.random.default_rng(14)
+
+    def held(frames):
+        for device, twin in frames:
+            device_t, twin_t = device.tensions_n.copy(), twin.tensions_n.copy()
+            device_t[1] += tension_n - twin_t[1]
+            twin_t[1] = tension_n
+            yield (FrameValues(device.time_s, device.lengths_m, device_t, device.duty, device.tip_m),
+                   FrameValues(twin.time_s, twin.lengths_m, twin_t, twin.duty, twin.tip_m))
+
+    monitor = Monitor(PARAMS, warmup_s=10.0)
+    for device, twin in held(_frames(rng, int(10.0 / PERIOD_S) + 1)):
+        monitor.update(device, twin, tip_frame_time_s=device.time_s)
+    assert monitor.ready
+    start = (int(10.0 / PERIOD_S) + 1) * PERIOD_S
+    shift = np.zeros(N)
+    shift[1] = 30 * PARAMS.rig.tendon_m_per_count
+    raised = []
+    for k, (device, twin) in enumerate(held(_frames(rng, 40, start))):
+        lengths = device.lengths_m + (shift if 5 <= k < 15 else 0.0)
+        raised += monitor.update(FrameValues(device.time_s, lengths, device.tensions_n, device.duty, device.tip_m),
+                                 twin, tip_frame_time_s=device.time_s)
+    if tension_n < GUARD_TAUT_FRACTION * PARAMS.rig.tension_limit_n:
+        assert raised == []
+    else:
+        assert raised and "length[1]" in raised[0].where
+
+
+def test_tensions_that_ring_then_settle_off_the_twins_are_named_latency():
+    """A loop whose motors answer late rings frame by frame after a step, all cells together, which
+    the watched residual (each cell less what the others predict of it) barely sees, and then
+    settles with its tensions off the twin's: the ringing in the frames kept at the naming names it
+    latency, not a load or a cell."""
+    rng = np.random.default_rng(15)
+
+    def common(frames, change=None):
+        # The cells' noise mostly shifting together, as two twins' tensions part.
+        for device, twin in frames:
+            shifted = device.tensions_n + rng.normal(0, 0.05)
+            device = FrameValues(device.time_s, device.lengths_m, shifted, device.duty, device.tip_m)
+            yield (device if change is None else change(device)), twin
+
+    monitor = Monitor(PARAMS, warmup_s=10.0)
+    warm = int(10.0 / PERIOD_S) + 1
+    for device, twin in common(_frames(rng, warm)):
+        monitor.update(device, twin, tip_frame_time_s=device.time_s)
+    assert monitor.ready
+    start = warm * PERIOD_S
+    swing = 0.6
+    settled = 0.3 * np.array([1, -1, 1, -1])[:N]
+
+    def late(d):
+        k = round((d.time_s - start) / PERIOD_S)
+        off = swing * (-1) ** k * np.ones(N) if k < 10 else settled
+        return FrameValues(d.time_s, d.lengths_m, d.tensions_n + off, d.duty, d.tip_m)
+
+    raised = []
+    for device, twin in common(_frames(rng, 40, start), late):
+        raised += monitor.update(device, twin, tip_frame_time_s=device.time_s)
+    assert raised and raised[0].t_s > start + 10 * PERIOD_S, "the ringing alone crossed: the test shows nothing"
+    assert raised[0].kind == "latency"
+    assert raised[0].detail["ringing_n"] > monitor.noise.ring_band_n

@@ -122,8 +122,8 @@ class ShadowDevice:
         self._offset_s: float | None = None
         self._rod: Any = None  # the twin.rod.RodModel, built with the first Jacobian
         self._twin_force_n = np.zeros(3)
-        # What the twin had before each load-cell re-calibration, by the event's id: (key, values).
-        self._given: dict[int, tuple[str, list]] = {}
+        # What gives the twin back what it had before each re-calibration, by the event's id.
+        self._given: dict[int, Callable[[], None]] = {}
         self._settle_until_s = -math.inf
         self._in_sync = False
         self.cpu_s = 0.0
@@ -349,29 +349,36 @@ class ShadowDevice:
         if event.kind in ("loadcell_offset", "loadcell_gain"):
             key = "effects.tension_offset_error_n" if event.kind == "loadcell_offset" else "effects.tension_gain_error"
             values = np.array(twin.params.get(key), dtype=float)
-            self._given[id(event)] = (key, values.tolist())
+            before = HiddenEvent(0.0, "set", (key, values.tolist()))
+            self._given[id(event)] = lambda: twin.change(before)
             values[event.detail["channel"]] += event.size
             twin.change(HiddenEvent(0.0, "set", (key, values.tolist())))
         elif event.kind == "tendon_slip":
             slip = np.zeros(n)
             slip[event.detail["tendon"]] = event.size
+            self._given[id(event)] = lambda: twin.change(HiddenEvent(0.0, "tendon_slip_m", -slip))
             twin.change(HiddenEvent(0.0, "tendon_slip_m", slip))
         elif event.kind == "tip_load" and "force_n" in event.detail:
             # The load as the world sees it: the twin's own tip force plus the one found.
-            self._twin_force_n = self._twin_force_n + np.asarray(event.detail["force_n"], dtype=float)
-            twin.change(HiddenEvent(0.0, "tip_force_n", self._twin_force_n))
+            force = np.asarray(event.detail["force_n"], dtype=float)
+            self._given[id(event)] = lambda: self._give_tip_force(self._twin_force_n - force)
+            self._give_tip_force(self._twin_force_n + force)
         else:
             return
         self.monitor.recalibrated(event)
 
+    def _give_tip_force(self, force_n: np.ndarray) -> None:
+        from twin.sim.events import HiddenEvent
+
+        self._twin_force_n = force_n
+        self._twin.twin.change(HiddenEvent(0.0, "tip_force_n", force_n))
+
     def _retract(self, event: Divergence) -> None:
         """Give the twin back what it had before ``event``'s re-calibration, which the monitor
         found fits the device no better than the twin without it."""
-        from twin.sim.events import HiddenEvent
-
-        given = self._given.pop(id(event), None)
-        if given is not None:
-            self._twin.twin.change(HiddenEvent(0.0, "set", given))
+        undo = self._given.pop(id(event), None)
+        if undo is not None:
+            undo()
         if self._console is not None:
             print(f"shadow: retracted {event.line()}", file=self._console, flush=True)
         if self._log_path is not None:

@@ -10,13 +10,15 @@ residual stays out of the band the warm-up saw for :data:`MIN_PERSIST_FRAMES` fr
 the length loop's own encoders and duties where their warm-up excursions lasted longer). The band
 is :data:`ALARM_SIGMAS` robust spreads, or 1.5 times the warm-up's largest excursion, or the level
 the warm-up's excursions reach once extrapolated to a run of :data:`WATCH_S` (peaks over a
-threshold), whichever is widest. A tendon slack on either side has its encoder and duty left out
-(the loop parts from the twin's as the slack is taken up). The frames after the first crossing
+threshold), whichever is widest. A tendon slack on either side, or below the tension at which the
+board takes it as taut, has its encoder and duty left out (the loop parts from the twin's as the
+slack is taken up). The frames after the first crossing
 (:data:`NAMING_FRAMES`) are then named by what could cause them (:meth:`Monitor._name`), the twin
 re-calibrated where the cause has a parameter, and the bias learned again over :data:`RESYNC_S`
 before the monitor watches on, its bands widened by what the re-calibration left uncertain
 (:meth:`Monitor.recalibrated`). A load cell's re-calibration that fits the frames after it no
-better than the twin without it is taken back (:meth:`Monitor.take_retracted`).
+better than the twin without it is taken back (:meth:`Monitor.take_retracted`), as is a tip load's
+or a slip's.
 """
 
 from __future__ import annotations
@@ -71,6 +73,12 @@ MIN_PERSIST_FRAMES = 2
 # by when in a tick the load came or went (the noise times it), so its encoder and duty are not
 # compared while slack and for a running median's window after.
 SLACK_NOISE = 5.0
+# ... nor while it reads below this fraction of the tension cap on either side, and a window after:
+# the board's guard lets a spool wind in faster only once its tendon reads taut above it (the
+# firmware's kTautFraction, firmware/core/config.h), so that where each side's length loop speeds
+# up turns on its load cell's noise (on helical a tendon wound in from slack parted the two
+# encoders by up to 30 µm, twice what a minute's warm-up saw, until it read taut).
+GUARD_TAUT_FRACTION = 0.1
 # Frames averaged after the first crossing to name the divergence (75 ms at 40 Hz).
 NAMING_FRAMES = 3
 # Frames kept for the fits that name a divergence (400 ms at 40 Hz): the change, which the
@@ -90,10 +98,10 @@ RESYNC_S = 1.0
 # carried through the residual the change made at its naming (three: one draw held for the rest of
 # the run stays inside 99.7 % of the time).
 UNCERTAINTY_SIGMAS = 3.0
-# A load cell's re-calibration is on trial for the resync and this many frames more (1 s at 40 Hz,
-# the load-cell wait's length: the standard motion moves the tension within it): the twin's cell with
-# and without the change against the device, from the bias before it; a change that does not fit
-# better by :data:`GAIN_CHI2` is taken back.
+# A re-calibration is on trial for the resync and this many frames more (1 s at 40 Hz, the
+# load-cell wait's length: the standard motion moves the tension within it): the twin with and
+# without the change against the device, from the bias before it; a change that does not fit better
+# by :data:`GAIN_CHI2` is taken back.
 TRIAL_FRAMES = 40
 # A load cell alone explains a tensions' change it leaves less than this fraction of unexplained
 # (in units of the bands).
@@ -210,6 +218,29 @@ class NoiseModel:
     ring_band_n: float = math.inf
 
 
+@dataclasses.dataclass
+class _Trial:
+    """A re-calibration on trial (:meth:`Monitor._judge`).
+
+    Attributes:
+        event: the divergence whose change the twin was given.
+        uncertainty, bias: the bands' uncertainty and the residual's bias before it.
+        channels: the watched channels the change shows in.
+        pattern: what the change takes off those channels' watched residual, constant (a tip load,
+            a slip: what the device's moved by at the naming); None for a load cell's, which
+            follows the twin's tension.
+        rows: (watched residual on the channels from the old bias, what the change took off it)
+            per frame since.
+    """
+
+    event: Divergence
+    uncertainty: np.ndarray
+    bias: np.ndarray
+    channels: np.ndarray
+    pattern: np.ndarray | None
+    rows: list = dataclasses.field(default_factory=list)
+
+
 class Monitor:
     """Compares device and twin frames, learns the noise, raises named divergences.
 
@@ -240,6 +271,7 @@ class Monitor:
                                 np.full(n, 1e-3), np.full(3, params.sensors.tracker_noise_m)])
         self._floor = floor
         self._slack_n = SLACK_NOISE * params.sensors.loadcell_noise_n
+        self._loose_n = max(self._slack_n, GUARD_TAUT_FRACTION * params.rig.tension_limit_n)
         self._since_slack = np.full(n, MEDIAN_FRAMES)
         self.names = ([f"length[{i}]" for i in range(n)] + [f"tension[{i}]" for i in range(n)]
                       + [f"duty[{i}]" for i in range(n)] + ["tip.x", "tip.y", "tip.z"])
@@ -248,6 +280,7 @@ class Monitor:
         self._uncertainty = np.zeros(3 * n + 3)
         self._band = np.full(3 * n + 3, math.inf) if noise is None else noise.band.copy()
         self._named_watched = np.zeros(3 * n + 3)
+        self._named_signed = np.zeros(3 * n + 3)
         self._start_s: float | None = None
         self._warm: list[np.ndarray] = []
         self._warm_twin: list[np.ndarray] = []
@@ -268,10 +301,7 @@ class Monitor:
         self._watched: list[tuple[np.ndarray, np.ndarray]] = []
         # (channel, channels out of band) of a load cell's change waiting to be told gain or offset.
         self._pending: tuple[int, tuple[str, ...]] | None = None
-        # A load cell's re-calibration on trial: (event, the bands' uncertainty and the bias before
-        # it, the change's effect on the twin's reading per frame as a function of its tension,
-        # (watched residual from the old bias, the twin's tension) per frame since).
-        self._trial: tuple[Divergence, np.ndarray, np.ndarray, list[tuple[float, float]]] | None = None
+        self._trial: _Trial | None = None
         self._retracted: list[Divergence] = []
         self.frames = 0
         self.events: list[Divergence] = []
@@ -305,7 +335,7 @@ class Monitor:
         residual = device.vector() - twin.vector()
         # Slack on either side: a tendon one side has taken up and the other not yet parts the two
         # loops the same way.
-        slack = np.minimum(twin.tensions_n, device.tensions_n) < self._slack_n
+        slack = np.minimum(twin.tensions_n, device.tensions_n) < self._loose_n
         self._since_slack = np.where(slack, 0, self._since_slack + 1)
         loose = np.flatnonzero(self._since_slack < MEDIAN_FRAMES)
         residual[loose] = np.nan
@@ -429,7 +459,7 @@ class Monitor:
         ring_band = PEAK_MARGIN * _ringing(np.nan_to_num(warm[:, n:2 * n] - bias[n:2 * n])).max(initial=0.0)
         self.noise = NoiseModel(np.nan_to_num(bias), sigma, band, mix, _loop_stiffness(twin_rows, n), persist,
                                 ring_band)
-        self._band = np.hypot(band, self._uncertainty)
+        self._widen(self._uncertainty)
         self._window = []
         self._raw_window = []
 
@@ -445,14 +475,30 @@ class Monitor:
         if self._trial is not None:
             self._judge(self._trial, math.nan)
         if event.kind in ("loadcell_offset", "loadcell_gain"):
-            self._trial = (event, self._uncertainty.copy(), self.noise.bias.copy(), [])
+            self._trial = _Trial(event, self._uncertainty.copy(), self.noise.bias.copy(),
+                                 np.array([n + int(event.detail["channel"])]), None)
+        else:
+            # A tip load or a slip moves the twin's tensions and tip by about what the device's moved
+            # at the naming (the change was fitted to it); the length loop drives its encoders back.
+            channels = np.concatenate([np.arange(n, 2 * n), np.arange(3 * n, 3 * n + 3)])
+            channels = channels[np.abs(self._named_signed[channels]) > self._band[channels]]
+            if len(channels):
+                self._trial = _Trial(event, self._uncertainty.copy(), self.noise.bias.copy(), channels,
+                                     self._named_signed[channels].copy())
         fraction = UNCERTAINTY_SIGMAS * abs(event.std / event.size)
         # The change's pattern: the channels it took out of their band (the others saw the noise).
         pattern = np.where(self._named_watched > self._band, self._named_watched, 0.0)
+        uncertainty = self._uncertainty.copy()
         for group in (slice(0, n), slice(n, 2 * n), slice(2 * n, 3 * n), slice(3 * n, 3 * n + 3)):
             extra = fraction * float(np.max(pattern[group], initial=0.0))
-            self._uncertainty[group] = np.hypot(self._uncertainty[group], extra)
-        self._band = np.hypot(self.noise.band, self._uncertainty)
+            uncertainty[group] = np.hypot(uncertainty[group], extra)
+        self._widen(uncertainty)
+
+    def _widen(self, uncertainty: np.ndarray) -> None:
+        """The bands in use: the learned ones widened, in quadrature, by ``uncertainty`` (C,), what the
+        twin's re-calibrations left uncertain in each channel."""
+        self._uncertainty = uncertainty
+        self._band = np.hypot(self._model().band, uncertainty)
 
     def take_retracted(self) -> list[Divergence]:
         """The re-calibrations taken back since the last call (their events' ``detail`` says
@@ -461,38 +507,41 @@ class Monitor:
         return retracted
 
     def _try(self, residual: np.ndarray, twin_tensions_n: np.ndarray, now_s: float) -> None:
-        """One frame of a load cell's re-calibration on trial: its watched residual from the bias
-        before the change (the resync learns one with it)."""
+        """One frame of a re-calibration on trial: the watched residual of its channels from the
+        bias before the change (the resync learns one with it), and what the change took off it."""
         trial = self._trial
         assert trial is not None
-        event, _, bias, rows = trial
-        i = int(event.detail["channel"])
-        row = self._model().mix[self.n + i]
-        rows.append((float(row @ np.nan_to_num(residual - bias)), float(twin_tensions_n[i])))
-        if len(rows) >= round(RESYNC_S / self.period_s) + TRIAL_FRAMES:
+        event = trial.event
+        watched = (self._model().mix[trial.channels] @ np.nan_to_num(residual - trial.bias))
+        if trial.pattern is not None:
+            change = trial.pattern
+        else:
+            # A load cell's change on the twin's reading: an offset shifts it, a gain scales the tension.
+            tension = float(twin_tensions_n[int(event.detail["channel"])])
+            change = np.array([event.size * (tension if event.kind == "loadcell_gain" else 1.0)])
+        trial.rows.append((watched, change))
+        if len(trial.rows) >= round(RESYNC_S / self.period_s) + TRIAL_FRAMES:
             self._judge(trial, now_s)
 
-    def _judge(self, trial, now_s: float) -> None:
-        """Keep a load cell's re-calibration that fits the frames since it better than the twin
-        without it did, by :data:`GAIN_CHI2` (χ² in the cell's noise); else take it back: a step
-        of the motion named a drift (a tendon taking up its slack) leaves the twin's cell off from
-        then on wherever its tension is, and sets off a divergence at every cycle."""
-        event, uncertainty, bias, rows = trial
+    def _judge(self, trial: "_Trial", now_s: float) -> None:
+        """Keep a re-calibration that fits the frames since it better than the twin without it
+        did, by :data:`GAIN_CHI2` (χ² in the channels' noise); else take it back: a step of the
+        motion named a drift, a load or a slip (a tendon taking up its slack) leaves the twin off
+        from then on wherever the pose goes, and sets off a divergence at every cycle."""
         self._trial = None
-        if not rows:
+        if not trial.rows:
             return
-        watched, tension = np.array(rows).T
-        # The twin's reading less the change: an offset shifts it, a gain scales the tension.
-        change = event.size * (tension if event.kind == "loadcell_gain" else np.ones_like(tension))
-        sigma = float(self._model().sigma[self.n + int(event.detail["channel"])])
-        with_sse, without_sse = float(watched @ watched), float((watched + change) @ (watched + change))
-        event.detail["trial_chi2"] = (without_sse - with_sse) / sigma ** 2
-        if without_sse - with_sse > GAIN_CHI2 * sigma ** 2:
+        event = trial.event
+        sigma = self._model().sigma[trial.channels]
+        watched = np.array([r[0] for r in trial.rows]) / sigma
+        without = watched + np.array([r[1] for r in trial.rows]) / sigma
+        margin = float(np.sum(without ** 2) - np.sum(watched ** 2))
+        event.detail["trial_chi2"] = margin
+        if margin > GAIN_CHI2:
             return
         event.detail["retracted"] = True
         self._retracted.append(event)
-        self._uncertainty = uncertainty
-        self._band = np.hypot(self._model().band, uncertainty)
+        self._widen(trial.uncertainty)
         if math.isfinite(now_s):
             self._start_resync(now_s)
 
@@ -542,6 +591,7 @@ class Monitor:
         # The change's pattern, channel by channel, at its largest over the frames kept (the length
         # loop drives its encoders back within them).
         self._named_watched = np.abs(np.array([w[0] for w in self._watched[-HISTORY_FRAMES:]])).max(axis=0)
+        self._named_signed = watched
         out = [self.names[k] for k in np.flatnonzero(np.abs(level) > 1.0)]
         where = tuple(out) or ("none",)
         d_ten, d_tip = deviation[n:2 * n], deviation[3 * n:]
@@ -568,16 +618,29 @@ class Monitor:
             return Divergence(now_s, onset_s, "tracker_jump", "tracker.position_m", float(np.linalg.norm(d_tip)),
                               float(np.linalg.norm(noise.sigma[3 * n:])), "m", where, {"jump_m": d_tip, **debug})
         if ten_sig and not tip_sig and single_misfit < SINGLE_MISFIT:
+            # Friction shows most in the cell whose tendon slides under the most tension, much as
+            # that cell's gain would; where it fits all the cells better (each reading what its
+            # tendon's direction of sliding says), it is friction.
+            sliding = self._friction(now_s, onset_s, frames, where)
+            margin = self._friction_over_cell(channel)
+            if margin > GAIN_CHI2 and sliding.size > 2 * sliding.std and sliding.detail["fit"] >= MIN_FIT:
+                return dataclasses.replace(sliding, detail={**sliding.detail, "chi2_over_cell": margin})
             self._pending = (channel, where)
             return self._loadcell(now_s, onset_s, frames, channel, where)
         if ten_sig or len_sig:
             # Tensions that swing from frame to frame more than they shift: the loop rings where
             # the twin's does not, as a loop whose motors answer late does (or one that friction
-            # makes hunt: that is named friction where the friction model fits).
-            recent = np.array([h[0].tensions_n - h[1].tensions_n for h in self._history[-FIT_FRAMES:]]) - noise.bias[n:2 * n]
-            swing = float(_ringing(recent)[-1]) if len(recent) > FIT_FRAMES // 2 else 0.0
-            shift = float(np.linalg.norm(np.median(recent, axis=0)))
+            # makes hunt: that is named friction where the friction model fits). The largest
+            # swing over the frames kept, against the shift in the same frames: a ringing that
+            # alternates frame by frame barely moves the running median, which crosses its band
+            # later, as the loop settles off the twin's.
+            recent = np.array([h[0].tensions_n - h[1].tensions_n for h in self._history]) - noise.bias[n:2 * n]
+            swings = _ringing(recent) if len(recent) > FIT_FRAMES // 2 else np.zeros(1)
+            k = int(np.argmax(swings))
+            swing = float(swings[k])
+            shift = float(np.linalg.norm(np.median(recent[k:k + FIT_FRAMES], axis=0)))
             debug["ringing_n"] = swing
+            debug["shift_n"] = shift
             if swing > noise.ring_band_n and swing / 2 > shift:
                 hunting = self._friction(now_s, onset_s, frames, where)
                 if hunting.size > 2 * hunting.std and hunting.detail["fit"] >= MIN_FIT:
@@ -678,24 +741,51 @@ class Monitor:
         return Divergence(now_s, onset_s, "loadcell_offset", f"effects.tension_offset_error_n[{i}]", offset[0],
                           offset[1], "N", where, {"channel": i, "gain_if_gain": gain[0], "chi2_margin": margin})
 
+    def _friction_rows(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Over the last :data:`FIT_FRAMES` frames, (T, n) each: what friction would add to each
+        cell's reading per unit of its coefficient (the twin's tension, + pulled in, − released,
+        0 where the tendon moved less than the encoders resolve), the cells' residuals, the twin's
+        tensions."""
+        n = self.n
+        hist = self._history[-FIT_FRAMES:]
+        rows, xs, tensions = [], [], []
+        for k in range(1, len(hist)):
+            twin_now, twin_before = hist[k][1], hist[k - 1][1]
+            rate = (twin_now.lengths_m - twin_before.lengths_m)
+            moving = np.abs(rate) > self._floor[:n]
+            device_now = hist[k][0]
+            rows.append(device_now.tensions_n - twin_now.tensions_n - self._model().bias[n:2 * n])
+            xs.append(-np.sign(rate) * moving * twin_now.tensions_n)
+            tensions.append(twin_now.tensions_n)
+        return np.array(xs).reshape(-1, n), np.array(rows).reshape(-1, n), np.array(tensions).reshape(-1, n)
+
     def _friction(self, now_s, onset_s, frames, where) -> Divergence:
         """Friction changes the tension a load cell reads against the tendon's sliding: pulled in
         (length falling) it reads more than the twin, released less; sized as the fraction of the
         tension lost per unit of that direction."""
         n = self.n
-        hist = self._history[-FIT_FRAMES:]
-        rows, xs = [], []
-        for k in range(1, len(hist)):
-            twin_now, twin_before = hist[k][1], hist[k - 1][1]
-            rate = (twin_now.lengths_m - twin_before.lengths_m)
-            device_now = hist[k][0]
-            rows.append(device_now.tensions_n - twin_now.tensions_n - self._model().bias[n:2 * n])
-            xs.append(-np.sign(rate) * twin_now.tensions_n)
-        x, y = np.concatenate(xs), np.concatenate(rows)
+        xs, ys, _ = self._friction_rows()
+        x, y = xs.ravel(), ys.ravel()
         fraction = float(np.dot(x, y) / max(np.dot(x, x), 1e-12))
         std = float(np.mean(self._model().sigma[n:2 * n]) / max(float(np.sqrt(np.dot(x, x))), 1e-12))
         return Divergence(now_s, onset_s, "friction", "effects.tendon_friction_coeff", fraction, std, "1 (tension fraction)",
                           where, {"fit": _explained(x * fraction, y)})
+
+    def _friction_over_cell(self, i: int) -> float:
+        """How much better (χ², each cell's residual in its noise) friction fits the tensions of
+        the last frames than cell ``i``'s offset or gain alone: a tendon pulled in reads more, its
+        antagonist released reads less, where one cell's change leaves the others as they were."""
+        n = self.n
+        xs, ys, tensions = self._friction_rows()
+        sigma = self._model().sigma[n:2 * n]
+        x, y = (xs / sigma).ravel(), (ys / sigma).ravel()
+        fraction = float(np.dot(x, y) / max(np.dot(x, x), 1e-12))
+        friction_sse = float(np.sum((y - fraction * x) ** 2))
+        cell, tau = ys[:, i] / sigma[i], tensions[:, i] / sigma[i]
+        offset_sse = float(np.sum((cell - cell.mean()) ** 2))
+        gain_sse = float(np.sum(cell ** 2) - np.dot(cell, tau) ** 2 / max(float(np.dot(tau, tau)), 1e-12))
+        others = float(np.sum(y ** 2) - np.sum(cell ** 2))
+        return others + min(offset_sse, gain_sse) - friction_sse
 
     def _latency(self, now_s, onset_s, where) -> Divergence:
         """Encoders lagging the twin's: the residual length against the twin's length rate, the lag
