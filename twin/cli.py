@@ -133,9 +133,9 @@ def main(argv: list[str] | None = None) -> int:
 
     Returns:
         The command's exit code; 2 for a bad parameter, argument or dataset, 1 for a file that cannot
-        be read or written or a native part that cannot be built, 130 on Ctrl-C. Called without
-        ``argv`` (the ``twin`` command itself), a Ctrl-C ends the process at once instead of
-        returning, without the interpreter's teardown.
+        be read or written, a native part that cannot be built or a twin that diverged, 130 on
+        Ctrl-C. Called without ``argv`` (the ``twin`` command itself), a Ctrl-C ends the process at
+        once instead of returning, without the interpreter's teardown.
     """
     argv = values_as_arguments(sys.argv[1:] if argv is None else list(argv))
     args = build_parser(argv).parse_args(argv)
@@ -179,6 +179,15 @@ def _run_command(args: argparse.Namespace) -> int:
     except KeyboardInterrupt:
         print("twin: interrupted", file=sys.stderr)
         return 130
+    except RuntimeError as exc:
+        # A twin that diverged under a command with nothing of its own to add (no dataset to
+        # resume): one line. Looked up, not imported, so that commands without the twin load no
+        # MuJoCo.
+        plant = sys.modules.get("twin.sim.plant")
+        if plant is None or not isinstance(exc, plant.SimulationError):
+            raise
+        print(f"twin {args.command}: the twin diverged ({exc})", file=sys.stderr)
+        return 1
 
 
 if __name__ == "__main__":
