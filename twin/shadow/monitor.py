@@ -88,6 +88,12 @@ HISTORY_FRAMES = 16
 # wait for its tension to move enough to tell them (1 s at 40 Hz: the standard motion's steps and
 # ramps come within it); undecided by then, it is named an offset, the commoner fault.
 LOADCELL_WAIT_FRAMES = 40
+# The χ² by which an offset's candidate gain must depart from a step over the frames since the
+# change before the two are told apart, once: the two fits' χ² margin is then about −t for an
+# offset and +t for a gain, with a spread of 2√t; at t = 16 a gain is named where the margin
+# passes :data:`GAIN_CHI2`, which an offset's reaches 2.5 spreads out and a gain's 1.5 spreads in
+# (the margin is looked at once, not at every frame, where its random walk would cross any level).
+REFINE_SEPARATION = 16.0
 # Frames the friction and latency fits take, the last of the history.
 FIT_FRAMES = 8
 # Time over which the bias is learned again after a divergence (s), alarms held meanwhile.
@@ -591,10 +597,11 @@ class Monitor:
     def _refine(self, residual: np.ndarray, twin_tensions_n: np.ndarray, now_s: float) -> Divergence | None:
         """One frame of an offset's watch: a held tension scales to the same step under a gain as
         under an offset, and the offset, the commoner fault, is named at once; once the tension
-        has moved, a gain that fits the cell's residual since the change better by :data:`GAIN_CHI2`
-        (χ² in the cell's noise) and is resolved (twice its standard deviation) replaces it: the
-        gain is raised, the offset's re-calibration taken back, the bias learned again. The watch
-        lasts as long as the offset's trial (the resync and :data:`TRIAL_FRAMES`)."""
+        has moved enough to tell them (:data:`REFINE_SEPARATION`), a gain that fits the cell's
+        residual since the change better by :data:`GAIN_CHI2` (χ² in the cell's noise) and is resolved (twice its
+        standard deviation) replaces it: the gain is raised, the offset's re-calibration taken
+        back, the bias learned again. The watch lasts as long as the offset's trial (the resync
+        and :data:`TRIAL_FRAMES`)."""
         candidate = self._candidate
         assert candidate is not None
         event = candidate.event
@@ -618,9 +625,14 @@ class Monitor:
         gain_sse = float(d @ d) - float(d @ tau) ** 2 / tt
         margin = (offset_sse - gain_sse) / sigma ** 2
         gain, gain_std = float(d @ tau) / tt, sigma / math.sqrt(tt)
-        if margin <= GAIN_CHI2 or abs(gain) <= 2 * gain_std:
+        # How far a gain of the step's size at the tension held departs from the step by now.
+        expected = float(d.mean()) / max(float(tau.mean()), 1e-12)
+        moved = tau - tau.mean()
+        if expected ** 2 * float(moved @ moved) / sigma ** 2 < REFINE_SEPARATION:
             return None
         self._candidate = None
+        if margin <= GAIN_CHI2 or abs(gain) <= 2 * gain_std:
+            return None
         if candidate.given != 0.0:
             if self._trial is not None and self._trial.event is event:
                 self._widen(self._trial.uncertainty)
@@ -818,17 +830,18 @@ class Monitor:
         gain = (float(after_dt[k_gain] / max(after_tt[k_gain], 1e-12)), sigma / max(math.sqrt(after_tt[k_gain]), 1e-12))
         # A gain is named where it fits the frames significantly better than an offset (χ² by more
         # than GAIN_CHI2); an offset, the commoner fault, where it fits at least as well as a gain.
-        # A held tension scales to the same step either way: a gain that fits better, not yet
-        # significantly, waits for the motion to move the tension.
         margin = float(offset_sse[k_off] - gain_sse[k_gain]) / sigma ** 2
-        if 0.0 < margin <= GAIN_CHI2 and len(frames) < NAMING_FRAMES + LOADCELL_WAIT_FRAMES:
-            return None
         # Whether the frames since the change could tell the two at all: what the gain's pattern
-        # departs from a step there (χ², in the cell's noise). Only where they could not is an
-        # offset named a candidate gain (:meth:`_refine`).
+        # departs from a step there (χ², in the cell's noise). A held tension scales to the same
+        # step either way: the offset is named at once, a candidate gain (:meth:`_refine`) until
+        # the tension moves; where the frames could tell them, a gain that fits better, not yet
+        # significantly, waits for the motion to move the tension further.
         held = tau[k_off:] - tau[k_off:].mean()
         self._offset_rows = [(float(a), float(b)) for a, b in zip(d[k_off:], tau[k_off:])]
         self._offset_told = gain[0] ** 2 * float(held @ held) / sigma ** 2
+        if (0.0 < margin <= GAIN_CHI2 and self._offset_told >= GAIN_CHI2
+                and len(frames) < NAMING_FRAMES + LOADCELL_WAIT_FRAMES):
+            return None
         if margin > GAIN_CHI2:
             return Divergence(now_s, onset_s, "loadcell_gain", f"effects.tension_gain_error[{i}]", gain[0], gain[1],
                               "1", where, {"channel": i, "offset_if_offset_n": offset[0], "chi2_margin": margin})
