@@ -16,7 +16,9 @@ slack is taken up). The frames after the first crossing
 (:data:`NAMING_FRAMES`) are then named by what could cause them (:meth:`Monitor._name`), the twin
 re-calibrated where the cause has a parameter, and the bias learned again over :data:`RESYNC_S`
 before the monitor watches on, its bands widened by what the re-calibration left uncertain
-(:meth:`Monitor.recalibrated`). A load cell's re-calibration that fits the frames after it no
+(:meth:`Monitor.recalibrated`). An offset named on a held tension, which a gain would step
+alike, is re-named the gain once the tension moves and a gain fits better
+(:meth:`Monitor._refine`). A load cell's re-calibration that fits the frames after it no
 better than the twin without it is taken back (:meth:`Monitor.take_retracted`), as is a tip load's
 or a slip's.
 """
