@@ -333,6 +333,36 @@ def test_a_gain_on_a_held_tension_is_named_an_offset_at_once_then_a_gain_once_th
     assert refined.t_s > start + 0.5
 
 
+def test_an_offset_given_to_the_twin_and_re_named_a_gain_is_taken_back_and_the_gain_kept():
+    """The same held gain on a twin that takes each change found (as the shadow device does): the
+    offset given at the naming is taken back when the gain replaces it, the gain's trial keeps
+    it, and the twin with the gain raises nothing more as the tension keeps moving."""
+    from twin.shadow.monitor import GAIN_CHI2
+
+    rng = np.random.default_rng(9)
+    monitor, start = _learned(rng)
+    gain = 0.1
+    given: dict = {}
+    raised, retracted = [], []
+    for device, twin in _held_then_ramp(rng, 200, start, lambda tension: gain * tension):
+        read = twin.tensions_n.copy()
+        for kind, size in given.values():
+            read[1] += size * (read[1] if kind == "loadcell_gain" else 1.0)
+        twin = FrameValues(twin.time_s, twin.lengths_m, read, twin.duty, twin.tip_m)
+        for event in monitor.update(device, twin, tip_frame_time_s=device.time_s):
+            raised.append(event)
+            given[id(event)] = (event.kind, event.size)
+            monitor.recalibrated(event)
+        for event in monitor.take_retracted():
+            retracted.append(event)
+            given.pop(id(event))
+    assert [e.kind for e in raised] == ["loadcell_offset", "loadcell_gain"], [e.line() for e in raised]
+    offset, refined = raised
+    assert retracted == [offset] and offset.detail["refined_by"] == "loadcell_gain"
+    assert refined.size == pytest.approx(gain, abs=4 * refined.std + 0.01)
+    assert refined.detail["trial_chi2"] > GAIN_CHI2 and "retracted" not in refined.detail
+
+
 @pytest.mark.parametrize("seed", range(4))
 def test_an_offset_on_a_tension_that_then_moves_stays_an_offset(seed):
     """An offset seen on a held tension is watched as a candidate gain: once the tension moves, the
