@@ -69,7 +69,7 @@ def main(argv=None) -> int:
                     trials.append(trial)
                     done += 1
                     print(f"[{robot} {done}/{total}] {kind} {size:g}: "
-                          f"{'detected in %.0f ms as %s' % (trial.latency_s * 1e3, trial.named) if trial.detected else 'missed'}"
+                          f"{'detected in %.0f ms as %s' % (trial.latency_s * 1e3, trial.first_named + ('' if trial.named == trial.first_named else ' -> ' + trial.named)) if trial.detected else 'missed'}"
                           f"{', %d false alarms before' % trial.false_alarms if trial.false_alarms else ''}",
                           file=sys.stderr, flush=True)
                     with open(args.out, "a") as out:
@@ -91,6 +91,9 @@ def main(argv=None) -> int:
         "detected_above_smallest": sum(t.detected for t in above) / max(len(above), 1),
         "detected_all": len(detected) / max(len(trials), 1),
         "named_right": sum(t.right_name for t in trials) / max(len(trials), 1),
+        # The first name alone, before an offset on a held tension is replaced by the gain it was.
+        "first_named_right": sum(t.first_named == sb.EVENT_KINDS[t.kind][0] for t in trials) / max(len(trials), 1),
+        "named_right_above_smallest": sum(t.right_name for t in above) / max(len(above), 1),
         "named_right_of_detected": sum(t.right_name for t in detected) / max(len(detected), 1),
         "latency_median_ms": float(np.median(latencies)) * 1e3 if latencies else math.nan,
         "latency_p95_ms": float(np.percentile(latencies, 95)) * 1e3 if latencies else math.nan,

@@ -73,6 +73,7 @@ class Trial:
     false_alarms: int
     cpu_per_frame_s: float
     pretension_alarms: int = 0
+    first_named: str = ""
     divergences: tuple = ()
     details: tuple = ()
 
@@ -138,9 +139,16 @@ def run_trial(params: Params, noise, kind: str, size: float, *, robot: str, rng:
     before = [d for d in shadow.divergences if start_s + 0.5 <= d.t_s < event_s - 1e-9]
     after = [d for d in shadow.divergences if d.t_s >= event_s - 1e-9]
     first = after[0] if after and after[0].t_s - event_s <= DETECTION_WINDOW_S else None
+    # The name the first divergence settles on within the window: an offset on a held tension is
+    # replaced by the gain it was once the tension moves (the gain's detail says which it refines).
+    named = first
+    for later in after[1:]:
+        if named is not None and later.t_s - event_s <= DETECTION_WINDOW_S and later.detail.get("refines_s") == named.t_s:
+            named = later
     return Trial(robot, kind, size, event_s, first is not None, (first.t_s - event_s) if first else math.nan,
-                 first.kind if first else "", bool(first and first.kind == expected), len(before),
-                 shadow.cpu_s / max(shadow.compared, 1), len(pretension), tuple(d.line() for d in shadow.divergences),
+                 named.kind if named else "", bool(named and named.kind == expected), len(before),
+                 shadow.cpu_s / max(shadow.compared, 1), len(pretension), first.kind if first else "",
+                 tuple(d.line() for d in shadow.divergences),
                  tuple({k: v for k, v in d.to_dict().items() if k not in ("t_s", "onset_s", "where", "unit")}
                        for d in shadow.divergences[:2]))
 

@@ -16,7 +16,9 @@ slack is taken up). The frames after the first crossing
 (:data:`NAMING_FRAMES`) are then named by what could cause them (:meth:`Monitor._name`), the twin
 re-calibrated where the cause has a parameter, and the bias learned again over :data:`RESYNC_S`
 before the monitor watches on, its bands widened by what the re-calibration left uncertain
-(:meth:`Monitor.recalibrated`). A load cell's re-calibration that fits the frames after it no
+(:meth:`Monitor.recalibrated`). An offset named on a held tension, which a gain would step
+alike, is re-named the gain once the tension moves and a gain fits better
+(:meth:`Monitor._refine`). A load cell's re-calibration that fits the frames after it no
 better than the twin without it is taken back (:meth:`Monitor.take_retracted`), as is a tip load's
 or a slip's.
 """
@@ -88,6 +90,12 @@ HISTORY_FRAMES = 16
 # wait for its tension to move enough to tell them (1 s at 40 Hz: the standard motion's steps and
 # ramps come within it); undecided by then, it is named an offset, the commoner fault.
 LOADCELL_WAIT_FRAMES = 40
+# The χ² by which an offset's candidate gain must depart from a step over the frames since the
+# change before the two are told apart, once: the two fits' χ² margin is then about −t for an
+# offset and +t for a gain, with a spread of 2√t; at t = 16 a gain is named where the margin
+# passes :data:`GAIN_CHI2`, which an offset's reaches 2.5 spreads out and a gain's 1.5 spreads in
+# (the margin is looked at once, not at every frame, where its random walk would cross any level).
+REFINE_SEPARATION = 16.0
 # Frames the friction and latency fits take, the last of the history.
 FIT_FRAMES = 8
 # Time over which the bias is learned again after a divergence (s), alarms held meanwhile.
@@ -241,6 +249,27 @@ class _Trial:
     rows: list = dataclasses.field(default_factory=list)
 
 
+@dataclasses.dataclass
+class _Candidate:
+    """A load cell's change named an offset that a gain might still explain better once its
+    tension moves (:meth:`Monitor._refine`).
+
+    Attributes:
+        event: the offset's divergence.
+        bias: the residual's bias before it (the watched residual of the cell is taken from it).
+        given: the size the twin was given of the offset (0 until it is re-calibrated).
+        rows: (the cell's watched residual from that bias without what the twin was given, the
+            twin's tension without it) per frame since the change.
+        frames: frames watched since the naming.
+    """
+
+    event: Divergence
+    bias: np.ndarray
+    given: float = 0.0
+    rows: list = dataclasses.field(default_factory=list)
+    frames: int = 0
+
+
 class Monitor:
     """Compares device and twin frames, learns the noise, raises named divergences.
 
@@ -302,6 +331,9 @@ class Monitor:
         # (channel, channels out of band) of a load cell's change waiting to be told gain or offset.
         self._pending: tuple[int, tuple[str, ...]] | None = None
         self._trial: _Trial | None = None
+        self._candidate: _Candidate | None = None
+        self._offset_rows: list[tuple[float, float]] = []
+        self._offset_told = math.inf
         self._retracted: list[Divergence] = []
         self.frames = 0
         self.events: list[Divergence] = []
@@ -368,6 +400,10 @@ class Monitor:
         noise = self.noise
         if self._trial is not None:
             self._try(residual, twin.tensions_n, device.time_s)
+        if self._candidate is not None:
+            refined = self._refine(residual, twin.tensions_n, device.time_s)
+            if refined is not None:
+                raised.append(refined)
         if device.time_s < self._resync_until_s:
             self._resync.append(residual)
             self.events.extend(raised)
@@ -402,6 +438,7 @@ class Monitor:
                 event = self._loadcell(device.time_s, onset_s, frames, *self._pending)
                 if event is not None:
                     raised.append(event)
+                    self._watch_candidate(event)
                     self._start_resync(device.time_s)
             elif len(frames) >= NAMING_FRAMES:
                 self._onset = None
@@ -412,6 +449,7 @@ class Monitor:
                         self._onset = (onset_s, frames)
                     else:
                         raised.append(event)
+                        self._watch_candidate(event)
                         self._start_resync(device.time_s)
         self.events.extend(raised)
         return raised
@@ -474,6 +512,8 @@ class Monitor:
         n = self.n
         if self._trial is not None:
             self._judge(self._trial, math.nan)
+        if self._candidate is not None and self._candidate.event is event:
+            self._candidate.given = event.size
         if event.kind in ("loadcell_offset", "loadcell_gain"):
             self._trial = _Trial(event, self._uncertainty.copy(), self.noise.bias.copy(),
                                  np.array([n + int(event.detail["channel"])]), None)
@@ -541,9 +581,71 @@ class Monitor:
             return
         event.detail["retracted"] = True
         self._retracted.append(event)
+        if self._candidate is not None and self._candidate.event is event:
+            self._candidate = None
         self._widen(trial.uncertainty)
         if math.isfinite(now_s):
             self._start_resync(now_s)
+
+    def _watch_candidate(self, event: Divergence) -> None:
+        """A load cell's offset just named from frames that could not tell it from a gain (a held
+        tension) is watched on as a candidate for a gain (from the frames since its change, which
+        :meth:`_loadcell` fitted); any other divergence ends the watch."""
+        self._candidate = None
+        if event.kind == "loadcell_offset" and self._offset_told < GAIN_CHI2:
+            self._candidate = _Candidate(event, self._model().bias.copy(), rows=list(self._offset_rows))
+            event.detail["refinable_frames"] = round(RESYNC_S / self.period_s) + TRIAL_FRAMES
+
+    def _refine(self, residual: np.ndarray, twin_tensions_n: np.ndarray, now_s: float) -> Divergence | None:
+        """One frame of an offset's watch: a held tension scales to the same step under a gain as
+        under an offset, and the offset, the commoner fault, is named at once; once the tension
+        has moved enough to tell them (:data:`REFINE_SEPARATION`), a gain that fits the cell's
+        residual since the change better by :data:`GAIN_CHI2` (χ² in the cell's noise) and is resolved (twice its
+        standard deviation) replaces it: the gain is raised, the offset's re-calibration taken
+        back, the bias learned again. The watch lasts as long as the offset's trial (the resync
+        and :data:`TRIAL_FRAMES`)."""
+        candidate = self._candidate
+        assert candidate is not None
+        event = candidate.event
+        n = self.n
+        i = int(event.detail["channel"])
+        candidate.frames += 1
+        if np.isfinite(residual[n + i]):
+            # What the cell reads beyond the twin without the offset it was given.
+            watched = float(self._model().mix[n + i] @ np.nan_to_num(residual - candidate.bias)) + candidate.given
+            candidate.rows.append((watched, float(twin_tensions_n[i]) - candidate.given))
+        if candidate.frames >= event.detail["refinable_frames"]:
+            self._candidate = None
+            return None
+        rows = np.array(candidate.rows)
+        if len(rows) < NAMING_FRAMES:
+            return None
+        d, tau = rows[:, 0], rows[:, 1]
+        sigma = float(self._model().sigma[n + i])
+        tt = max(float(tau @ tau), 1e-12)
+        offset_sse = float(d @ d) - float(d.sum()) ** 2 / len(d)
+        gain_sse = float(d @ d) - float(d @ tau) ** 2 / tt
+        margin = (offset_sse - gain_sse) / sigma ** 2
+        gain, gain_std = float(d @ tau) / tt, sigma / math.sqrt(tt)
+        # How far a gain of the step's size at the tension held departs from the step by now.
+        expected = float(d.mean()) / max(float(tau.mean()), 1e-12)
+        moved = tau - tau.mean()
+        if expected ** 2 * float(moved @ moved) / sigma ** 2 < REFINE_SEPARATION:
+            return None
+        self._candidate = None
+        if margin <= GAIN_CHI2 or abs(gain) <= 2 * gain_std:
+            return None
+        if candidate.given != 0.0:
+            if self._trial is not None and self._trial.event is event:
+                self._widen(self._trial.uncertainty)
+                self._trial = None
+            event.detail["retracted"] = True
+            self._retracted.append(event)
+        event.detail["refined_by"] = "loadcell_gain"
+        self._start_resync(now_s)
+        return Divergence(now_s, event.onset_s, "loadcell_gain", f"effects.tension_gain_error[{i}]", gain, gain_std,
+                          "1", event.where, {"channel": i, "offset_if_offset_n": float(d.mean()),
+                                             "chi2_margin": margin, "refines_s": event.t_s})
 
     def _start_resync(self, now_s: float) -> None:
         self._onset = None
@@ -730,10 +832,17 @@ class Monitor:
         gain = (float(after_dt[k_gain] / max(after_tt[k_gain], 1e-12)), sigma / max(math.sqrt(after_tt[k_gain]), 1e-12))
         # A gain is named where it fits the frames significantly better than an offset (χ² by more
         # than GAIN_CHI2); an offset, the commoner fault, where it fits at least as well as a gain.
-        # A held tension scales to the same step either way: a gain that fits better, not yet
-        # significantly, waits for the motion to move the tension.
         margin = float(offset_sse[k_off] - gain_sse[k_gain]) / sigma ** 2
-        if 0.0 < margin <= GAIN_CHI2 and len(frames) < NAMING_FRAMES + LOADCELL_WAIT_FRAMES:
+        # Whether the frames since the change could tell the two at all: what the gain's pattern
+        # departs from a step there (χ², in the cell's noise). A held tension scales to the same
+        # step either way: the offset is named at once, a candidate gain (:meth:`_refine`) until
+        # the tension moves; where the frames could tell them, a gain that fits better, not yet
+        # significantly, waits for the motion to move the tension further.
+        held = tau[k_off:] - tau[k_off:].mean()
+        self._offset_rows = [(float(a), float(b)) for a, b in zip(d[k_off:], tau[k_off:])]
+        self._offset_told = gain[0] ** 2 * float(held @ held) / sigma ** 2
+        if (0.0 < margin <= GAIN_CHI2 and self._offset_told >= GAIN_CHI2
+                and len(frames) < NAMING_FRAMES + LOADCELL_WAIT_FRAMES):
             return None
         if margin > GAIN_CHI2:
             return Divergence(now_s, onset_s, "loadcell_gain", f"effects.tension_gain_error[{i}]", gain[0], gain[1],
