@@ -120,11 +120,19 @@ constexpr float kTensionRatePerS = 10.0f;
 // (no limit cycle: the ring grows with the noise). One control period, 10 ms (a 16 Hz corner,
 // under half the drive at 30 Hz, 14 degrees on the proportional term at the loop's ~4 Hz
 // crossover, ki × stall force = 23 /s), took it to 0.12 N
-// and changed no other robot of the zoo by more than 3 mN (twin bench hold, μ 0-0.3). Longer
-// lags cost more than they give: 50 ms let the endoscope ring at 0.13 N and moved a noisy
-// recording's tension steps 0.3 mm from their noiseless replay (a clean run then read as an
-// effect).
-constexpr float kTensionProportionalLagS = 0.01f;
+// and changed no other robot of the zoo by more than 3 mN (twin bench hold, μ 0-0.3). It is
+// 25 ms (a 6.4 Hz corner) because a stuck tendon held near the duty clamp cycles by itself:
+// on long at μ = 0.3, κ 15.72 1/m, φ 270°, 10 g, tensions 2.74 / 3.50 / 5.115 / 5.115 N (a
+// compensation's command, 95 % of the clamp), the last two rang at 20 Hz, 2.0 N peak to peak
+// with 10 ms, as much with noiseless cells, and grew with the bend to the 6 N limit; with
+// 20 / 25 / 30 ms 0.07-0.09 / 0.05-0.06 / 0.04-0.05 N (seeds 0-2), and no bench hold figure of
+// the zoo moved by more than 5 mN. The integral alone keeps a ring there where the robot is
+// bent further (2.0 / 2.5 / 5.115 / 5.115 N: 0.15 N at 20 Hz with kp = 0, 0.41 N with 25 ms),
+// which no lag of the proportional term removes. Longer lags cost more than they give: 30 ms
+// left a dynamics calibration of a miscalibrated cell with no dynamic candidate even better
+// than none, 50 ms let the endoscope ring at 0.13 N and moved a noisy recording's tension
+// steps 0.3 mm from their noiseless replay (a clean run then read as an effect).
+constexpr float kTensionProportionalLagS = 0.025f;
 // Tension mode can hold each taut tendon (over kTautFraction of the limit) at its reference
 // plus a damping (N·s/m) times the tendon's swinging speed (paying out raises the reference,
 // winding in lowers it): a viscous tendon to the rod's swing modes instead of an ideal tension
