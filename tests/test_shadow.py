@@ -251,14 +251,25 @@ def test_a_twin_recalibrated_with_an_uncertain_change_watches_on_within_that_unc
     assert results[True] == []
 
 
+def _assert_trial_kept_or_taken_back(monitor, first, lasting):
+    """The re-calibration ``first`` gave the twin ended its trial: kept where the change lasted,
+    taken back (the bands as before it) where it was a transient."""
+    from twin.shadow.monitor import GAIN_CHI2
+
+    assert "trial_chi2" in first.detail, "the re-calibration's trial did not end within 4 s"
+    if lasting:
+        assert first.detail["trial_chi2"] > GAIN_CHI2 and "retracted" not in first.detail
+    else:
+        assert first.detail["trial_chi2"] < GAIN_CHI2 and first.detail["retracted"] is True
+        np.testing.assert_array_equal(monitor._band, monitor.noise.band)
+
+
 @pytest.mark.parametrize("lasting", [True, False])
 def test_a_load_cell_recalibration_that_does_not_fit_better_is_taken_back(lasting):
     """A cell's 0.1 N step is named (an offset or a gain) and given to the twin. Where the step lasts the twin
     with it fits the device better than without, and the change is kept; where it was a transient
     of the motion (gone as the naming ends) the twin with it is 0.1 N off from then on, and the
     change is taken back, the bands as they were before it."""
-    from twin.shadow.monitor import GAIN_CHI2
-
     rng = np.random.default_rng(4)
     monitor, start = _learned(rng)
     step = np.zeros(N)
@@ -284,13 +295,7 @@ def test_a_load_cell_recalibration_that_does_not_fit_better_is_taken_back(lastin
         if monitor.take_retracted():
             given = {}
     assert raised, "a 0.1 N step, ten times the noise, was not seen"
-    first = raised[0]
-    assert "trial_chi2" in first.detail, "the re-calibration's trial did not end within 4 s"
-    if lasting:
-        assert first.detail["trial_chi2"] > GAIN_CHI2 and "retracted" not in first.detail
-    else:
-        assert first.detail["trial_chi2"] < GAIN_CHI2 and first.detail["retracted"] is True
-        np.testing.assert_array_equal(monitor._band, monitor.noise.band)
+    _assert_trial_kept_or_taken_back(monitor, raised[0], lasting)
 
 
 def _held_then_ramp(rng, count, start_s, change):
@@ -498,8 +503,6 @@ def test_a_tip_load_or_slip_given_to_the_twin_that_does_not_fit_better_is_taken_
     (here its tensions move by the step). Where the step lasts, the twin with it fits the device
     better than without and the change is kept; where it was a transient of the motion, the twin
     with it is off by the step from then on, and the change is taken back, the bands as before."""
-    from twin.shadow.monitor import GAIN_CHI2
-
     rng = np.random.default_rng(5)
     monitor, start = _learned(rng)
     step = np.array([0.2, -0.1, 0.15, -0.12])[:N]
@@ -520,13 +523,7 @@ def test_a_tip_load_or_slip_given_to_the_twin_that_does_not_fit_better_is_taken_
         if monitor.take_retracted():
             given = False
     assert raised, "a 0.1-0.2 N step on every cell was not seen"
-    first = raised[0]
-    assert "trial_chi2" in first.detail, "the re-calibration's trial did not end within 4 s"
-    if lasting:
-        assert first.detail["trial_chi2"] > GAIN_CHI2 and "retracted" not in first.detail
-    else:
-        assert first.detail["trial_chi2"] < GAIN_CHI2 and first.detail["retracted"] is True
-        np.testing.assert_array_equal(monitor._band, monitor.noise.band)
+    _assert_trial_kept_or_taken_back(monitor, raised[0], lasting)
 
 
 @pytest.mark.parametrize("tension_n", [0.3, 1.5])
