@@ -216,8 +216,12 @@ def test_live_serves_the_page_and_prints_its_url(command):
     import sys
     import urllib.request
 
+    # SIGINT restored to its default in the child: one started while another thread of this
+    # process is inside system(3) inherits it ignored (seen under pytest-xdist), and then no
+    # Ctrl-C reaches it.
     process = subprocess.Popen([sys.executable, "-m", "twin.cli", *command, "--live"], stdout=subprocess.PIPE,
-                               stderr=subprocess.PIPE, text=True)
+                               stderr=subprocess.PIPE, text=True,
+                               preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     try:
         deadline = time.monotonic() + 120.0
         url = None
