@@ -5,7 +5,6 @@ run folder behind, and must not exit 0.
 """
 
 import json
-from pathlib import Path
 
 import pytest
 

@@ -9,8 +9,6 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-import numpy as np
-
 from twin.cliargs import add_param_args, params_from_args
 from twin.pose import HORIZONTAL
 from twin.rod.grid import GRAVITY_TIP_FORCE_N, pcc_tensions_n

@@ -147,7 +147,7 @@ def plot_validation(result: ValidationResult, folder: str | Path) -> dict[str, P
             ax.add_patch(plt.Circle((y, z), gain * e, fill=False, lw=0.8, color="tab:blue"))
         ax.set(title=f"front view, {mass * 1e3:g} g", xlabel="y (mm)", ylabel="z (mm)", aspect="equal")
         ax.autoscale_view()
-        (x0, x1), (y0, y1) = ax.get_xlim(), ax.get_ylim()
+        x0, (y0, y1) = ax.get_xlim()[0], ax.get_ylim()
         radius = gain * reference_mm
         # Room above the data for the reference circle, in the upper left corner.
         ax.set_ylim(y0, y1 + 3.0 * radius)
