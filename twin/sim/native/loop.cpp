@@ -571,7 +571,11 @@ static void tendon_friction(const mjModel* m, mjData* d, bl_state* s) {
     swing_n[i] = 0.5 * s->friction_tension_n[i] * sinh(s->friction_coeff * s->friction_wrap_rad[i]);
   }
   double rod_m[BL_MAX_CHANNELS];
-  bool rod = s->friction_primed && s->mode == BL_TENSION;
+  // Not under the fixture's dead weights (held), which pull the board's bent rod back to nearly
+  // straight between a sweep's rows and hand it to the holder: left as they were, every
+  // board-driven run stays as it was (with them, the endoscope's quick sweep at μ 0.3 moved by
+  // up to 0.1 mm in its last rows).
+  bool rod = s->friction_primed && s->mode == BL_TENSION && !s->held;
   if (rod) rod_travel_m(m, d, s, swing_n, rod_m);
   // The share of that travel σ turns over at least: each step the turn's own travel comes back
   // through the lag's blend b = dt / (τ + dt), and for a rod that followed σ within the step the
