@@ -577,13 +577,13 @@ static void tendon_friction(const mjModel* m, mjData* d, bl_state* s) {
   // up to 0.1 mm in its last rows).
   bool rod = s->friction_primed && s->mode == BL_TENSION && !s->held;
   if (rod) rod_travel_m(m, d, s, swing_n, rod_m);
-  // The share of that travel σ turns over at least: each step the turn's own travel comes back
+  // The share of the rod's travel σ turns over at least: each step the turn's own travel comes back
   // through the lag's blend b = dt / (τ + dt), and for a rod that followed σ within the step the
   // update's error would fall by 1 − b (1 + G / L) a step: without ringing for G / L ≤ τ / dt.
-  // The rod takes longer than a step and the sum over tendons bounds its travel from above. A
-  // tenth of the travel (near the bound of stability, 2τ / dt + 1) left the two-segment robot's
-  // bent rows ringing past 3 s; the whole travel left the long robot's swinging past 3 s, its
-  // friction too soft to take any of the swing (μ 0.3 and 0.6, κ 13 and 26.2 1/m, 10 g).
+  // The rod takes longer than a step and the sum over tendons bounds its travel from above. At
+  // 0.1 and 0.15 of the travel the two-segment robot's bent rows with 10 g still moved after
+  // 3 s; at the whole travel the long robot's swing did, its friction too soft to take any of
+  // it (μ 0.3 and 0.6, κ 13 and 26.2 1/m).
   double share = s->friction_travel_lag_s > dt ? dt / s->friction_travel_lag_s : 1.0;
   for (int i = 0; i < n && s->friction_primed; ++i) {
     // The tendon takes the swing up over its stretch before it slides: σ turns over at least
@@ -594,10 +594,10 @@ static void tendon_friction(const mjModel* m, mjData* d, bl_state* s) {
     double stretch_m = swing_n[i] / s->tendon_stiffness_n_per_m;
     // On an ideal tension source nothing holds the spool: the swing moves it by the rod's
     // compliance as well, 5 mm per unit of σ in a bent row of the long robot at μ = 0.6
-    // (κ 13 1/m, 10 g) against its 4 µm of stretch. σ turning over a shorter travel than that is turned back by its own
-    // swing and overshoots, every step (the twin chattered at 67 Hz and never came to rest);
-    // over a share of it, each turn moves the spool by a bounded multiple of the travel it
-    // turned over, and the lag rings that down.
+    // (κ 13 1/m, 10 g) against its 4 µm of stretch. σ turning over a shorter travel than that
+    // is turned back by its own swing and overshoots, every step (the twin chattered at 67 Hz
+    // and never came to rest); over a share of it, each turn moves the spool by a bounded
+    // multiple of the travel it turned over, and the lag rings that down.
     if (rod) stretch_m += share * rod_m[i];
     double step = -moved_m[i] / (stretch_m > s->presliding_m ? stretch_m : s->presliding_m);
     if (step != 0.0) {
