@@ -209,7 +209,12 @@ class TendonFriction:
     most the source's setting, through a first-order lag of
     :data:`FRICTION_TENSION_LAG_S`, and σ follows the spool's travel through one of
     :data:`FRICTION_TRAVEL_LAG_S` on an ideal source, of :data:`FRICTION_MOTOR_TRAVEL_LAG_S`
-    while the motor drives it.
+    while the motor drives it. σ turns over at least :data:`PRESLIDING_M` and the stretch the
+    tendon takes the friction's swing up over; on the plant's ideal tension sources (not the
+    fixture's dead weights, whose board-driven runs stay as they were), which nothing holds,
+    also a share (the physics step over that lag) of the spool travel the rod's compliance gives
+    the swing (millimetres on the long robot bent at μ = 0.6): over less, each turn's own travel
+    turned σ back further than it came and the twin chattered instead of coming to rest.
 
     A :class:`twin.effects.StepHook` that the plant loop (``twin/sim/native/loop.cpp``,
     ``tendon_friction``) applies itself before every physics step: :meth:`attach` hands it the

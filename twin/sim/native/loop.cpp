@@ -509,12 +509,42 @@ static void tendon_friction_clear(mjData* d, const bl_state* s) {
     if (dofs[k] >= 0) d->qfrc_applied[dofs[k]] = 0.0;
 }
 
+// How far (m) each spool on an ideal tension source moves while the friction of every tendon
+// turns over by a unit of σ and the rod follows at rest: the tendons' length compliance through
+// the rod's joint springs, c_ij = Σ J_i J_j / k over the dofs (MuJoCo's tendon Jacobian, sorted
+// sparse rows; the spools' and other unsprung dofs left out), each tendon's average friction
+// swing per unit σ ``swing_n`` taken up through it, summed in magnitude over the tendons whose
+// friction moves this spool. Summed so, no combination of turns can move a spool by more.
+static void rod_travel_m(const mjModel* m, const mjData* d, const bl_state* s, const double* swing_n, double* out) {
+  int n = s->channels;
+  for (int i = 0; i < n; ++i) {
+    out[i] = 0.0;
+    int ai = m->ten_J_rowadr[i], ei = ai + m->ten_J_rownnz[i];
+    for (int j = 0; j < n; ++j) {
+      if (!(swing_n[j] > 0.0)) continue;
+      int a = ai, b = m->ten_J_rowadr[j], eb = b + m->ten_J_rownnz[j];
+      double c = 0.0;
+      while (a < ei && b < eb) {
+        int ca = m->ten_J_colind[a], cb = m->ten_J_colind[b];
+        if (ca < cb) { ++a; continue; }
+        if (cb < ca) { ++b; continue; }
+        double k = m->jnt_stiffness[m->dof_jntid[ca]];
+        if (k > 0.0) c += d->ten_J[a] * d->ten_J[b] / k;
+        ++a, ++b;
+      }
+      out[i] += fabs(c) * swing_n[j];
+    }
+  }
+}
+
 static void tendon_friction(const mjModel* m, mjData* d, bl_state* s) {
   int n = s->channels, sites = s->friction_sites_per_tendon;
   const int32_t* path = (const int32_t*)s->friction_sites;
   double dt = m->opt.timestep;
+  double moved_m[BL_MAX_CHANNELS], swing_n[BL_MAX_CHANNELS];
   for (int i = 0; i < n; ++i) {
     double tension = spring_tension_n(d, s, i), spool_m = d->qpos[s->spool_qpos[i]];
+    moved_m[i] = 0.0, swing_n[i] = 0.0;
     if (!s->friction_primed) {
       s->friction_tension_n[i] = tension < s->friction_tension_cap_n ? tension : s->friction_tension_cap_n;
       s->friction_spool_m[i] = spool_m;
@@ -534,17 +564,42 @@ static void tendon_friction(const mjModel* m, mjData* d, bl_state* s) {
     // The spool pulls tendon in while its position (tendon paid out) falls.
     // A spool the motor drives carries the rotor; on an ideal source it is a light carriage.
     double lag_s = s->mode == BL_PWM || s->mode == BL_COAST ? s->friction_motor_travel_lag_s : s->friction_travel_lag_s;
-    double moved_m = (spool_m - s->friction_spool_m[i]) * (dt / (lag_s + dt));
-    s->friction_spool_m[i] += moved_m;
+    moved_m[i] = (spool_m - s->friction_spool_m[i]) * (dt / (lag_s + dt));
+    s->friction_spool_m[i] += moved_m[i];
     // Turning the friction round changes the tension along the path by up to 2 T0 sinh(μ θ) at
-    // its end, about half that on average, and the tendon takes that up over its stretch before
-    // it slides: σ turns over at least that travel (half of it per unit of σ). Over a fixed few
-    // hundredths of a millimetre a large friction (27 N on a bent stiff robot at μ = 0.6: a 30 N
-    // swing) turned within one step, and the explicit swing it threw at the rod, back and forth,
-    // never let it rest or diverged; below 16 N of swing nothing changes.
-    double stretch_m = 0.5 * s->friction_tension_n[i] * sinh(s->friction_coeff * s->friction_wrap_rad[i])
-                       / s->tendon_stiffness_n_per_m;
-    double step = -moved_m / (stretch_m > s->presliding_m ? stretch_m : s->presliding_m);
+    // its end, about half that on average: per unit of σ, T0 sinh(μ θ) / 2.
+    swing_n[i] = 0.5 * s->friction_tension_n[i] * sinh(s->friction_coeff * s->friction_wrap_rad[i]);
+  }
+  double rod_m[BL_MAX_CHANNELS];
+  // Not under the fixture's dead weights (held), which pull the board's bent rod back to nearly
+  // straight between a sweep's rows and hand it to the holder: left as they were, every
+  // board-driven run stays as it was (with them, the endoscope's quick sweep at μ 0.3 moved by
+  // up to 0.1 mm in its last rows).
+  bool rod = s->friction_primed && s->mode == BL_TENSION && !s->held;
+  if (rod) rod_travel_m(m, d, s, swing_n, rod_m);
+  // The share of the rod's travel σ turns over at least: each step the turn's own travel comes back
+  // through the lag's blend b = dt / (τ + dt), and for a rod that followed σ within the step the
+  // update's error would fall by 1 − b (1 + G / L) a step: without ringing for G / L ≤ τ / dt.
+  // The rod takes longer than a step and the sum over tendons bounds its travel from above. At
+  // 0.1 and 0.15 of the travel the two-segment robot's bent rows with 10 g still moved after
+  // 3 s; at the whole travel the long robot's swing did, its friction too soft to take any of
+  // it (μ 0.3 and 0.6, κ 13 and 26.2 1/m).
+  double share = s->friction_travel_lag_s > dt ? dt / s->friction_travel_lag_s : 1.0;
+  for (int i = 0; i < n && s->friction_primed; ++i) {
+    // The tendon takes the swing up over its stretch before it slides: σ turns over at least
+    // that travel. Over a fixed few hundredths of a millimetre a large friction (27 N on a bent
+    // stiff robot at μ = 0.6: a 30 N swing) turned within one step, and the explicit swing it
+    // threw at the rod, back and forth, never let it rest or diverged; below 16 N of swing
+    // nothing changes.
+    double stretch_m = swing_n[i] / s->tendon_stiffness_n_per_m;
+    // On an ideal tension source nothing holds the spool: the swing moves it by the rod's
+    // compliance as well, 5 mm per unit of σ in a bent row of the long robot at μ = 0.6
+    // (κ 13 1/m, 10 g) against its 4 µm of stretch. σ turning over a shorter travel than that
+    // is turned back by its own swing and overshoots, every step (the twin chattered at 67 Hz
+    // and never came to rest); over a share of it, each turn moves the spool by a bounded
+    // multiple of the travel it turned over, and the lag rings that down.
+    if (rod) stretch_m += share * rod_m[i];
+    double step = -moved_m[i] / (stretch_m > s->presliding_m ? stretch_m : s->presliding_m);
     if (step != 0.0) {
       double value = s->sliding_state[i] + step;
       s->sliding_state[i] = value > 1.0 ? 1.0 : value < -1.0 ? -1.0 : value;
