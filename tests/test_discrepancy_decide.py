@@ -13,6 +13,7 @@ from twin.driver import open_device
 from twin.discrepancy.decide import DESIGNS, designs_for
 from twin.experiments.protocols import nominal_calibration, run_validation
 from twin.params import load_params
+from twin.robots import load_robot
 
 FRICTION = "effects.tendon_friction_coeff=0.15"
 GRID = [(i, kappa, phi, mass) for i, (kappa, phi, mass) in enumerate(
@@ -173,7 +174,7 @@ def test_a_heavier_tip_whose_fall_friction_slows_is_waited_for(tmp_path):
     from twin.discrepancy.decide import decide
     from twin.discrepancy.verdict import Verdict
 
-    params = load_params("models/long/long.toml")
+    params = load_robot("long")
     hidden = params.replace({"effects.tendon_friction_coeff": 0.6})
     data = tmp_path / "data"
     cal = nominal_calibration(params)
