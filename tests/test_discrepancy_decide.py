@@ -13,6 +13,7 @@ from twin.driver import open_device
 from twin.discrepancy.decide import DESIGNS, designs_for
 from twin.experiments.protocols import nominal_calibration, run_validation
 from twin.params import load_params
+from twin.robots import load_robot
 
 FRICTION = "effects.tendon_friction_coeff=0.15"
 GRID = [(i, kappa, phi, mass) for i, (kappa, phi, mass) in enumerate(
@@ -162,3 +163,34 @@ def test_a_deciding_experiment_whose_robot_does_not_come_to_rest_leaves_the_data
     assert "holds none of its rows" in last and "Traceback" not in out.err and out.out == ""
     assert {name: (data / name).read_bytes() for name in before} == before
     assert sorted(p.name for p in tmp_path.iterdir()) == ["data"]
+
+
+def test_a_heavier_tip_whose_fall_friction_slows_is_waited_for(tmp_path):
+    # The long robot bent so that it lifts its tip above the clamp (κ 15.72 1/m, φ 180°) falls
+    # sideways out of its plane under the tip-load design's 20 g; tendon friction of μ 0.6 draws
+    # that fall out past the validation sweep's 10 s wait for rest. The experiment waits it out.
+    from types import SimpleNamespace
+
+    from twin.discrepancy.decide import decide
+    from twin.discrepancy.verdict import Verdict
+
+    params = load_robot("long")
+    hidden = params.replace({"effects.tendon_friction_coeff": 0.6})
+    data = tmp_path / "data"
+    cal = nominal_calibration(params)
+    with open_device("sim://?seed=0", params=hidden) as device:
+        device.connect()
+        device.set_calibration(gain_counts_per_n=cal["gain_counts_per_n"], offset_counts=cal["offset_counts"])
+        run_validation(device, data, params, grid=[(0, 15.72, 180.0, 0.0), (1, 15.72, 180.0, 0.01)],
+                       progress=False, calibration=cal)
+    undecided = SimpleNamespace(verdict=Verdict.UNEXPLAINED, named=(), tied=[], outside=[], rounds=[],
+                                stand_ins=[SimpleNamespace(effects=("stiffness",))])
+    with open_device("sim://?seed=0", params=hidden) as device:
+        device.connect()
+        device.set_calibration(gain_counts_per_n=cal["gain_counts_per_n"], offset_counts=cal["offset_counts"])
+        decision = decide(undecided, device, data, params, progress=False, max_rounds=1,
+                          run_workflow=lambda dataset: dataset)
+    assert decision is not None and decision.designs == ("tip-load",) and decision.rows_added == 2
+    extended = read_dataset(data)
+    heavy = extended["tip_mass_kg"][extended["experiment"] == "decide-tip-load"]
+    assert sorted(heavy) == [0.0, 0.02]

@@ -70,6 +70,13 @@ _MIN_OVERSHOOT_M = 2e-4
 # Pretension of the ``pretension`` design, relative to the dataset's: a third more moves an
 # offset's share of each tension by a quarter while the shapes stay within the sweep's tensions.
 _PRETENSION_FACTOR = 4 / 3
+# Longest wait for the robot to come to rest in a configuration of a deciding experiment (device
+# s): the validation sweep's 10 s is too short where the heavier tip of ``tip-load`` goes on at once
+# over a bend that lifts it. The long robot at κ 15.72 1/m, φ 180° (the tip above the clamp) under
+# 20 g falls sideways out of its plane, and tendon friction of μ 0.6 slows that fall: at rest after
+# 18.8 and 19.2 s (sim://, seeds 0 and 1; 0.9 s without friction, 1.5 s at μ 0.3). 30 s covers it
+# with a half to spare; a robot still moving after that stops the experiment as before.
+_SETTLE_TIMEOUT_S = 30.0
 # Rounds of deciding experiments: each runs the designs of the contenders left that were not run yet.
 _MAX_ROUNDS = 3
 # Candidates whose held-out RMS is within this fraction of the best's count as contenders when
@@ -267,7 +274,8 @@ def decide(result, device, dataset_folder: str | Path, params: Params, *, progre
             rows = [(first + i, k, p, m) for i, (k, p, m) in enumerate(grid)]
             first += len(rows)
             _staged(dataset_folder, lambda folder: run_validation(
-                device, folder, params, grid=rows, experiment=design.experiment, progress=progress, **options))
+                device, folder, params, grid=rows, experiment=design.experiment, progress=progress,
+                settle_timeout_s=_SETTLE_TIMEOUT_S, **options))
             ran.append(design.name)
         dataset = read_dataset(dataset_folder)
         result = run(dataset)
