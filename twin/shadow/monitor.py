@@ -727,12 +727,13 @@ class Monitor:
             margin = self._friction_over_cell(channel)
             if margin > GAIN_CHI2 and _fits(sliding):
                 return dataclasses.replace(sliding, detail={**sliding.detail, "chi2_over_cell": margin})
-            # A cell's reading does not move the encoders; where they follow the motion late (or
-            # early) as a late loop's do, though still within their band, the cell that crossed
-            # first is the loop's doing (on stiff-long a 5 ms latency's encoders fitted the twin's
-            # rate to 0.97, its cell named a 0.19 N offset).
+            # A cell's reading does not move the encoders; where they follow the motion late, as a
+            # late loop's do, though still within their band, by more than the counts the two loops
+            # hold to, the cell that crossed first is the loop's doing (on stiff-long a 5 ms
+            # latency's encoders fitted the twin's rate to 0.97, its cell named a 0.19 N offset; a
+            # three-tendon 0.2 N offset's encoders fitted a 0.3 ms lag, under a count).
             latency = self._latency(now_s, onset_s, where)
-            if _fits(latency):
+            if _fits(latency) and latency.detail["encoder_lag_m"] > float(self._floor[:n].max()):
                 return latency
             self._pending = (channel, where)
             return self._loadcell(now_s, onset_s, frames, channel, where)
@@ -917,8 +918,11 @@ class Monitor:
         x, y = np.concatenate(xs), np.concatenate(ys)
         lag = float(np.dot(x, y) / max(np.dot(x, x), 1e-18))
         std = float(np.mean(self._model().sigma[:n]) / max(float(np.sqrt(np.dot(x, x))), 1e-18))
+        # The most the lag moves an encoder in these frames (m): below the encoders' floor (two
+        # counts) it is within what the two loops' holding to a count leaves.
+        moved = abs(lag) * float(np.abs(x).max(initial=0.0))
         return Divergence(now_s, onset_s, "latency", "effects.actuation_latency_s", lag, std, "s", where,
-                          {"fit": _explained(x * lag, y)})
+                          {"fit": _explained(x * lag, y), "encoder_lag_m": moved})
 
 
 def _fits(event: Divergence) -> bool:
