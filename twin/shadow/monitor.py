@@ -730,7 +730,7 @@ class Monitor:
             # A cell's reading does not move the encoders; where they follow the motion late, as a
             # late loop's do, though still within their band, by more than the counts the two loops
             # hold to, the cell that crossed first is the loop's doing (on stiff-long a 5 ms
-            # latency's encoders fitted the twin's rate to 0.97, its cell named a 0.19 N offset; a
+            # latency's encoders fitted the twin's rate to 0.97, its cell named a −0.19 N offset; a
             # three-tendon 0.2 N offset's encoders fitted a 0.3 ms lag, under a count).
             latency = self._latency(now_s, onset_s, where)
             if _fits(latency) and latency.detail["encoder_lag_m"] > float(self._floor[:n].max()):
