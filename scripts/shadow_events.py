@@ -49,8 +49,12 @@ def main(argv=None) -> int:
         except ValueError as exc:
             parser.error(f"--robots {robot}: {exc}")
         started = time.monotonic()
-        noise, alarms, frames, cpu_s = sb.learn_noise(params, warmup_s=args.warmup_s, clean_s=args.clean_minutes * 60,
-                                                      seed=args.seed)
+        try:
+            noise, alarms, frames, cpu_s = sb.learn_noise(params, warmup_s=args.warmup_s,
+                                                          clean_s=args.clean_minutes * 60, seed=args.seed)
+        except ValueError as exc:
+            # learn_noise's message names the seed first ("seed N: why").
+            parser.error(f"--seed {args.seed}: {str(exc).split(': ', 1)[-1]}")
         clean[robot] = {"clean_minutes": args.clean_minutes, "false_alarms": len(alarms), "frames": frames,
                         "cpu_per_frame_ms": 1e3 * cpu_s / max(frames, 1), "alarms": [a.line() for a in alarms]}
         print(f"{robot}: clean {args.clean_minutes:g} min after a {args.warmup_s:g} s warm-up: {len(alarms)} false "
@@ -101,11 +105,22 @@ def main(argv=None) -> int:
         "alarms_in_pretension": sum(t.pretension_alarms for t in trials),
         "clean": {robot: {k: v for k, v in c.items() if k != "alarms"} for robot, c in clean.items()},
     }
+    robots = sb.summarise_robots(trials)
+    figures["robots"] = robots
     print(json.dumps(figures, indent=1))
-    goals_met = (figures["detected_above_smallest"] >= 0.95 and figures["named_right"] >= 0.8
-                 and all(c["false_alarms"] == 0 for c in clean.values()))
-    print(f"goals (>= 95 % above the smallest size detected, >= 80 % named right, 0 false alarms clean): "
-          f"{'met' if goals_met else 'NOT met'}")
+    print(f"{'robot':18s} {'events':>6s} {'detected above smallest':>23s} {'named right':>11s} "
+          f"{'named above smallest':>20s} {'median ms':>9s} {'false alarms':>12s}  goals")
+    for robot, row in robots.items():
+        alarms = clean[robot]["false_alarms"] + row["false_alarms_before_events"]
+        print(f"{robot:18s} {row['events']:6d} {row['detected_above_smallest']:23.0%} {row['named_right']:11.0%} "
+              f"{row['named_right_above_smallest']:20.0%} {row['latency_median_ms']:9.0f} {alarms:12d}  "
+              f"{'met' if row['goals_met'] and alarms == 0 else 'NOT met'}")
+    # Every robot is held to the goals on its own: a robot that meets them does not carry one that does not.
+    goals_met = (figures["detected_above_smallest"] >= sb.GOAL_DETECTED and figures["named_right"] >= sb.GOAL_NAMED
+                 and all(c["false_alarms"] == 0 for c in clean.values())
+                 and all(row["goals_met"] for row in robots.values()))
+    print(f"goals (>= {sb.GOAL_DETECTED:.0%} above the smallest size detected, >= {sb.GOAL_NAMED:.0%} named right, "
+          f"0 false alarms clean, on every robot): {'met' if goals_met else 'NOT met'}")
     return 0 if goals_met else 1
 
 

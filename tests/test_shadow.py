@@ -596,3 +596,31 @@ def test_tensions_that_ring_then_settle_off_the_twins_are_named_latency():
     assert raised and raised[0].t_s > start + 10 * PERIOD_S, "the ringing alone crossed: the test shows nothing"
     assert raised[0].kind == "latency"
     assert raised[0].detail["ringing_n"] > monitor.noise.ring_band_n
+
+
+def test_a_cell_that_crosses_while_the_encoders_follow_the_twin_late_is_latency_not_the_cell():
+    """A loop whose motors answer late moves one cell out of its band first while its encoders
+    still lie within theirs, lagging the twin's motion: the encoders' lag against the twin's rate
+    names it a latency (with its size), not that cell's offset, which leaves the encoders alone."""
+    rng = np.random.default_rng(3)
+    monitor, start = _learned(rng)
+    lag_s = 2e-3
+    offset = np.zeros(N)
+    offset[1] = 0.1
+
+    def late(d):
+        # The twin's lengths (_frames) a lag earlier: 2 ms at 1.9 mm/s is 4 µm, inside the encoders' band.
+        lengths = 1e-3 * np.sin(2 * np.pi * 0.3 * (d.time_s - lag_s) + np.arange(N))
+        return FrameValues(d.time_s, lengths, d.tensions_n + offset, d.duty, d.tip_m)
+
+    raised = _after(monitor, rng, start, late)
+    assert raised
+    first = raised[0]
+    assert all(not name.startswith("length") for name in first.where), "the encoders crossed: the test shows nothing"
+    assert first.kind == "latency"
+    assert first.size == pytest.approx(lag_s, rel=0.5)
+    # The same cell's change with the encoders on the twin's is the cell's offset.
+    monitor, start = _learned(np.random.default_rng(3))
+    raised = _after(monitor, rng, start, lambda d: FrameValues(d.time_s, d.lengths_m, d.tensions_n + offset, d.duty,
+                                                                d.tip_m))
+    assert raised and raised[0].kind == "loadcell_offset"

@@ -725,8 +725,16 @@ class Monitor:
             # tendon's direction of sliding says), it is friction.
             sliding = self._friction(now_s, onset_s, frames, where)
             margin = self._friction_over_cell(channel)
-            if margin > GAIN_CHI2 and sliding.size > 2 * sliding.std and sliding.detail["fit"] >= MIN_FIT:
+            if margin > GAIN_CHI2 and _fits(sliding):
                 return dataclasses.replace(sliding, detail={**sliding.detail, "chi2_over_cell": margin})
+            # A cell's reading does not move the encoders; where they follow the motion late, as a
+            # late loop's do, though still within their band, by more than the counts the two loops
+            # hold to, the cell that crossed first is the loop's doing (on stiff-long a 5 ms
+            # latency's encoders fitted the twin's rate to 0.97, its cell named a −0.19 N offset; a
+            # three-tendon 0.2 N offset's encoders fitted a 0.3 ms lag, under a count).
+            latency = self._latency(now_s, onset_s, where)
+            if _fits(latency) and latency.detail["encoder_lag_m"] > float(self._floor[:n].max()):
+                return latency
             self._pending = (channel, where)
             return self._loadcell(now_s, onset_s, frames, channel, where)
         if ten_sig or len_sig:
@@ -745,7 +753,7 @@ class Monitor:
             debug["shift_n"] = shift
             if swing > noise.ring_band_n and swing / 2 > shift:
                 hunting = self._friction(now_s, onset_s, frames, where)
-                if hunting.size > 2 * hunting.std and hunting.detail["fit"] >= MIN_FIT:
+                if _fits(hunting):
                     return hunting
                 latency = self._latency(now_s, onset_s, where)
                 return dataclasses.replace(latency, detail={**latency.detail, **debug})
@@ -777,11 +785,11 @@ class Monitor:
             return Divergence(now_s, onset_s, "tip_load", "tip_force_n", math.nan, math.nan, "N", where,
                               {"tip_change_m": d_tip, **debug})
         friction = self._friction(now_s, onset_s, frames, where) if ten_sig else None
-        if friction is not None and friction.size > 2 * friction.std and friction.detail["fit"] >= MIN_FIT:
+        if friction is not None and _fits(friction):
             return friction
         if len_sig or ten_sig:
             latency = self._latency(now_s, onset_s, where)
-            if latency.size > 2 * latency.std and latency.detail["fit"] >= MIN_FIT:
+            if _fits(latency):
                 return latency
         if load is not None and load.size > 3 * load.std and explained >= EXPLAINED_FRACTION:
             return load
@@ -910,8 +918,17 @@ class Monitor:
         x, y = np.concatenate(xs), np.concatenate(ys)
         lag = float(np.dot(x, y) / max(np.dot(x, x), 1e-18))
         std = float(np.mean(self._model().sigma[:n]) / max(float(np.sqrt(np.dot(x, x))), 1e-18))
+        # The most the lag moves an encoder in these frames (m): below the encoders' floor (two
+        # counts) it is within what the two loops' holding to a count leaves.
+        moved = abs(lag) * float(np.abs(x).max(initial=0.0))
         return Divergence(now_s, onset_s, "latency", "effects.actuation_latency_s", lag, std, "s", where,
-                          {"fit": _explained(x * lag, y)})
+                          {"fit": _explained(x * lag, y), "encoder_lag_m": moved})
+
+
+def _fits(event: Divergence) -> bool:
+    """A friction change or a latency fitted over the last frames is resolved (twice its standard
+    deviation) and explains :data:`MIN_FIT` of their residuals at least."""
+    return event.size > 2 * event.std and event.detail["fit"] >= MIN_FIT
 
 
 def _explained(model: np.ndarray, values: np.ndarray) -> float:

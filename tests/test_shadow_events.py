@@ -1,0 +1,62 @@
+"""The shadow's detection table (scripts/shadow_events.py, twin.dynamics.shadow_bench): each robot is
+summarised and held to the goals on its own, and a seed the table cannot use is refused in one line."""
+
+import importlib.util
+import math
+from pathlib import Path
+
+import pytest
+
+from twin.dynamics import shadow_bench as sb
+
+SCRIPT = Path(__file__).resolve().parent.parent / "scripts" / "shadow_events.py"
+
+
+def load():
+    spec = importlib.util.spec_from_file_location("shadow_events", SCRIPT)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def trial(robot, kind, size, detected, right, latency_s=0.2, false_alarms=0):
+    return sb.Trial(robot, kind, size, 10.0, detected, latency_s if detected else math.nan,
+                    sb.EVENT_KINDS[kind][0] if right else ("unexplained" if detected else ""), right, false_alarms, 1e-3)
+
+
+def test_each_robot_is_summarised_and_held_to_the_goals_on_its_own():
+    trials = []
+    for kind, (_, sizes, _, _) in sb.EVENT_KINDS.items():
+        for size in sizes:
+            trials.append(trial("good", kind, size, True, True, latency_s=0.15))
+            # The other robot misses the largest friction change and misnames the latencies.
+            missed = kind == "friction" and size == sizes[-1]
+            trials.append(trial("poor", kind, size, not missed, not missed and kind != "latency", latency_s=0.3))
+    robots = sb.summarise_robots(trials)
+    assert list(robots) == ["good", "poor"]
+    good, poor = robots["good"], robots["poor"]
+    assert good["events"] == poor["events"] == 27
+    assert good["goals_met"] and good["detected_above_smallest"] == 1.0 and good["named_right"] == 1.0
+    assert good["latency_median_ms"] == pytest.approx(150.0)
+    # 1 of 18 above the smallest size missed (94 %); it and 3 latencies of 27 not named right.
+    assert poor["detected_above_smallest"] == pytest.approx(17 / 18)
+    assert poor["named_right"] == pytest.approx(23 / 27)
+    assert poor["named_right_above_smallest"] == pytest.approx(15 / 18)
+    assert poor["latency_median_ms"] == pytest.approx(300.0)
+    assert not poor["goals_met"]
+    # Over both robots the detection goal would pass (35 of 36): each robot is judged alone.
+    above = [t for t in trials if t.size != sb.EVENT_KINDS[t.kind][1][0]]
+    assert sum(t.detected for t in above) / len(above) >= sb.GOAL_DETECTED
+
+
+def test_the_twins_own_noise_seed_is_refused_in_one_line(tmp_path, capsys):
+    from twin.device.sim_url import SHADOW_TWIN_SEED
+
+    with pytest.raises(SystemExit) as exit_info:
+        load().main(["--seed", str(SHADOW_TWIN_SEED), "--clean-minutes", "0", "--kinds", "latency", "--reps", "1",
+                     "--out", str(tmp_path / "events.jsonl")])
+    assert exit_info.value.code == 2
+    err = capsys.readouterr().err
+    assert "Traceback" not in err
+    assert err.strip().splitlines()[-1].endswith(f"--seed {SHADOW_TWIN_SEED}: the twin's own noise seed; "
+                                                 "the device's noise must be another draw")
