@@ -10,15 +10,19 @@ figures are meant to be taken with it on, e.g.
 
 from __future__ import annotations
 
+import dataclasses
+from collections.abc import Callable
+
 import numpy as np
 
 from twin.control.gains import tension_gains_for
 from twin.driver.errors import DeviceError
 from twin.control.pretension import pretension_straight
+from twin.effects.tendon_friction import PRESLIDING_M
 from twin.params import Params, load_params
 from twin.pcc import tendon_length_changes_m
 
-__all__ = ["HOLD_KAPPA_PER_M", "HOLD_PHI_DEG", "HOLD_MASS_KG", "hold_figures"]
+__all__ = ["HOLD_KAPPA_PER_M", "HOLD_PHI_DEG", "HOLD_MASS_KG", "CommandedHold", "hold_commanded", "hold_figures"]
 
 # The configuration and load of the measurement: a mid bend of the compensation grid
 # (twin.pcc.GRID_KAPPA_PER_M) with the smallest tip mass of the compensation trial, where the
@@ -33,6 +37,9 @@ HOLD_MASS_KG = 0.005
 # tendon (stiff-long at μ = 0.3: 73 % of the true tension's variance in 25-40 Hz); 0.1 s means
 # keep everything up to the rod's modes and average that out.
 MEAN_WINDOW_S = 0.1
+# The window (s) over which a held spool counts as still: five periods of the loop's ~4 Hz crossover
+# (ki × stall force, 23 /s), long enough that a ring of the loop would not pass for a stop.
+STILL_WINDOW_S = 0.5
 
 
 def hold_figures(params: Params | None = None, *, kappa_per_m: float = HOLD_KAPPA_PER_M,
@@ -138,3 +145,95 @@ def _window_means(x: np.ndarray, window: int) -> np.ndarray:
     window = max(1, window)
     n = len(x) // window * window
     return x[:n].reshape(-1, window, x.shape[1]).mean(axis=1)
+
+
+@dataclasses.dataclass(frozen=True)
+class CommandedHold:
+    """What :func:`hold_commanded` measured.
+
+    Attributes:
+        true_n: the twin's true tensions at every board tick (ticks × channels, N).
+        setpoints_n: the tensions commanded (N).
+        switch_n: the load cells' tensions at the switch to tension mode (N).
+        tick_s: the board's tick (s).
+        fault_flags: the board's fault flags at the end (0: none).
+        settled_s: the time from the end of the ramp to the measurement (s).
+        spool_ptp_m: each spool's peak to peak travel over the measurement (m).
+    """
+
+    true_n: np.ndarray
+    setpoints_n: np.ndarray
+    switch_n: np.ndarray
+    tick_s: float
+    fault_flags: int
+    settled_s: float
+    spool_ptp_m: np.ndarray
+
+    def figures(self) -> dict:
+        """Per channel: ``ptp_n`` (the true tension's peak to peak, every tick), ``mean_ptp_n`` (that
+        of its :data:`MEAN_WINDOW_S` means) and ``offset_n`` (its mean less the setpoint), N."""
+        means = _window_means(self.true_n, round(MEAN_WINDOW_S / self.tick_s))
+        return {"ptp_n": np.ptp(self.true_n, axis=0), "mean_ptp_n": np.ptp(means, axis=0),
+                "offset_n": self.true_n.mean(axis=0) - self.setpoints_n}
+
+
+def hold_commanded(params: Params, tensions_n: np.ndarray | Callable[[np.ndarray], np.ndarray], *,
+                   kappa_per_m: float, phi_deg: float, mass_kg: float, twin_params: Params | None = None,
+                   robot: str | None = None, settle_s: float = 2.0, still_timeout_s: float = 0.0,
+                   measure_s: float = 2.0, seed: int = 1) -> CommandedHold:
+    """Tension mode holding commanded tensions in a bent pose, as a compensation trial's command does.
+
+    On a ``sim://`` twin of ``twin_params`` (default ``params``), the board on ``params``'s tension
+    gains (:func:`twin.control.gains.tension_gains_for`): the pretensioned straight robot bent in
+    length mode to the constant-curvature lengths of (``kappa_per_m``, ``phi_deg``) for 3 s,
+    ``mass_kg`` hung for 1 s, then tension mode, and after 0.5 s its setpoints ramped to
+    ``tensions_n`` over a second (a smoothstep, as a compensation ramps); after ``settle_s``, and
+    then until every spool has moved less than the friction's presliding travel over
+    :data:`STILL_WINDOW_S` (at most ``still_timeout_s`` more), the true tensions at every board
+    tick over ``measure_s``.
+
+    Args:
+        tensions_n: the commanded tensions (N), or a function of the load cells' tensions at the
+            switch (N) giving them; negatives are held at 0.
+        robot: the robot's name, for the board's channel-count message.
+    """
+    from twin.driver import open_device
+
+    with open_device(f"sim://?seed={seed}", params=twin_params or params, robot=robot) as device:
+        device.set_gains("tensions", **tension_gains_for(params))
+        zero = pretension_straight(device, params, mode="lengths")
+        device.set_lengths(zero + tendon_length_changes_m(kappa_per_m, phi_deg, params))
+        device.wait(3.0)
+        if device.fixture is None:
+            raise DeviceError(f"{device.url}: hanging a tip mass needs the device's fixture; it has none")
+        device.fixture.hang_tip_mass(mass_kg)
+        device.wait(1.0)
+        device.set_mode("tensions")
+        device.wait(0.5)
+        start = np.asarray(device.latest().tensions_n, dtype=float)
+        end = np.maximum(np.asarray(tensions_n(start) if callable(tensions_n) else tensions_n, dtype=float), 0.0)
+        for k in range(1, 41):  # a smoothstep over a second, as a compensation ramps
+            x = k / 40
+            device.set_tensions(np.maximum(start + (end - start) * x * x * (3.0 - 2.0 * x), 0.0))
+            device.wait_next(timeout_s=1.0)
+        device.wait(settle_s)
+        # A command that bends the rod on is held by a duty clamp's pull less the back-EMF of its
+        # winding: it slides there at a few mm/s, which is no ring; the hold is measured once every
+        # spool has stopped (moved less than the friction's presliding travel over a window).
+        settled_s = settle_s
+        spool = device.twin.spool_positions_m()
+        while settled_s < settle_s + still_timeout_s:
+            device.wait(STILL_WINDOW_S)
+            settled_s += STILL_WINDOW_S
+            now = device.twin.spool_positions_m()
+            if np.abs(now - spool).max() < PRESLIDING_M:
+                break
+            spool = now
+        tick_s = device.twin.tick_s
+        true, spools = [], []
+        for _ in range(round(measure_s / tick_s)):
+            device.wait(tick_s)
+            true.append(device.twin.true_tensions_n())
+            spools.append(device.twin.spool_positions_m())
+        return CommandedHold(np.array(true), end, start, tick_s, int(device.latest().fault_flags), settled_s,
+                             np.ptp(np.array(spools), axis=0))
