@@ -52,36 +52,13 @@ def _held_near_the_clamp(tensions_n, seed: int = 1):
     """long at μ = 0.3 bent to κ 15.72 1/m, φ 270° in length mode, 10 g hung, then tension mode
     ramped to ``tensions_n`` (N); the true tensions at every board tick over the next 2 s, after 2 s
     to settle, and the setpoints."""
-    import numpy as np
-
-    from twin.control.gains import tension_gains_for
-    from twin.control.pretension import pretension_straight
-    from twin.driver import open_device
-    from twin.pcc import tendon_length_changes_m
+    from twin.control.settling import hold_commanded
 
     params = load_robot("long")
-    with open_device(f"sim://?seed={seed}", params=params.replace({"effects.tendon_friction_coeff": 0.3}),
-                     robot="long") as device:
-        device.set_gains("tensions", **tension_gains_for(params))
-        zero = pretension_straight(device, params, mode="lengths")
-        device.set_lengths(zero + tendon_length_changes_m(15.72, 270.0, params))
-        device.wait(3.0)
-        device.fixture.hang_tip_mass(0.010)
-        device.wait(1.0)
-        device.set_mode("tensions")
-        device.wait(0.5)
-        start, end = np.asarray(device.latest().tensions_n, dtype=float), np.asarray(tensions_n, dtype=float)
-        for k in range(1, 41):  # a smoothstep over a second, as a compensation ramps
-            x = k / 40
-            device.set_tensions(np.maximum(start + (end - start) * x * x * (3.0 - 2.0 * x), 0.0))
-            device.wait_next(timeout_s=1.0)
-        device.wait(2.0)
-        true = []
-        for _ in range(round(2.0 / device.twin.tick_s)):
-            device.wait(device.twin.tick_s)
-            true.append(device.twin.true_tensions_n())
-        assert not device.latest().fault_flags
-        return np.array(true), end
+    hold = hold_commanded(params, tensions_n, kappa_per_m=15.72, phi_deg=270.0, mass_kg=0.010,
+                          twin_params=params.replace({"effects.tendon_friction_coeff": 0.3}), robot="long", seed=seed)
+    assert not hold.fault_flags
+    return hold.true_n, hold.setpoints_n
 
 
 def test_two_stuck_tendons_held_at_the_duty_clamp_do_not_cycle():
