@@ -552,7 +552,8 @@ class Monitor:
         two sides sitting at the level on their noise are not (:data:`TAKE_UP_FRAMES`)."""
         low, high = np.minimum(device_tensions_n, twin_tensions_n), np.maximum(device_tensions_n, twin_tensions_n)
         apart = high - low > self._slack_n
-        disagree = any(bool(((low < level) & (high >= level) & apart).any()) for level in (self._slack_n, self._loose_n))
+        disagree = any(bool(((low < level) & (high >= level) & apart).any())
+                       for level in (self._slack_n, self._loose_n))
         self._since_take_up = 0 if disagree else self._since_take_up + 1
 
     def recalibrated(self, event: Divergence) -> None:
