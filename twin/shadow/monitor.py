@@ -326,6 +326,7 @@ class Monitor:
         # Frames since the two sides last disagreed on whether a tendon is slack or taut; each
         # channel's excursion so far (frames) and whether it started at a take-up.
         self._since_take_up = TAKE_UP_FRAMES + 1
+        self._take_up_levels = np.array([self._slack_n, self._loose_n])
         self._warm_take_up: list[int] = []
         self._excursion = np.zeros(3 * n + 3, dtype=int)
         self._excursion_take_up = np.zeros(3 * n + 3, dtype=bool)
@@ -551,10 +552,9 @@ class Monitor:
         one side below the level, the other above it and off by more than the slack level, which
         two sides sitting at the level on their noise are not (:data:`TAKE_UP_FRAMES`)."""
         low, high = np.minimum(device_tensions_n, twin_tensions_n), np.maximum(device_tensions_n, twin_tensions_n)
-        apart = high - low > self._slack_n
-        disagree = any(bool(((low < level) & (high >= level) & apart).any())
-                       for level in (self._slack_n, self._loose_n))
-        self._since_take_up = 0 if disagree else self._since_take_up + 1
+        levels = self._take_up_levels
+        disagree = ((low[:, None] < levels) & (high[:, None] >= levels)).any(axis=1) & (high - low > self._slack_n)
+        self._since_take_up = 0 if disagree.any() else self._since_take_up + 1
 
     def recalibrated(self, event: Divergence) -> None:
         """The twin was given ``event``'s change (its size): what remains between the two is a draw
