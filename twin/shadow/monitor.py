@@ -463,9 +463,12 @@ class Monitor:
         due = self._out_frames >= noise.persist
         if noise.excursion is not None and noise.take_up_persist is not None:
             above = np.abs(self._statistic) > noise.excursion
-            self._excursion = np.where(above, self._excursion + 1, 0)
-            self._excursion_take_up = np.where(self._excursion == 1, self._since_take_up <= TAKE_UP_FRAMES,
-                                               self._excursion_take_up & above)
+            # A take-up during an excursion starts its count afresh: the sides part anew from there.
+            renewed = above & (self._since_take_up == 0)
+            starting = above & (self._excursion == 0)
+            self._excursion_take_up = above & np.where(starting, self._since_take_up <= TAKE_UP_FRAMES,
+                                                       self._excursion_take_up | renewed)
+            self._excursion = np.where(above, np.where(renewed, 0, self._excursion) + 1, 0)
             due &= ~self._excursion_take_up | (self._excursion > noise.take_up_persist)
         if self._onset is None and due.any():
             self._onset = (device.time_s, [])
@@ -534,12 +537,12 @@ class Monitor:
             persist[group] = max(MIN_PERSIST_FRAMES, _longest_excursion(medians_abs[:, group], band[group] / 2) + 1)
         ring_band = PEAK_MARGIN * _ringing(np.nan_to_num(warm[:, n:2 * n] - bias[n:2 * n])).max(initial=0.0)
         # The running median of rows j..j+k-1 is seen at frame j+k-1.
-        take_up = np.array(self._warm_take_up[MEDIAN_FRAMES - 1:]) <= TAKE_UP_FRAMES
+        since_take_up = np.array(self._warm_take_up[MEDIAN_FRAMES - 1:])
         self._warm_take_up = []
         excursion = TAIL_SIGMAS * spread
         take_up_persist = np.zeros(len(band), dtype=int)
         for group in groups:
-            take_up_persist[group] = _longest_excursion(medians_abs[:, group], excursion[group], starts=take_up)
+            take_up_persist[group] = _take_up_excursion(medians_abs[:, group], excursion[group], since_take_up)
         self.noise = NoiseModel(np.nan_to_num(bias), sigma, band, mix, _loop_stiffness(twin_rows, n), persist,
                                 ring_band, excursion, take_up_persist)
         self._widen(self._uncertainty)
@@ -1031,18 +1034,29 @@ def _tail_band(medians_abs: np.ndarray, spread: np.ndarray, warm_s: float, group
 
 
 
-def _longest_excursion(medians_abs: np.ndarray, level: np.ndarray, starts: np.ndarray | None = None) -> int:
-    """The longest run of frames (rows) any column spent above its ``level``; with ``starts`` (a
-    row mask), of the runs that start at a row it marks."""
+def _longest_excursion(medians_abs: np.ndarray, level: np.ndarray) -> int:
+    """The longest run of frames (rows) any column spent above its ``level``."""
     longest = 0
     for column, threshold in zip(medians_abs.T, level):
         edges = np.flatnonzero(np.diff(np.concatenate([[0], (column > threshold).astype(np.int8), [0]])))
-        first, last = edges[::2], edges[1::2]
-        if starts is not None:
-            keep = starts[first]
-            first, last = first[keep], last[keep]
-        if len(first):
-            longest = max(longest, int((last - first).max()))
+        if len(edges):
+            longest = max(longest, int((edges[1::2] - edges[::2]).max()))
+    return longest
+
+
+def _take_up_excursion(medians_abs: np.ndarray, level: np.ndarray, since_take_up: np.ndarray) -> int:
+    """The longest any column's run above its ``level`` lasted after a take-up (0 if none): of
+    the runs that start within :data:`TAKE_UP_FRAMES` of one or hold one (``since_take_up``, per
+    row, the frames since the two sides last disagreed on a tendon), the frames from the run's
+    start or the last take-up in it, whichever is later, as :meth:`Monitor.update` counts them."""
+    longest = 0
+    now = np.flatnonzero(since_take_up == 0)
+    for column, threshold in zip(medians_abs.T, level):
+        edges = np.flatnonzero(np.diff(np.concatenate([[0], (column > threshold).astype(np.int8), [0]])))
+        for first, last in zip(edges[::2], edges[1::2]):
+            inside = now[(now >= first) & (now < last)]
+            if since_take_up[first] <= TAKE_UP_FRAMES or len(inside):
+                longest = max(longest, int(last - max(first, inside.max() if len(inside) else first)))
     return longest
 
 
