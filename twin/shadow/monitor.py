@@ -327,6 +327,7 @@ class Monitor:
         # channel's excursion so far (frames) and whether it started at a take-up.
         self._since_take_up = TAKE_UP_FRAMES + 1
         self._take_up_levels = np.array([self._slack_n, self._loose_n])
+        self._take_up_began = False
         self._warm_take_up: list[int] = []
         self._excursion = np.zeros(3 * n + 3, dtype=int)
         self._excursion_take_up = np.zeros(3 * n + 3, dtype=bool)
@@ -463,8 +464,10 @@ class Monitor:
         due = self._out_frames >= noise.persist
         if noise.excursion is not None and noise.take_up_persist is not None:
             above = np.abs(self._statistic) > noise.excursion
-            # A take-up during an excursion starts its count afresh: the sides part anew from there.
-            renewed = above & (self._since_take_up == 0)
+            # A take-up that begins during an excursion starts its count afresh: the sides part
+            # anew from there (a disagreement that goes on, as a change of the device's own may
+            # make, does not).
+            renewed = above & (self._since_take_up == 0) & self._take_up_began
             starting = above & (self._excursion == 0)
             self._excursion_take_up = above & np.where(starting, self._since_take_up <= TAKE_UP_FRAMES,
                                                        self._excursion_take_up | renewed)
@@ -557,6 +560,7 @@ class Monitor:
         low, high = np.minimum(device_tensions_n, twin_tensions_n), np.maximum(device_tensions_n, twin_tensions_n)
         levels = self._take_up_levels
         disagree = ((low[:, None] < levels) & (high[:, None] >= levels)).any(axis=1) & (high - low > self._slack_n)
+        self._take_up_began = bool(disagree.any()) and self._since_take_up > 0
         self._since_take_up = 0 if disagree.any() else self._since_take_up + 1
 
     def recalibrated(self, event: Divergence) -> None:
@@ -1046,11 +1050,12 @@ def _longest_excursion(medians_abs: np.ndarray, level: np.ndarray) -> int:
 
 def _take_up_excursion(medians_abs: np.ndarray, level: np.ndarray, since_take_up: np.ndarray) -> int:
     """The longest any column's run above its ``level`` lasted after a take-up (0 if none): of
-    the runs that start within :data:`TAKE_UP_FRAMES` of one or hold one (``since_take_up``, per
-    row, the frames since the two sides last disagreed on a tendon), the frames from the run's
-    start or the last take-up in it, whichever is later, as :meth:`Monitor.update` counts them."""
+    the runs that start within :data:`TAKE_UP_FRAMES` of one or hold the start of one
+    (``since_take_up``, per row, the frames since the two sides last disagreed on a tendon), the
+    frames from the run's start or the last take-up begun in it, whichever is later, as
+    :meth:`Monitor.update` counts them."""
     longest = 0
-    now = np.flatnonzero(since_take_up == 0)
+    now = np.flatnonzero((since_take_up == 0) & (np.concatenate([[1], since_take_up[:-1]]) > 0))
     for column, threshold in zip(medians_abs.T, level):
         edges = np.flatnonzero(np.diff(np.concatenate([[0], (column > threshold).astype(np.int8), [0]])))
         for first, last in zip(edges[::2], edges[1::2]):
