@@ -12,7 +12,9 @@ is :data:`ALARM_SIGMAS` robust spreads, or 1.5 times the warm-up's largest excur
 the warm-up's excursions reach once extrapolated to a run of :data:`WATCH_S` (peaks over a
 threshold), whichever is widest. A tendon slack on either side, or below the tension at which the
 board takes it as taut, has its encoder and duty left out (the loop parts from the twin's as the
-slack is taken up). The frames after the first crossing
+slack is taken up); an excursion that starts where the two sides disagree on a tendon's slack (a
+take-up a tick apart) is held for as long as the warm-up's take-ups lasted
+(:data:`TAKE_UP_FRAMES`). The frames after the first crossing
 (:data:`NAMING_FRAMES`) are then named by what could cause them (:meth:`Monitor._name`), the twin
 re-calibrated where the cause has a parameter, and the bias learned again over :data:`RESYNC_S`
 before the monitor watches on, its bands widened by what the re-calibration left uncertain
