@@ -624,3 +624,57 @@ def test_a_cell_that_crosses_while_the_encoders_follow_the_twin_late_is_latency_
     raised = _after(monitor, rng, start, lambda d: FrameValues(d.time_s, d.lengths_m, d.tensions_n + offset, d.duty,
                                                                 d.tip_m))
     assert raised and raised[0].kind == "loadcell_offset"
+
+
+def test_a_take_up_a_tick_apart_is_held_for_as_long_as_the_warm_ups_take_ups_last_a_lasting_change_is_not():
+    """Tendon 0 goes slack and is taken up every 4 s; the device takes it up a little before the
+    twin (the two sides disagree for a frame) and every cell parts from the twin's for eight
+    frames, by a size the noise draws. After a warm-up that saw small ones, a take-up a tick
+    apart parts them beyond the band for as long: not an alarm; a change of that size that
+    starts at a take-up and stays is raised once it outlasts the warm-up's take-ups."""
+    from twin.shadow.monitor import MEDIAN_FRAMES
+
+    rng = np.random.default_rng(21)
+    every, slack_frames, transient_frames = int(4.0 / PERIOD_S), 40, 8
+    pattern = np.array([1.0, -1.0, 1.0, -1.0])[:N]
+
+    def take_ups(frames, size, *, lead_n=0.1, lasting=False):
+        for device, twin in frames:
+            phase = round(device.time_s / PERIOD_S) % every
+            device_t, twin_t = device.tensions_n.copy(), twin.tensions_n.copy()
+            if phase < slack_frames:
+                device_t[0] = twin_t[0] = 0.0
+            elif phase == slack_frames:
+                # Taken up on the device a little earlier than on the twin.
+                device_t[0], twin_t[0] = lead_n, 0.0
+            if slack_frames <= phase < slack_frames + transient_frames or (lasting and phase >= slack_frames):
+                device_t = device_t + size() * pattern
+            yield (FrameValues(device.time_s, device.lengths_m, device_t, device.duty, device.tip_m),
+                   FrameValues(twin.time_s, twin.lengths_m, twin_t, twin.duty, twin.tip_m))
+
+    warm = int(30.0 / PERIOD_S) + 1
+    monitor = Monitor(PARAMS, warmup_s=30.0)
+    for device, twin in take_ups(_frames(rng, warm), lambda: rng.uniform(0.02, 0.04)):
+        assert monitor.update(device, twin, tip_frame_time_s=device.time_s) == []
+    assert monitor.ready
+    held = monitor.noise.take_up_persist[N:2 * N]
+    # A running median over an eight-frame transient stays out about as long.
+    assert (abs(held - transient_frames) < MEDIAN_FRAMES).all()
+    # The next take-up a tick apart: the device's cell reads it taut a frame early, every cell
+    # parts by four times the warm-up's largest for the same eight frames.
+    start_k = (warm // every + 1) * every
+    frames = list(take_ups(_frames(rng, every, start_k * PERIOD_S), lambda: 0.16, lead_n=0.8))
+    raised, beyond = [], 0.0
+    for device, twin in frames:
+        raised += monitor.update(device, twin, tip_frame_time_s=device.time_s)
+        beyond = max(beyond, float(np.max(np.abs(monitor._statistic[N:2 * N]) / monitor._band[N:2 * N])))
+    assert beyond > 1.0, "the take-up never left the band: the test shows nothing"
+    assert raised == []
+    # The same step, lasting from a take-up on: raised, after the warm-up's take-ups lasted.
+    start_k += every
+    raised = []
+    for device, twin in take_ups(_frames(rng, every, start_k * PERIOD_S), lambda: 0.16, lead_n=0.8, lasting=True):
+        raised += monitor.update(device, twin, tip_frame_time_s=device.time_s)
+    assert raised and any(f"tension[{i}]" in raised[0].where for i in range(N))
+    onset_k = round(raised[0].onset_s / PERIOD_S) - start_k
+    assert slack_frames + held.max() < onset_k <= slack_frames + held.max() + 2 * MEDIAN_FRAMES

@@ -12,7 +12,9 @@ is :data:`ALARM_SIGMAS` robust spreads, or 1.5 times the warm-up's largest excur
 the warm-up's excursions reach once extrapolated to a run of :data:`WATCH_S` (peaks over a
 threshold), whichever is widest. A tendon slack on either side, or below the tension at which the
 board takes it as taut, has its encoder and duty left out (the loop parts from the twin's as the
-slack is taken up). The frames after the first crossing
+slack is taken up); an excursion that starts where the two sides disagree on a tendon's slack (a
+take-up a tick apart) is held for as long as the warm-up's take-ups lasted
+(:data:`TAKE_UP_FRAMES`). The frames after the first crossing
 (:data:`NAMING_FRAMES`) are then named by what could cause them (:meth:`Monitor._name`), the twin
 re-calibrated where the cause has a parameter, and the bias learned again over :data:`RESYNC_S`
 before the monitor watches on, its bands widened by what the re-calibration left uncertain
@@ -81,6 +83,19 @@ SLACK_NOISE = 5.0
 # up turns on its load cell's noise (on helical a tendon wound in from slack parted the two
 # encoders by up to 30 µm, twice what a minute's warm-up saw, until it read taut).
 GUARD_TAUT_FRACTION = 0.1
+# A tendon taken up (or gone slack) a tick apart on the two sides parts them, all channels, for
+# as long as the spools then run speed-limited on their two paths (on helical a reversal a tick
+# apart held every cell 0.1-0.3 N off for eight frames; on endoscope-soft-g a tendon that
+# snapped taut on the device only held its cell 0.4-0.9 N off as long). The size is the noise's
+# draw of the tick; the length is the loop's, which the warm-up's take-ups show: a channel's
+# excursion (beyond :data:`TAIL_SIGMAS` spreads) that starts within this many frames of the two
+# sides disagreeing on a tendon's slack or taut starts a divergence only once it outlasts the
+# longest such excursion of the warm-up (:attr:`NoiseModel.take_up_persist`), out of band then;
+# a lasting change is raised that much later, not missed. Two running medians' windows: an
+# encoder or duty is left out for one after its tendon was loose, and a median moves within one
+# of the change that moves it (on two-segment an encoder taken up 50 µm apart, compared again,
+# crossed its band eleven frames after the two sides agreed on its tendon).
+TAKE_UP_FRAMES = 2 * MEDIAN_FRAMES
 # Frames averaged after the first crossing to name the divergence (75 ms at 40 Hz).
 NAMING_FRAMES = 3
 # Frames kept for the fits that name a divergence (400 ms at 40 Hz): the change, which the
@@ -215,6 +230,12 @@ class NoiseModel:
         ring_band_n: the tensions' frame-to-frame change (N, the norm over the cells, a median
             over :data:`FIT_FRAMES`) beyond which they ring: :data:`PEAK_MARGIN` times the
             largest the warm-up saw.
+        excursion: (C,) the level beyond which a channel's running median makes an excursion:
+            :data:`TAIL_SIGMAS` of its robust spreads in the warm-up.
+        take_up_persist: (C,) frames a channel's excursion that starts at a take-up
+            (:data:`TAKE_UP_FRAMES`) must outlast, out of band at its end, to start a
+            divergence: the longest such excursion of the channel's group (the tendons'
+            lengths, tensions, duties, the tip) in the warm-up, 0 where it had none.
     """
 
     bias: np.ndarray
@@ -224,6 +245,8 @@ class NoiseModel:
     stiffness_n_per_m: np.ndarray
     persist: np.ndarray
     ring_band_n: float = math.inf
+    excursion: np.ndarray | None = None
+    take_up_persist: np.ndarray | None = None
 
 
 @dataclasses.dataclass
@@ -302,6 +325,14 @@ class Monitor:
         self._slack_n = SLACK_NOISE * params.sensors.loadcell_noise_n
         self._loose_n = max(self._slack_n, GUARD_TAUT_FRACTION * params.rig.tension_limit_n)
         self._since_slack = np.full(n, MEDIAN_FRAMES)
+        # Frames since the two sides last disagreed on whether a tendon is slack or taut; each
+        # channel's excursion so far (frames) and whether it started at a take-up.
+        self._since_take_up = TAKE_UP_FRAMES + 1
+        self._take_up_levels = np.array([self._slack_n, self._loose_n])
+        self._take_up_began = False
+        self._warm_take_up: list[int] = []
+        self._excursion = np.zeros(3 * n + 3, dtype=int)
+        self._excursion_take_up = np.zeros(3 * n + 3, dtype=bool)
         self.names = ([f"length[{i}]" for i in range(n)] + [f"tension[{i}]" for i in range(n)]
                       + [f"duty[{i}]" for i in range(n)] + ["tip.x", "tip.y", "tip.z"])
         self.noise: NoiseModel | None = None if noise is None else dataclasses.replace(noise, bias=noise.bias.copy())
@@ -370,6 +401,7 @@ class Monitor:
         slack = np.minimum(twin.tensions_n, device.tensions_n) < self._loose_n
         self._since_slack = np.where(slack, 0, self._since_slack + 1)
         loose = np.flatnonzero(self._since_slack < MEDIAN_FRAMES)
+        self._take_up(device.tensions_n, twin.tensions_n)
         residual[loose] = np.nan
         residual[2 * self.n + loose] = np.nan
         if self._start_s is None:
@@ -392,6 +424,7 @@ class Monitor:
             self._fault_raised = False
         if self.noise is None:
             self._warm.append(residual)
+            self._warm_take_up.append(self._since_take_up)
             self._warm_twin.append(twin.vector())
             if device.time_s - self._start_s >= self.warmup_s:
                 self._learn()
@@ -427,9 +460,22 @@ class Monitor:
             return raised
         self._statistic = np.median(np.array(self._window), axis=0)
         out = np.abs(self._statistic) > self._band
-        # A channel out of band for longer than the warm-up's excursions lasted starts a divergence.
+        # A channel out of band for longer than the warm-up's excursions lasted starts a divergence;
+        # one whose excursion began at a take-up, once it outlasts the warm-up's take-ups too.
         self._out_frames = np.where(out, self._out_frames + 1, 0)
-        if self._onset is None and (self._out_frames >= noise.persist).any():
+        due = self._out_frames >= noise.persist
+        if noise.excursion is not None and noise.take_up_persist is not None:
+            above = np.abs(self._statistic) > noise.excursion
+            # A take-up that begins during an excursion starts its count afresh: the sides part
+            # anew from there (a disagreement that goes on, as a change of the device's own may
+            # make, does not).
+            renewed = above & (self._since_take_up == 0) & self._take_up_began
+            starting = above & (self._excursion == 0)
+            self._excursion_take_up = above & np.where(starting, self._since_take_up <= TAKE_UP_FRAMES,
+                                                       self._excursion_take_up | renewed)
+            self._excursion = np.where(above, np.where(renewed, 0, self._excursion) + 1, 0)
+            due &= ~self._excursion_take_up | (self._excursion > noise.take_up_persist)
+        if self._onset is None and due.any():
             self._onset = (device.time_s, [])
         if self._onset is not None:
             onset_s, frames = self._onset
@@ -495,11 +541,29 @@ class Monitor:
         for group in groups[:3:2]:
             persist[group] = max(MIN_PERSIST_FRAMES, _longest_excursion(medians_abs[:, group], band[group] / 2) + 1)
         ring_band = PEAK_MARGIN * _ringing(np.nan_to_num(warm[:, n:2 * n] - bias[n:2 * n])).max(initial=0.0)
+        # The running median of rows j..j+k-1 is seen at frame j+k-1.
+        since_take_up = np.array(self._warm_take_up[MEDIAN_FRAMES - 1:])
+        self._warm_take_up = []
+        excursion = TAIL_SIGMAS * spread
+        take_up_persist = np.zeros(len(band), dtype=int)
+        for group in groups:
+            take_up_persist[group] = _take_up_excursion(medians_abs[:, group], excursion[group], since_take_up)
         self.noise = NoiseModel(np.nan_to_num(bias), sigma, band, mix, _loop_stiffness(twin_rows, n), persist,
-                                ring_band)
+                                ring_band, excursion, take_up_persist)
         self._widen(self._uncertainty)
         self._window = []
         self._raw_window = []
+
+    def _take_up(self, device_tensions_n: np.ndarray, twin_tensions_n: np.ndarray) -> None:
+        """Count the frames since the two sides last disagreed on whether a tendon has taken up
+        its slack (:data:`SLACK_NOISE`) or reads taut to the board (its spool then speeds up):
+        one side below the level, the other above it and off by more than the slack level, which
+        two sides sitting at the level on their noise are not (:data:`TAKE_UP_FRAMES`)."""
+        low, high = np.minimum(device_tensions_n, twin_tensions_n), np.maximum(device_tensions_n, twin_tensions_n)
+        levels = self._take_up_levels
+        disagree = ((low[:, None] < levels) & (high[:, None] >= levels)).any(axis=1) & (high - low > self._slack_n)
+        self._take_up_began = bool(disagree.any()) and self._since_take_up > 0
+        self._since_take_up = 0 if disagree.any() else self._since_take_up + 1
 
     def recalibrated(self, event: Divergence) -> None:
         """The twin was given ``event``'s change (its size): what remains between the two is a draw
@@ -1000,6 +1064,23 @@ def _longest_excursion(medians_abs: np.ndarray, level: np.ndarray) -> int:
         edges = np.flatnonzero(np.diff(np.concatenate([[0], (column > threshold).astype(np.int8), [0]])))
         if len(edges):
             longest = max(longest, int((edges[1::2] - edges[::2]).max()))
+    return longest
+
+
+def _take_up_excursion(medians_abs: np.ndarray, level: np.ndarray, since_take_up: np.ndarray) -> int:
+    """The longest any column's run above its ``level`` lasted after a take-up (0 if none): of
+    the runs that start within :data:`TAKE_UP_FRAMES` of one or hold the start of one
+    (``since_take_up``, per row, the frames since the two sides last disagreed on a tendon), the
+    frames from the run's start or the last take-up begun in it, whichever is later, as
+    :meth:`Monitor.update` counts them."""
+    longest = 0
+    now = np.flatnonzero((since_take_up == 0) & (np.concatenate([[1], since_take_up[:-1]]) > 0))
+    for column, threshold in zip(medians_abs.T, level):
+        edges = np.flatnonzero(np.diff(np.concatenate([[0], (column > threshold).astype(np.int8), [0]])))
+        for first, last in zip(edges[::2], edges[1::2]):
+            inside = now[(now >= first) & (now < last)]
+            if since_take_up[first] <= TAKE_UP_FRAMES or len(inside):
+                longest = max(longest, int(last - max(first, inside.max() if len(inside) else first)))
     return longest
 
 
