@@ -1,4 +1,8 @@
-"""Shared fixtures: synthetic datasets made with the predictor (fast, known truth)."""
+"""Shared fixtures: synthetic datasets made with the predictor (fast, known truth), and the
+repository's scripts loaded as modules."""
+
+import importlib.util
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -7,6 +11,14 @@ from twin import load_params
 from twin.data.dataset import write_dataset
 from twin.pose import HORIZONTAL
 from twin.rod import RodModel, solve
+
+
+def load_script(path: Path):
+    """The Python file at ``path`` (a script, not a package module) loaded as a module named after it."""
+    spec = importlib.util.spec_from_file_location(path.stem, path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
 
 
 def synthetic_rows(true_params, cases, *, noise_m=0.0, seed=0):

@@ -8,13 +8,13 @@ from __future__ import annotations
 
 import binascii
 import dataclasses
-import importlib.util
 import json
 import re
 import struct
 
 import numpy as np
 import pytest
+from conftest import load_script
 
 from twin.driver import codec as c
 from twin.device.board import TICK_S
@@ -63,9 +63,7 @@ def test_every_message_type_has_a_golden_vector():
 
 
 def test_golden_file_is_what_its_script_writes():
-    spec = importlib.util.spec_from_file_location("make_vectors", FIRMWARE_DIR / "golden" / "make_vectors.py")
-    make_vectors = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(make_vectors)
+    make_vectors = load_script(FIRMWARE_DIR / "golden" / "make_vectors.py")
     assert make_vectors.build() == VECTORS
 
 

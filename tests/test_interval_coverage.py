@@ -4,18 +4,16 @@ workflow's: standard error, split scatter, model form and model-form shift,
 twin.discrepancy.uncertainty) is never narrower than the statistical one, and on these cases it
 covers the truth where the statistical one does not."""
 
-import importlib.util
 import re
 from pathlib import Path
+
+from conftest import load_script
 
 SCRIPT = Path(__file__).resolve().parent.parent / "scripts" / "interval_coverage.py"
 
 
 def load():
-    spec = importlib.util.spec_from_file_location("interval_coverage", SCRIPT)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return load_script(SCRIPT)
 
 
 def rows_of(out):

@@ -1,11 +1,11 @@
 """The shadow's detection table (scripts/shadow_events.py, twin.dynamics.shadow_bench): each robot is
 summarised and held to the goals on its own, and a seed the table cannot use is refused in one line."""
 
-import importlib.util
 import math
 from pathlib import Path
 
 import pytest
+from conftest import load_script
 
 from twin.dynamics import shadow_bench as sb
 
@@ -13,10 +13,7 @@ SCRIPT = Path(__file__).resolve().parent.parent / "scripts" / "shadow_events.py"
 
 
 def load():
-    spec = importlib.util.spec_from_file_location("shadow_events", SCRIPT)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return load_script(SCRIPT)
 
 
 def trial(robot, kind, size, detected, right, latency_s=0.2, false_alarms=0):
