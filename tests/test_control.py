@@ -16,6 +16,7 @@ from twin.control import compensation_trial
 from twin.control.gains import DEFAULT_TENSION_GAINS, PROPORTIONAL_LOOP_GAIN, TUNED_TENSION_GAINS, tension_gains_for
 from twin.tuning import tension_cost
 from twin.driver import open_device
+from twin.experiments.protocols import NotAtRestError
 from twin.pose import HORIZONTAL
 from twin.rod import RodModel, solve
 from twin.pcc import validation_grid
@@ -256,6 +257,33 @@ def test_a_tension_command_the_loop_swings_under_is_neither_corrected_nor_kept(m
     assert not row["fault"] and row["swung"] and row["peak_tension_n"] > 0.0
     assert row["corrections"] == 0 and row["kept"] == "PCC lengths"
     assert np.isfinite(row["feedforward_mm"]) and np.isfinite(row["corrected_mm"])
+
+
+@pytest.mark.parametrize("moving", ["feed-forward", "correction"])
+def test_a_tension_command_the_tip_does_not_rest_under_ends_the_corrections_not_the_row(monkeypatch, moving):
+    # The wait for rest of the feed-forward (the third of the configuration: target, loaded,
+    # feed-forward) or of the first correction times out: the row goes on without that command,
+    # as after a swing, instead of faulting.
+    waits = []
+    settle = compensation_trial._wait_for_tip_rest
+
+    def wait(device, timeout_s):
+        waits.append(timeout_s)
+        if len(waits) == {"feed-forward": 3, "correction": 4}[moving]:
+            raise NotAtRestError("the robot did not come to rest")
+        settle(device, timeout_s)
+
+    monkeypatch.setattr(compensation_trial, "_wait_for_tip_rest", wait)
+    hidden = PARAMS.replace({"effects.tendon_friction_coeff": 0.1})
+    with open_device("sim://?seed=4", params=hidden) as device:
+        trial = run_compensation_trial(device, PARAMS, configs=[(8.7, 0.0)], masses_kg=(0.010,))
+    (row,) = trial.rows
+    assert not row["fault"] and row["unsettled"] and not row["swung"]
+    assert row["corrections"] == {"feed-forward": 0, "correction": 1}[moving]
+    # Never kept: the row ends on a command measured at rest, measured afresh.
+    assert row["kept"] == ("PCC lengths" if moving == "feed-forward" else "feed-forward")
+    assert np.isfinite(row["feedforward_mm"]) and np.isfinite(row["corrected_mm"])
+    assert len(waits) == {"feed-forward": 4, "correction": 5}[moving]
 
 
 def test_a_rest_is_left_as_soon_as_the_tension_loop_swings():

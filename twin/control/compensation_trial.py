@@ -54,7 +54,7 @@ from twin.control.pretension import pretension_straight
 from twin.control.gains import tension_gains_for
 from twin.driver import CommandRejected
 from twin.effects import SlidingState, friction_direction
-from twin.experiments.protocols import Measurement, ProtocolError, measure, wait_for_rest
+from twin.experiments.protocols import Measurement, NotAtRestError, ProtocolError, measure, wait_for_rest
 from twin.experiments.report import markdown_table
 from twin.params import Params
 from twin.pcc import GRID_KAPPA_PER_M, GRID_PHI_DEG, tendon_length_changes_m, validation_grid
@@ -93,7 +93,10 @@ class CompensationTrial:
     stopped the row); ``uncompensated_sem_mm``, ``corrected_sem_mm`` (standard errors of those two
     errors, mm, from the tracker frames' scatter) and ``kept`` (the command the row ended with:
     ``last``, or an earlier one measured better — ``feed-forward``, ``correction k``,
-    ``PCC lengths`` — commanded again and measured afresh).
+    ``PCC lengths`` — commanded again and measured afresh); ``peak_tension_n`` (the highest cell
+    reading under the tension commands, N), ``swung`` (a command's cells read over
+    :func:`swing_limit_n`) and ``unsettled`` (a command left the tip moving past the wait for
+    rest): such commands are neither corrected nor kept.
 
     ``floor_n``, ``limit_n`` are the tension bounds (N), ``corrections`` the most corrections per
     mass, ``timing_s`` the ramp, rest and averaging durations (device s) the trial ran with,
@@ -247,7 +250,8 @@ class CompensationTrial:
                  f"{sum(r.get('kept') == 'PCC lengths' for r in self.rows)} back at the PCC lengths). A command "
                  "under which a tendon's cell read more than half way from the ceiling to the board's tension "
                  "limit is one the tension loop swings under: no correction follows it and it is not kept "
-                 f"({sum(bool(r.get('swung')) for r in self.rows)} rows). A row "
+                 f"({sum(bool(r.get('swung')) for r in self.rows)} rows), nor is one under which the tip did "
+                 f"not come to rest ({sum(bool(r.get('unsettled')) for r in self.rows)} rows). A row "
                  f"counts as worse than uncompensated when its error is larger by more than {RESOLVE_SIGMAS:g} "
                  "standard errors of the difference of the two tracker means. Ramps are smooth, "
                  f"{t['ramp_s']:g} s; the tip rests {t['rest_s']:g} s after the feed-forward ramp and "
@@ -489,7 +493,7 @@ def run_compensation_trial(device, params: Params, *, configs: Sequence[tuple[fl
                    "feedforward_reduction_pct": math.nan, "corrected_reduction_pct": math.nan,
                    "model_residual_mm": plan.residual_m * 1e3 if plan else math.nan,
                    "reached": bool(plan and plan.reached), "corrections": 0,
-                   "peak_tension_n": math.nan, "swung": False,
+                   "peak_tension_n": math.nan, "swung": False, "unsettled": False,
                    "feedforward_tensions_n": plan.tensions_n.round(4).tolist() if plan else [],
                    "tensions_n": plan.tensions_n.round(4).tolist() if plan else [], "fault": fault}
             rows.append(row)
@@ -521,6 +525,7 @@ def run_compensation_trial(device, params: Params, *, configs: Sequence[tuple[fl
                 f"{r['corrected_mm']:.2f} mm" + (f" ({r['fault']})" if r["fault"] else "")
                 + (f" (kept: {r['kept']})" if r.get("kept") not in ("", "last") else "")
                 + (f" (the tension loop swung to {r['peak_tension_n']:.2f} N)" if r.get("swung") else "")
+                + (" (a tension command left the tip moving)" if r.get("unsettled") else "")
                 + (" (WORSE than uncompensated)" if not r["fault"] and _worse(r) else "") for r in last))
     timing = {"ramp_s": ramp_s, "rest_s": rest_s, "correction_rest_s": correction_rest_s, "measure_s": measure_s,
               "target_measure_s": target_measure_s}
@@ -655,7 +660,15 @@ def _compensate_mass(device, row: dict, model: RodModel, plan, target: Measureme
     ceiling, and a swing that reaches the board's limit trips it (long, μ = 0.3 hidden,
     κ 15.72 φ 270 10 g: the fourth correction's rest read 6.01 N on ``sim://?seed=0``). No
     correction follows such a command and it is not kept: the row ends on the best calm one. A
-    correction's rest is left as soon as the swing shows, without measuring the command."""
+    correction's rest is left as soon as the swing shows, without measuring the command.
+
+    A tension command under which the tip does not come to rest within ``settle_timeout_s`` is
+    one the loop does not hold either, though its cells stay under ``swing_n``: the row goes on
+    as after a swing, and the command, measured where the tip went on moving, is never kept (long,
+    μ = 0.3 hidden and μ̂ 0.3008 in the model, κ 15.72 φ 240 and φ 270 10 g, one tendon at the
+    ceiling: the tip kept moving by over 0.3 mm per 0.1 s window for 10 s and both rows faulted,
+    the full grid on ``sim://?seed=0``). Only the PCC lengths, which the length loop holds, fault
+    the row when they do not rest."""
     _wait_for_tip_rest(device, settle_timeout_s)
     loaded = measure(device, duration_s=measure_s)
     uncompensated = _Miss.of(loaded, target)
@@ -670,15 +683,18 @@ def _compensate_mass(device, row: dict, model: RodModel, plan, target: Measureme
     # A slack tendon reads a few mN either side of zero; the board refuses negative setpoints.
     peaks.reset()
     _ramp_tensions(device, np.maximum(loaded.tensions_n, 0.0), plan.tensions_n, steps)
-    miss = _rest_and_measure(device, target, rest_s, measure_s, settle_timeout_s)
+    miss, settled = _settled_miss(device, target, rest_s, measure_s, settle_timeout_s)
     row["feedforward_mm"] = miss.mm
     row["feedforward_reduction_pct"] = float(100.0 * (1.0 - miss.mm / uncompensated.mm))
     row["peak_tension_n"] = peaks.highest_n()
+    row["swung"], row["unsettled"] = peaks.highest_n() > swing_n, not settled
 
     applied = plan
-    # Each command measured, with its miss and whether the tension loop held it calm: None
-    # stands for the PCC lengths in length mode, which the length loop holds.
-    tried: list[tuple[_Miss, Any, bool]] = [(uncompensated, None, True), (miss, plan, peaks.highest_n() <= swing_n)]
+    # Each command measured, with its miss and whether the tension loop held it calm (its cells
+    # under ``swing_n`` and the tip at rest): None stands for the PCC lengths in length mode,
+    # which the length loop holds.
+    tried: list[tuple[_Miss, Any, bool]] = [(uncompensated, None, True),
+                                            (miss, plan, settled and peaks.highest_n() <= swing_n)]
     # The share of the predictor's tip moves the device makes, from the last correction: under a
     # tendon friction the model lacks, each full step falls short (see :func:`response_gain`).
     gain = 1.0
@@ -688,7 +704,7 @@ def _compensate_mass(device, row: dict, model: RodModel, plan, target: Measureme
         if np.linalg.norm(miss.vector_m - (applied.predicted_tip_m - applied.target_m)) <= correction_tolerance_m:
             break
         if not tried[-1][2]:
-            break  # the loop swings towards the board's limit: no further command is tried
+            break  # the loop swings towards the board's limit, or the tip moves: no further command is tried
         corrected = _correction(model, applied, plan.target_m, miss, load, bounds, gain)
         peaks.reset()
         _ramp_tensions(device, applied.tensions_n, corrected.tensions_n, steps)
@@ -699,26 +715,37 @@ def _compensate_mass(device, row: dict, model: RodModel, plan, target: Measureme
             row["peak_tension_n"] = max(row["peak_tension_n"], peaks.highest_n())
             row["swung"] = True  # left within its rest, unmeasured
             break
-        miss = _rest_and_measure(device, target, 0.0, measure_s, settle_timeout_s)
+        miss, settled = _settled_miss(device, target, 0.0, measure_s, settle_timeout_s)
         row["peak_tension_n"] = max(row["peak_tension_n"], peaks.highest_n())
-        tried.append((miss, applied, peaks.highest_n() <= swing_n))
+        row["swung"] = row["swung"] or peaks.highest_n() > swing_n
+        row["unsettled"] = row["unsettled"] or not settled
+        tried.append((miss, applied, settled and peaks.highest_n() <= swing_n))
+        if not settled:
+            break  # a miss measured on a moving tip says nothing of the next step
         made = response_gain(applied.predicted_tip_m - before[1].predicted_tip_m, miss.vector_m - before[0].vector_m,
                              math.hypot(miss.sem_mm, before[0].sem_mm) * 1e-3)
         gain = gain if made is None else made
-    row["swung"] = row["swung"] or not all(calm for _, _, calm in tried)
-    k = min((i for i in range(len(tried)) if tried[i][2]), key=lambda i: tried[i][0].mm)
-    command = tried[k][1]
-    row["kept"] = "last"
-    if command is not applied:
+    while True:
+        k = min((i for i in range(len(tried)) if tried[i][2]), key=lambda i: tried[i][0].mm)
+        command = tried[k][1]
+        row["kept"] = "last"
+        if command is applied:
+            break
         if command is None:
             row["kept"] = "PCC lengths"
             device.set_mode("lengths")
             device.set_lengths(pcc_lengths)
-        else:
-            row["kept"] = "feed-forward" if k == 1 else f"correction {k - 1}"
-            _ramp_tensions(device, applied.tensions_n, command.tensions_n, steps)
-            applied = command
-        miss = _rest_and_measure(device, target, correction_rest_s, measure_s, settle_timeout_s)
+            miss = _rest_and_measure(device, target, correction_rest_s, measure_s, settle_timeout_s)
+            break
+        row["kept"] = "feed-forward" if k == 1 else f"correction {k - 1}"
+        _ramp_tensions(device, applied.tensions_n, command.tensions_n, steps)
+        applied = command
+        miss, settled = _settled_miss(device, target, correction_rest_s, measure_s, settle_timeout_s)
+        if settled:
+            break
+        # Calm once, not this time: the next best command, the PCC lengths at worst.
+        row["unsettled"] = True
+        tried[k] = (tried[k][0], command, False)
     # Back at the PCC lengths, the tensions are the length mode's under the load.
     row["tensions_n"] = (loaded.tensions_n if row["kept"] == "PCC lengths" else applied.tensions_n).round(4).tolist()
     row["corrected_mm"], row["corrected_sem_mm"] = miss.mm, miss.sem_mm
@@ -812,6 +839,15 @@ def _rest(device, rest_s: float, *, swinging: Callable[[], bool]) -> bool:
         if swinging():
             return False
     return True
+
+
+def _settled_miss(device, target, rest_s: float, measure_s: float, settle_timeout_s: float) -> tuple[_Miss, bool]:
+    """:func:`_rest_and_measure`, and whether the tip came to rest: where it did not within
+    ``settle_timeout_s``, the miss is measured on the moving tip (False). A board fault still raises."""
+    try:
+        return _rest_and_measure(device, target, rest_s, measure_s, settle_timeout_s), True
+    except NotAtRestError:
+        return _Miss.of(measure(device, duration_s=measure_s), target), False
 
 
 def _rest_and_measure(device, target, rest_s: float, measure_s: float, settle_timeout_s: float) -> _Miss:

@@ -23,13 +23,17 @@ from twin.pcc import tendon_length_changes_m, validation_grid
 from twin.pose import matrix_to_quat
 from twin.rod.grid import holding_tensions_n, pcc_realisable
 
-__all__ = ["ProtocolError", "Measurement", "measure", "wait_for_rest", "pretension", "run_validation",
+__all__ = ["ProtocolError", "NotAtRestError", "Measurement", "measure", "wait_for_rest", "pretension", "run_validation",
            "run_stiffness", "calibrate_device", "nominal_calibration", "apply_calibration", "unrealisable", "tripped_before",
            "HOLDABLE_FRACTION", "TRIPPED"]
 
 
 class ProtocolError(RuntimeError):
     """A procedure could not go on (no tracker, a faulted board, a tip that does not settle)."""
+
+
+class NotAtRestError(ProtocolError):
+    """:func:`wait_for_rest` timed out: the device is still moving, the board did not fault."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -171,7 +175,7 @@ def wait_for_rest(device, *, tension_tolerance_n: float | None = None, tip_toler
         else:
             quiet = 0
         last, previous = now, tensions
-    raise ProtocolError(f"the robot did not come to rest within {timeout_s} s (tensions to "
+    raise NotAtRestError(f"the robot did not come to rest within {timeout_s} s (tensions to "
                         f"{tension_tolerance_n:.3g} N, tip to {tip_tolerance_m * 1e3:.2f} mm)")
 
 
