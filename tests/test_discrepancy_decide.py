@@ -152,14 +152,14 @@ def test_a_deciding_experiment_whose_robot_does_not_come_to_rest_leaves_the_data
     def creeping(device, **kwargs):
         calls.append(1)
         if len(calls) == 4:  # past the first configurations of the experiment, their rows written
-            raise protocols.ProtocolError("the robot did not come to rest within 10.0 s (tip to 0.30 mm)")
+            raise protocols.NotAtRestError("the robot did not come to rest within 10.0 s (tip to 0.30 mm)")
         return wait(device, **kwargs)
 
     monkeypatch.setattr(protocols, "wait_for_rest", creeping)
     code, out = run(capsys, "discrepancy", data, "--device", "sim://", "--twin-set", FRICTION)
     assert code == 4 and len(calls) == 4, out.err
     last = out.err.strip().splitlines()[-1]
-    assert "a deciding experiment stopped (ProtocolError: the robot did not come to rest" in last
+    assert "a deciding experiment stopped (NotAtRestError: the robot did not come to rest" in last
     assert "holds none of its rows" in last and "Traceback" not in out.err and out.out == ""
     assert {name: (data / name).read_bytes() for name in before} == before
     assert sorted(p.name for p in tmp_path.iterdir()) == ["data"]
