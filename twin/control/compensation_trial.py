@@ -686,15 +686,13 @@ def _compensate_mass(device, row: dict, model: RodModel, plan, target: Measureme
     miss, settled = _settled_miss(device, target, rest_s, measure_s, settle_timeout_s)
     row["feedforward_mm"] = miss.mm
     row["feedforward_reduction_pct"] = float(100.0 * (1.0 - miss.mm / uncompensated.mm))
-    row["peak_tension_n"] = peaks.highest_n()
-    row["swung"], row["unsettled"] = peaks.highest_n() > swing_n, not settled
+    calm = _note_command(row, peaks, swing_n, settled)
 
     applied = plan
     # Each command measured, with its miss and whether the tension loop held it calm (its cells
     # under ``swing_n`` and the tip at rest): None stands for the PCC lengths in length mode,
     # which the length loop holds.
-    tried: list[tuple[_Miss, Any, bool]] = [(uncompensated, None, True),
-                                            (miss, plan, settled and peaks.highest_n() <= swing_n)]
+    tried: list[tuple[_Miss, Any, bool]] = [(uncompensated, None, True), (miss, plan, calm)]
     # The share of the predictor's tip moves the device makes, from the last correction: under a
     # tendon friction the model lacks, each full step falls short (see :func:`response_gain`).
     gain = 1.0
@@ -712,14 +710,10 @@ def _compensate_mass(device, row: dict, model: RodModel, plan, target: Measureme
         rested = _rest(device, correction_rest_s, swinging=lambda: peaks.highest_n() > swing_n)
         row["corrections"] += 1
         if not rested:
-            row["peak_tension_n"] = max(row["peak_tension_n"], peaks.highest_n())
-            row["swung"] = True  # left within its rest, unmeasured
+            _note_command(row, peaks, swing_n, True)  # swung: left within its rest, unmeasured
             break
         miss, settled = _settled_miss(device, target, 0.0, measure_s, settle_timeout_s)
-        row["peak_tension_n"] = max(row["peak_tension_n"], peaks.highest_n())
-        row["swung"] = row["swung"] or peaks.highest_n() > swing_n
-        row["unsettled"] = row["unsettled"] or not settled
-        tried.append((miss, applied, settled and peaks.highest_n() <= swing_n))
+        tried.append((miss, applied, _note_command(row, peaks, swing_n, settled)))
         if not settled:
             break  # a miss measured on a moving tip says nothing of the next step
         made = response_gain(applied.predicted_tip_m - before[1].predicted_tip_m, miss.vector_m - before[0].vector_m,
@@ -839,6 +833,17 @@ def _rest(device, rest_s: float, *, swinging: Callable[[], bool]) -> bool:
         if swinging():
             return False
     return True
+
+
+def _note_command(row: dict, peaks: _TensionPeaks, swing_n: float, settled: bool) -> bool:
+    """Add a tension command to ``row``'s ``peak_tension_n``, ``swung`` and ``unsettled`` (its cells'
+    highest reading since ``peaks`` was reset, N, against ``swing_n``; whether the tip came to
+    rest under it); whether the loop held it calm (neither)."""
+    peak = peaks.highest_n()
+    row["peak_tension_n"] = float(np.fmax(row["peak_tension_n"], peak))
+    row["swung"] = row["swung"] or peak > swing_n
+    row["unsettled"] = row["unsettled"] or not settled
+    return settled and peak <= swing_n
 
 
 def _settled_miss(device, target, rest_s: float, measure_s: float, settle_timeout_s: float) -> tuple[_Miss, bool]:
