@@ -98,24 +98,15 @@ def hold_figures(params: Params | None = None, *, kappa_per_m: float = HOLD_KAPP
                 break
         length_s = device.time_s - start_s
 
-        if device.fixture is None:
-            raise DeviceError(f"{device.url}: hanging a tip mass needs the device's fixture; it has none")
-        device.fixture.hang_tip_mass(mass_kg)
-        device.wait(1.0)
+        _hang_tip_mass(device, mass_kg)
         device.set_mode("tensions")
         device.wait(tension_settle_s)
         device.drain()
-        # The twin's true tensions at every board tick (5 ms): what the tendons hold, without the
-        # cells' noise, sampled fast enough for the 25-40 Hz presliding resonance.
         tick_s = device.twin.tick_s
-        true = []
-        for _ in range(round(measure_s / tick_s)):
-            device.wait(tick_s)
-            true.append(device.twin.true_tensions_n())
+        true_n, _ = _tick_samples(device, measure_s)
         samples = device.drain()
         targets = samples[-1].targets
         tensions = np.array([s.tensions_n for s in samples])
-        true_n = np.array(true)
         ptps = np.ptp(tensions, axis=0)
         offsets = tensions.mean(axis=0) - targets
         # What the loop adds to the cells' own noise (their stated RMS, sensors.loadcell_noise_n):
@@ -204,10 +195,7 @@ def hold_commanded(params: Params, tensions_n: np.ndarray | Callable[[np.ndarray
         zero = pretension_straight(device, params, mode="lengths")
         device.set_lengths(zero + tendon_length_changes_m(kappa_per_m, phi_deg, params))
         device.wait(3.0)
-        if device.fixture is None:
-            raise DeviceError(f"{device.url}: hanging a tip mass needs the device's fixture; it has none")
-        device.fixture.hang_tip_mass(mass_kg)
-        device.wait(1.0)
+        _hang_tip_mass(device, mass_kg)
         device.set_mode("tensions")
         device.wait(0.5)
         start = np.asarray(device.latest().tensions_n, dtype=float)
@@ -229,11 +217,27 @@ def hold_commanded(params: Params, tensions_n: np.ndarray | Callable[[np.ndarray
             if np.abs(now - spool).max() < PRESLIDING_M:
                 break
             spool = now
-        tick_s = device.twin.tick_s
-        true, spools = [], []
-        for _ in range(round(measure_s / tick_s)):
-            device.wait(tick_s)
-            true.append(device.twin.true_tensions_n())
-            spools.append(device.twin.spool_positions_m())
-        return CommandedHold(np.array(true), end, start, tick_s, int(device.latest().fault_flags), settled_s,
-                             np.ptp(np.array(spools), axis=0))
+        true_n, spools_m = _tick_samples(device, measure_s)
+        return CommandedHold(true_n, end, start, device.twin.tick_s, int(device.latest().fault_flags), settled_s,
+                             np.ptp(spools_m, axis=0))
+
+
+def _hang_tip_mass(device, mass_kg: float) -> None:
+    """Hang ``mass_kg`` (kg) on the tip through the device's fixture and give it 1 s to swing out."""
+    if device.fixture is None:
+        raise DeviceError(f"{device.url}: hanging a tip mass needs the device's fixture; it has none")
+    device.fixture.hang_tip_mass(mass_kg)
+    device.wait(1.0)
+
+
+def _tick_samples(device, measure_s: float) -> tuple[np.ndarray, np.ndarray]:
+    """The twin's true tensions (N) and spool positions (m) at every board tick (ticks × channels)
+    over ``measure_s`` (s): what the tendons hold, without the cells' noise, sampled fast enough
+    for the 25-40 Hz presliding resonance."""
+    tick_s = device.twin.tick_s
+    true, spools = [], []
+    for _ in range(round(measure_s / tick_s)):
+        device.wait(tick_s)
+        true.append(device.twin.true_tensions_n())
+        spools.append(device.twin.spool_positions_m())
+    return np.array(true), np.array(spools)
