@@ -1042,10 +1042,8 @@ def _tail_band(medians_abs: np.ndarray, spread: np.ndarray, warm_s: float, group
     for group in groups:
         peaks: list[float] = []
         for column in normal[:, group].T:
-            above = column > TAIL_SIGMAS
             # Excursions: runs of frames above the threshold, each one peak.
-            edges = np.flatnonzero(np.diff(np.concatenate([[0], above.astype(np.int8), [0]])))
-            peaks += [float(column[a:b].max()) for a, b in zip(edges[::2], edges[1::2])]
+            peaks += [float(column[a:b].max()) for a, b in _runs(column > TAIL_SIGMAS)]
         if not peaks:
             continue
         excess = np.array(peaks) - TAIL_SIGMAS
@@ -1059,12 +1057,8 @@ def _tail_band(medians_abs: np.ndarray, spread: np.ndarray, warm_s: float, group
 
 def _longest_excursion(medians_abs: np.ndarray, level: np.ndarray) -> int:
     """The longest run of frames (rows) any column spent above its ``level``."""
-    longest = 0
-    for column, threshold in zip(medians_abs.T, level):
-        edges = np.flatnonzero(np.diff(np.concatenate([[0], (column > threshold).astype(np.int8), [0]])))
-        if len(edges):
-            longest = max(longest, int((edges[1::2] - edges[::2]).max()))
-    return longest
+    return max((int(last - first) for column, threshold in zip(medians_abs.T, level)
+                for first, last in _runs(column > threshold)), default=0)
 
 
 def _take_up_excursion(medians_abs: np.ndarray, level: np.ndarray, since_take_up: np.ndarray) -> int:
@@ -1076,12 +1070,17 @@ def _take_up_excursion(medians_abs: np.ndarray, level: np.ndarray, since_take_up
     longest = 0
     now = np.flatnonzero((since_take_up == 0) & (np.concatenate([[1], since_take_up[:-1]]) > 0))
     for column, threshold in zip(medians_abs.T, level):
-        edges = np.flatnonzero(np.diff(np.concatenate([[0], (column > threshold).astype(np.int8), [0]])))
-        for first, last in zip(edges[::2], edges[1::2]):
+        for first, last in _runs(column > threshold):
             inside = now[(now >= first) & (now < last)]
             if since_take_up[first] <= TAKE_UP_FRAMES or len(inside):
                 longest = max(longest, int(last - max(first, inside.max() if len(inside) else first)))
     return longest
+
+
+def _runs(above: np.ndarray) -> list[tuple[int, int]]:
+    """The runs of True in ``above`` (frames), each as (first, one past the last)."""
+    edges = np.flatnonzero(np.diff(np.concatenate([[0], above.astype(np.int8), [0]])))
+    return list(zip(edges[::2].tolist(), edges[1::2].tolist()))
 
 
 def _ringing(tensions_n: np.ndarray) -> np.ndarray:
