@@ -1,6 +1,7 @@
 """The shadow's detection table (scripts/shadow_events.py, twin.dynamics.shadow_bench): each robot is
 summarised and held to the goals on its own, and a seed the table cannot use is refused in one line."""
 
+import dataclasses
 import math
 from pathlib import Path
 
@@ -42,6 +43,10 @@ def test_each_robot_is_summarised_and_held_to_the_goals_on_its_own():
     assert poor["named_right_above_smallest"] == pytest.approx(15 / 18)
     assert poor["latency_median_ms"] == pytest.approx(300.0)
     assert not poor["goals_met"]
+    # Detected and named alike, but seen late: the latency's median is held to its goal too.
+    late = sb.summarise_robots([dataclasses.replace(t, robot="late", latency_s=0.3)
+                                for t in trials if t.robot == "good"])["late"]
+    assert late["detected_above_smallest"] == 1.0 and late["named_right"] == 1.0 and not late["goals_met"]
     # Over both robots the detection goal would pass (35 of 36): each robot is judged alone.
     above = [t for t in trials if t.size != sb.EVENT_KINDS[t.kind][1][0]]
     assert sum(t.detected for t in above) / len(above) >= sb.GOAL_DETECTED
