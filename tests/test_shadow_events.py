@@ -95,3 +95,16 @@ def test_a_trial_watches_on_past_the_window_and_stops_once_its_detection_is_name
     # Watched the naming window past the detection, not the whole period.
     assert trial.watched_s == pytest.approx(trial.latency_s + sb.NAMING_WINDOW_S, abs=0.1)
     assert trial.watched_s < standard_motion(params).period_s
+
+
+@pytest.mark.parametrize("robot", ["endoscope", "three-tendon", "two-segment"])
+def test_the_standard_motion_pulls_every_tendon_within_a_period_which_a_trial_watches(robot):
+    # A trial watches one period after its event because every tendon is pulled in (its cell
+    # loaded) somewhere in each period, and some only in part of it (the steps).
+    from twin.dynamics.shadow import standard_motion
+    from twin.robots import load_robot
+
+    motion = standard_motion(load_robot(robot))
+    assert motion.lengths_m.min(axis=0).max() < 0, "a tendon the motion never pulls in"
+    pulled = motion.lengths_m < -1e-4
+    assert not pulled.all(axis=0).any() and (pulled.sum(axis=0) < 0.5 * len(pulled)).any()
