@@ -2,7 +2,9 @@
 
 Per robot: the noise is learned in a clean warm-up of the standard motion, which then runs clean for
 ``--clean-minutes`` (false alarms); then ``--reps`` trials per kind and size, each a fresh sim://
-device with one hidden event at a random time (twin.dynamics.shadow_bench). Prints one row per
+device with one hidden event at a random time, watched for one period of the motion (a change the
+motion does not load now shows when it next does; the figures within 2 s of the event, the earlier
+watch, are printed beside them; twin.dynamics.shadow_bench). Prints one row per
 kind and size (detection rate, latency median and 95th percentile, right-name rate, the names
 given) and the goals' figures: events above the smallest size detected, named right, false alarms.
 Trials are appended to ``--out`` as JSON lines as they finish (nothing lost when it stops half-way).
@@ -101,6 +103,9 @@ def main(argv=None) -> int:
         "named_right_of_detected": sum(t.right_name for t in detected) / max(len(detected), 1),
         "latency_median_ms": float(np.median(latencies)) * 1e3 if latencies else math.nan,
         "latency_p95_ms": float(np.percentile(latencies, 95)) * 1e3 if latencies else math.nan,
+        # The earlier watch's figures: detected within sb.DETECTION_WINDOW_S of the event, named by then.
+        "detected_above_smallest_in_window": sum(t.detected_in_window for t in above) / max(len(above), 1),
+        "named_right_in_window": sum(t.right_name_in_window for t in trials) / max(len(trials), 1),
         "false_alarms_before_events": sum(t.false_alarms for t in trials),
         "alarms_in_pretension": sum(t.pretension_alarms for t in trials),
         "clean": {robot: {k: v for k, v in c.items() if k != "alarms"} for robot, c in clean.items()},
@@ -109,18 +114,21 @@ def main(argv=None) -> int:
     figures["robots"] = robots
     print(json.dumps(figures, indent=1))
     print(f"{'robot':18s} {'events':>6s} {'detected above smallest':>23s} {'named right':>11s} "
-          f"{'named above smallest':>20s} {'median ms':>9s} {'false alarms':>12s}  goals")
+          f"{'named above smallest':>20s} {'median ms':>9s} {'p95 ms':>7s} {'false alarms':>12s}  goals"
+          f"   (within {sb.DETECTION_WINDOW_S:g} s: detected above smallest, named right)")
     for robot, row in robots.items():
         alarms = clean[robot]["false_alarms"] + row["false_alarms_before_events"]
         print(f"{robot:18s} {row['events']:6d} {row['detected_above_smallest']:23.0%} {row['named_right']:11.0%} "
-              f"{row['named_right_above_smallest']:20.0%} {row['latency_median_ms']:9.0f} {alarms:12d}  "
-              f"{'met' if row['goals_met'] and alarms == 0 else 'NOT met'}")
+              f"{row['named_right_above_smallest']:20.0%} {row['latency_median_ms']:9.0f} "
+              f"{row['latency_p95_ms']:7.0f} {alarms:12d}  {'met' if row['goals_met'] and alarms == 0 else 'NOT met':7s}"
+              f"   ({row['detected_above_smallest_in_window']:.0%}, {row['named_right_in_window']:.0%})")
     # Every robot is held to the goals on its own: a robot that meets them does not carry one that does not.
     goals_met = (figures["detected_above_smallest"] >= sb.GOAL_DETECTED and figures["named_right"] >= sb.GOAL_NAMED
                  and all(c["false_alarms"] == 0 for c in clean.values())
                  and all(row["goals_met"] for row in robots.values()))
     print(f"goals (>= {sb.GOAL_DETECTED:.0%} above the smallest size detected, >= {sb.GOAL_NAMED:.0%} named right, "
-          f"0 false alarms clean, on every robot): {'met' if goals_met else 'NOT met'}")
+          f"latency median <= {sb.GOAL_LATENCY_MEDIAN_S * 1e3:.0f} ms, 0 false alarms clean, on every robot): "
+          f"{'met' if goals_met else 'NOT met'}")
     return 0 if goals_met else 1
 
 

@@ -108,10 +108,10 @@ def load_motion(path: str, params: Params) -> Motion:
     return Motion(times, rows, times[-1] + 0.25)
 
 
-def run_motion(device, params: Params, motion: Motion, duration_s: float, *, progress=None) -> float:
+def run_motion(device, params: Params, motion: Motion, duration_s: float, *, progress=None, stop=None) -> float:
     """Pretension ``device`` straight in the holder (lengths tared there), release it and play
-    ``motion`` for ``duration_s`` of device time; returns the device time of the motion's start
-    (s). The device is left disabled."""
+    ``motion`` for ``duration_s`` of device time, or until ``stop()`` (called each frame) says so;
+    returns the device time of the motion's start (s). The device is left disabled."""
     from twin.dynamics.protocols import RELEASE_REST_S
     from twin.experiments.protocols import pretension
 
@@ -129,6 +129,8 @@ def run_motion(device, params: Params, motion: Motion, duration_s: float, *, pro
         device.wait_next(timeout_s=1.0)
         if progress is not None:
             progress(min(now_s, duration_s))
+        if stop is not None and stop():
+            break
     device.disable()
     return start
 
