@@ -134,6 +134,11 @@ SINGLE_MISFIT = 0.35
 GAIN_CHI2 = 4.0
 # The tip's move is the tensions' doing when the rod model leaves less than this fraction of it.
 EXPLAINED_FRACTION = 0.5
+# How much better (χ², the tip's move in its spread at the motion's transients: its band over
+# ALARM_SIGMAS) a force at the tip must explain the tip's move than a load cell's change or the
+# tensions' own to be named a tip load with the tip still in its band: four standard deviations
+# (three fitted force components leave a χ² margin above 14 in 0.3 % of noise draws).
+TIP_LOAD_CHI2 = 16.0
 # A friction change or a latency is named only where its model explains this fraction of the
 # residuals of the last frames at least.
 MIN_FIT = 0.3
@@ -783,6 +788,38 @@ class Monitor:
         if tip_sig and not ten_sig and not len_sig:
             return Divergence(now_s, onset_s, "tracker_jump", "tracker.position_m", float(np.linalg.norm(d_tip)),
                               float(np.linalg.norm(noise.sigma[3 * n:])), "m", where, {"jump_m": d_tip, **debug})
+        explained = math.inf
+        force: np.ndarray | None = None
+        cov = np.zeros((3, 3))
+        if ten_sig and self._jacobian is not None:
+            # The rod model's tip for the measured tensions: what of the tip's move they do not
+            # explain is a load at the tip (in length control the tip barely moves under one, while
+            # the tensions that hold it change).
+            wrt_tension, wrt_force = self._jacobian(np.maximum(twin_tensions, 0.0))
+            unexplained = d_tip - wrt_tension @ d_ten
+            explained = (float(np.linalg.norm(unexplained / tip_sigma))
+                         / max(float(np.linalg.norm(d_tip / tip_sigma)), 1e-12))
+            force, cov = _least_squares(wrt_force, unexplained, tip_sigma)
+            debug["unexplained_tip_fraction"] = explained
+            margin, tip_force, tip_cov = _tip_load_margin(d_tip, unexplained, wrt_force,
+                                                          self._band[3 * n:] / ALARM_SIGMAS)
+            debug["tip_chi2_margin"] = margin
+        force_std = float(math.sqrt(max(np.trace(cov), 0.0)))
+        load = None if force is None else Divergence(now_s, onset_s, "tip_load", "tip_force_n",
+                                                      float(np.linalg.norm(force)), force_std, "N", where,
+                                                      {"force_n": force, **debug})
+        if load is not None and debug["tip_chi2_margin"] > TIP_LOAD_CHI2:
+            # The tip moved where neither a load cell's change (the tip stays where the twin's is)
+            # nor the tensions' own change (a slip, a late loop, friction: the tip goes where the
+            # rod model puts it for the measured tensions) leaves it, and a force at the tip does:
+            # a tip load, though the tip is still within its band (on a stiff, long robot a 10 g
+            # mass moves the tip 7 mm against a band of 7.8 mm set by the motion's transients,
+            # while the tensions holding it change by 2 N, which one cell's offset fits too). Its
+            # force is the one fitted in the tip's spread there, which the band's width would
+            # leave unresolved.
+            return Divergence(now_s, onset_s, "tip_load", "tip_force_n", float(np.linalg.norm(tip_force)),
+                              float(math.sqrt(max(np.trace(tip_cov), 0.0))), "N", where,
+                              {"force_n": tip_force, **debug})
         if ten_sig and not tip_sig and single_misfit < SINGLE_MISFIT:
             # Friction shows most in the cell whose tendon slides under the most tension, much as
             # that cell's gain would; where it fits all the cells better (each reading what its
@@ -820,24 +857,17 @@ class Monitor:
                 if _fits(hunting):
                     return hunting
                 latency = self._latency(now_s, onset_s, where)
-                return dataclasses.replace(latency, detail={**latency.detail, **debug})
-        explained = math.inf
-        force: np.ndarray | None = None
-        cov = np.zeros((3, 3))
-        if ten_sig and self._jacobian is not None:
-            # The rod model's tip for the measured tensions: what of the tip's move they do not
-            # explain is a load at the tip (in length control the tip barely moves under one, while
-            # the tensions that hold it change).
-            wrt_tension, wrt_force = self._jacobian(np.maximum(twin_tensions, 0.0))
-            unexplained = d_tip - wrt_tension @ d_ten
-            explained = (float(np.linalg.norm(unexplained / tip_sigma))
-                         / max(float(np.linalg.norm(d_tip / tip_sigma)), 1e-12))
-            force, cov = _least_squares(wrt_force, unexplained, tip_sigma)
-            debug["unexplained_tip_fraction"] = explained
-        force_std = float(math.sqrt(max(np.trace(cov), 0.0)))
-        load = None if force is None else Divergence(now_s, onset_s, "tip_load", "tip_force_n",
-                                                      float(np.linalg.norm(force)), force_std, "N", where,
-                                                      {"force_n": force, **debug})
+                # Where the twin's own tensions swing as much (a stiff rod rings on both sides), a
+                # step of the device's (a slip, a load) rings off the twin's too: the ringing is a
+                # late loop's only where the cells follow the twin's swinging tensions late (the
+                # lag fits them) or the encoders follow its motion late.
+                twin_swing = float(_ringing(np.array([h[1].tensions_n for h in self._history]))[k])
+                debug["twin_ringing_n"] = twin_swing
+                if twin_swing <= swing or _fits(latency):
+                    return dataclasses.replace(latency, detail={**latency.detail, **debug})
+                following = self._tension_latency(now_s, onset_s, where)
+                if _fits(following):
+                    return dataclasses.replace(following, detail={**following.detail, **debug})
         slip = self._slip(now_s, onset_s, d_ten, where, debug) if ten_sig else None
         if ten_sig and tip_sig:
             if explained < EXPLAINED_FRACTION and slip is not None:
@@ -988,6 +1018,22 @@ class Monitor:
         return Divergence(now_s, onset_s, "latency", "effects.actuation_latency_s", lag, std, "s", where,
                           {"fit": _explained(x * lag, y), "encoder_lag_m": moved})
 
+    def _tension_latency(self, now_s, onset_s, where) -> Divergence:
+        """Cells lagging the twin's: the cells' residual (less its mean over the frames kept, a
+        step's shift not being a lag) against the twin's tension rate over the last
+        :data:`FIT_FRAMES`, the lag the slope."""
+        n = self.n
+        hist = self._history
+        rows = np.array([hist[k][0].tensions_n - hist[k][1].tensions_n for k in range(1, len(hist))])
+        rates = np.array([(hist[k][1].tensions_n - hist[k - 1][1].tensions_n)
+                          / max(hist[k][1].time_s - hist[k - 1][1].time_s, 1e-9) for k in range(1, len(hist))])
+        y = (rows - rows.mean(axis=0))[-(FIT_FRAMES - 1):].ravel()
+        x = -rates[-(FIT_FRAMES - 1):].ravel()
+        lag = float(np.dot(x, y) / max(np.dot(x, x), 1e-18))
+        std = float(np.mean(self._model().sigma[n:2 * n]) / max(float(np.sqrt(np.dot(x, x))), 1e-18))
+        return Divergence(now_s, onset_s, "latency", "effects.actuation_latency_s", lag, std, "s", where,
+                          {"fit": _explained(x * lag, y), "fitted_on": "tensions"})
+
 
 def _fits(event: Divergence) -> bool:
     """A friction change or a latency fitted over the last frames is resolved (twice its standard
@@ -999,6 +1045,18 @@ def _explained(model: np.ndarray, values: np.ndarray) -> float:
     """The fraction of ``values``' sum of squares the ``model`` explains (R², about 0)."""
     total = float(values @ values)
     return 1.0 - float((values - model) @ (values - model)) / total if total > 0 else 0.0
+
+
+def _tip_load_margin(d_tip: np.ndarray, unexplained: np.ndarray, wrt_force: np.ndarray,
+                     tip_noise: np.ndarray) -> tuple[float, np.ndarray, np.ndarray]:
+    """How much better (χ², the tip's move in ``tip_noise``, m) a force at the tip explains the
+    tip's move than either a load cell's change (the tip where the twin's is: ``d_tip`` left)
+    or the measured tensions' own change (``unexplained``, what the rod model leaves of it); and
+    that force (N) and its covariance, fitted in that noise."""
+    force, cov = _least_squares(wrt_force, unexplained, tip_noise)
+    load = float(np.sum(((unexplained - wrt_force @ force) / tip_noise) ** 2))
+    margin = min(float(np.sum((d_tip / tip_noise) ** 2)), float(np.sum((unexplained / tip_noise) ** 2))) - load
+    return margin, force, cov
 
 
 def _least_squares(matrix: np.ndarray, values: np.ndarray, sigma: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
