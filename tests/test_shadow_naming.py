@@ -108,3 +108,45 @@ def test_a_step_that_rings_where_the_twin_rings_as_much_is_not_a_latency():
     assert first.detail["twin_ringing_n"] > first.detail["ringing_n"]
     assert first.kind == "tendon_slip"
     assert first.detail["tendon"] == 0
+
+
+def _sliding(rng, count, start_s=0.0, *, lag_s=0.0, friction_m_per_n=0.0):
+    """Tendons swinging ±1 mm at 0.3 Hz, each a quarter period after the last, their tensions
+    500 N/m stiff about 1.5 N; the device's encoders either a lag behind the twin's or held back
+    by friction (``friction_m_per_n`` per N of tension, behind the sliding)."""
+    count_m = PARAMS.rig.tendon_m_per_count
+    phase = np.arange(N) * np.pi / 2
+    for k in range(count):
+        t = start_s + k * PERIOD_S
+        lengths = 1e-3 * np.sin(2 * np.pi * 0.3 * t + phase)
+        rate = np.cos(2 * np.pi * 0.3 * t + phase)
+        tensions = 1.5 - 500.0 * lengths
+        device_lengths = (1e-3 * np.sin(2 * np.pi * 0.3 * (t - lag_s) + phase)
+                          - friction_m_per_n * np.sign(rate) * tensions
+                          + count_m * rng.integers(-1, 2, N))
+        tip = np.array([0.06, 0.0, 0.0])
+        yield (FrameValues(t, device_lengths, tensions + rng.normal(0, 0.01, N), np.zeros(N),
+                           tip + rng.normal(0, 2e-4, 3)),
+               FrameValues(t, lengths, tensions, np.zeros(N), tip))
+
+
+@pytest.mark.parametrize("cause", ["friction", "latency"])
+def test_encoders_held_back_by_friction_are_friction_and_lagging_ones_a_latency(cause):
+    """The cells read as the twin's; the encoders part from the twin's by 20 counts at most, either
+    held back by friction in proportion to each tendon's tension and against its sliding, or late
+    in proportion to its rate: the pattern across the tendons names which (a stiff rod's loop
+    answers friction with its encoders, where a soft one's cells show it)."""
+    rng = np.random.default_rng(9)
+    monitor = Monitor(PARAMS, warmup_s=10.0)
+    frames = int(10.0 / PERIOD_S) + 1
+    for device, twin in _sliding(rng, frames):
+        monitor.update(device, twin, tip_frame_time_s=device.time_s)
+    assert monitor.ready
+    lag_m = 20 * PARAMS.rig.tendon_m_per_count
+    change = {"friction": {"friction_m_per_n": lag_m / 2.0}, "latency": {"lag_s": lag_m / (2 * np.pi * 0.3 * 1e-3)}}
+    raised = []
+    for device, twin in _sliding(rng, 80, frames * PERIOD_S, **change[cause]):
+        raised += monitor.update(device, twin, tip_frame_time_s=device.time_s)
+    assert raised and any(name.startswith("length") for name in raised[0].where)
+    assert not any(name.startswith("tension") for name in raised[0].where), "the cells crossed: the test shows nothing"
+    assert raised[0].kind == cause
