@@ -804,17 +804,22 @@ class Monitor:
             margin, tip_force, tip_cov = _tip_load_margin(d_tip, unexplained, wrt_force,
                                                           self._band[3 * n:] / ALARM_SIGMAS)
             debug["tip_chi2_margin"] = margin
+            debug["tip_held_fraction"] = _held_fraction(wrt_tension @ d_ten, wrt_force @ tip_force)
         force_std = float(math.sqrt(max(np.trace(cov), 0.0)))
         load = None if force is None else Divergence(now_s, onset_s, "tip_load", "tip_force_n",
                                                       float(np.linalg.norm(force)), force_std, "N", where,
                                                       {"force_n": force, **debug})
-        if load is not None and debug["tip_chi2_margin"] > TIP_LOAD_CHI2:
+        if (load is not None and debug["tip_chi2_margin"] > TIP_LOAD_CHI2
+                and debug["tip_held_fraction"] <= EXPLAINED_FRACTION):
             # The tip moved where neither a load cell's change (the tip stays where the twin's is)
             # nor the tensions' own change (a slip, a late loop, friction: the tip goes where the
             # rod model puts it for the measured tensions) leaves it, and a force at the tip does:
             # a tip load, though the tip is still within its band (on a stiff, long robot a 10 g
             # mass moves the tip 7 mm against a band of 7.8 mm set by the motion's transients,
-            # while the tensions holding it change by 2 N, which one cell's offset fits too). Its
+            # while the tensions holding it change by 2 N, which one cell's offset fits too), and
+            # the tensions' change is the one that holds the tip back against that force (on long
+            # a slip's tip went where no rod model's tensions put it, a millinewton's force
+            # fitting it better; its tensions did not hold it back against that force). Its
             # force is the one fitted in the tip's spread there, which the band's width would
             # leave unresolved.
             return Divergence(now_s, onset_s, "tip_load", "tip_force_n", float(np.linalg.norm(tip_force)),
@@ -1089,6 +1094,20 @@ def _tip_load_margin(d_tip: np.ndarray, unexplained: np.ndarray, wrt_force: np.n
     load = float(np.sum(((unexplained - wrt_force @ force) / tip_noise) ** 2))
     margin = min(float(np.sum((d_tip / tip_noise) ** 2)), float(np.sum((unexplained / tip_noise) ** 2))) - load
     return margin, force, cov
+
+
+def _held_fraction(tensions_move_m: np.ndarray, force_move_m: np.ndarray) -> float:
+    """How far (a fraction of it) the tip's move the measured tensions make on their own is from
+    holding the tip back against a force at the tip: a part 0 < α ≤ 1 of the force's move, turned
+    back (the length loop's tensions resist a tip load, taking up all of it where the tip is held
+    fast); ``inf`` where no such part fits (the tensions pushing the tip along the force, or
+    further back than it)."""
+    norm2 = float(force_move_m @ force_move_m)
+    alpha = -float(tensions_move_m @ force_move_m) / norm2 if norm2 > 0 else 0.0
+    size = float(np.linalg.norm(tensions_move_m))
+    if not 0.0 < alpha <= 1.0 or size == 0.0:
+        return math.inf
+    return float(np.linalg.norm(tensions_move_m + alpha * force_move_m)) / size
 
 
 def _least_squares(matrix: np.ndarray, values: np.ndarray, sigma: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
