@@ -150,3 +150,20 @@ def test_encoders_held_back_by_friction_are_friction_and_lagging_ones_a_latency(
     assert raised and any(name.startswith("length") for name in raised[0].where)
     assert not any(name.startswith("tension") for name in raised[0].where), "the cells crossed: the test shows nothing"
     assert raised[0].kind == cause
+
+
+def test_a_slip_whose_tip_goes_astray_is_not_a_tip_load_where_its_tensions_do_not_hold_the_tip_back():
+    """A slip's tensions (tendon 0 −0.5 N, the others +0.2 N) would move the tip 4 mm along −y;
+    the tip goes 5 mm along z instead (the rod model off). A force at the tip fits that move better
+    than the tensions do by far, but those tensions push the tip across the force, not back
+    against it, as a tip load's must: the tensions' change is named (a slip), not a tip load."""
+    rng = np.random.default_rng(4)
+    monitor, start = _learned(rng)
+    d_ten = np.full(N, 0.2)
+    d_ten[0] = -0.5
+    d_tip = np.array([0.0, 0.0, 5e-3])
+    assert np.all(np.abs(d_tip) < monitor.noise.band[3 * N:]), "the tip left its band: the test shows nothing"
+    first = _first(monitor, rng, start, d_ten, d_tip)
+    assert first is not None
+    assert first.detail["tip_chi2_margin"] > 16.0, "a force does not fit better: the test shows nothing"
+    assert first.kind == "tendon_slip"
