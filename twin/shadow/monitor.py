@@ -137,7 +137,7 @@ EXPLAINED_FRACTION = 0.5
 # How much better (χ², the tip's move in its spread at the motion's transients: its band over
 # ALARM_SIGMAS) a force at the tip must explain the tip's move than a load cell's change or the
 # tensions' own to be named a tip load with the tip still in its band: four standard deviations
-# (three fitted force components leave a χ² margin above 14 in 0.3 % of noise draws).
+# (where a cell's change left the tip still, its three axes' noise passes 14 in 0.3 % of draws).
 TIP_LOAD_CHI2 = 16.0
 # A friction change or a latency is named only where its model explains this fraction of the
 # residuals of the last frames at least.
@@ -998,7 +998,7 @@ class Monitor:
     def _encoder_friction(self, now_s, onset_s, where) -> Divergence:
         """Friction seen in the encoders: each moving tendon's encoder residual against its sliding
         direction times the twin's tension over the last :data:`FIT_FRAMES` frames (the length
-        loop holds a tendon back by what friction takes, + paid out, − pulled in); sized as the
+        loop leaves a sliding tendon's encoder behind its motion by what friction takes); sized as the
         tension fraction that lag holds at the tendons' stiffness (what a metre paid out takes
         off the tension on the twin)."""
         n = self.n
