@@ -134,6 +134,11 @@ SINGLE_MISFIT = 0.35
 GAIN_CHI2 = 4.0
 # The tip's move is the tensions' doing when the rod model leaves less than this fraction of it.
 EXPLAINED_FRACTION = 0.5
+# How much better (χ², the tip's move in its spread at the motion's transients: its band over
+# ALARM_SIGMAS) a force at the tip must explain the tip's move than a load cell's change or the
+# tensions' own to be named a tip load with the tip still in its band: four standard deviations
+# (where a cell's change left the tip still, its three axes' noise passes 14 in 0.3 % of draws).
+TIP_LOAD_CHI2 = 16.0
 # A friction change or a latency is named only where its model explains this fraction of the
 # residuals of the last frames at least.
 MIN_FIT = 0.3
@@ -783,6 +788,43 @@ class Monitor:
         if tip_sig and not ten_sig and not len_sig:
             return Divergence(now_s, onset_s, "tracker_jump", "tracker.position_m", float(np.linalg.norm(d_tip)),
                               float(np.linalg.norm(noise.sigma[3 * n:])), "m", where, {"jump_m": d_tip, **debug})
+        explained = math.inf
+        force: np.ndarray | None = None
+        cov = np.zeros((3, 3))
+        if ten_sig and self._jacobian is not None:
+            # The rod model's tip for the measured tensions: what of the tip's move they do not
+            # explain is a load at the tip (in length control the tip barely moves under one, while
+            # the tensions that hold it change).
+            wrt_tension, wrt_force = self._jacobian(np.maximum(twin_tensions, 0.0))
+            unexplained = d_tip - wrt_tension @ d_ten
+            explained = (float(np.linalg.norm(unexplained / tip_sigma))
+                         / max(float(np.linalg.norm(d_tip / tip_sigma)), 1e-12))
+            force, cov = _least_squares(wrt_force, unexplained, tip_sigma)
+            debug["unexplained_tip_fraction"] = explained
+            margin, tip_force, tip_cov = _tip_load_margin(d_tip, unexplained, wrt_force,
+                                                          self._band[3 * n:] / ALARM_SIGMAS)
+            debug["tip_chi2_margin"] = margin
+            debug["tip_held_fraction"] = _held_fraction(wrt_tension @ d_ten, wrt_force @ tip_force)
+        force_std = float(math.sqrt(max(np.trace(cov), 0.0)))
+        load = None if force is None else Divergence(now_s, onset_s, "tip_load", "tip_force_n",
+                                                      float(np.linalg.norm(force)), force_std, "N", where,
+                                                      {"force_n": force, **debug})
+        if (load is not None and debug["tip_chi2_margin"] > TIP_LOAD_CHI2
+                and debug["tip_held_fraction"] <= EXPLAINED_FRACTION):
+            # The tip moved where neither a load cell's change (the tip stays where the twin's is)
+            # nor the tensions' own change (a slip, a late loop, friction: the tip goes where the
+            # rod model puts it for the measured tensions) leaves it, and a force at the tip does:
+            # a tip load, though the tip is still within its band (on a stiff, long robot a 10 g
+            # mass moves the tip 7 mm against a band of 7.8 mm set by the motion's transients,
+            # while the tensions holding it change by 2 N, which one cell's offset fits too), and
+            # the tensions' change is the one that holds the tip back against that force (on long
+            # a slip's tip went where no rod model's tensions put it, a millinewton's force
+            # fitting it better; its tensions did not hold it back against that force). Its
+            # force is the one fitted in the tip's spread there, which the band's width would
+            # leave unresolved.
+            return Divergence(now_s, onset_s, "tip_load", "tip_force_n", float(np.linalg.norm(tip_force)),
+                              float(math.sqrt(max(np.trace(tip_cov), 0.0))), "N", where,
+                              {"force_n": tip_force, **debug})
         if ten_sig and not tip_sig and single_misfit < SINGLE_MISFIT:
             # Friction shows most in the cell whose tendon slides under the most tension, much as
             # that cell's gain would; where it fits all the cells better (each reading what its
@@ -820,24 +862,17 @@ class Monitor:
                 if _fits(hunting):
                     return hunting
                 latency = self._latency(now_s, onset_s, where)
-                return dataclasses.replace(latency, detail={**latency.detail, **debug})
-        explained = math.inf
-        force: np.ndarray | None = None
-        cov = np.zeros((3, 3))
-        if ten_sig and self._jacobian is not None:
-            # The rod model's tip for the measured tensions: what of the tip's move they do not
-            # explain is a load at the tip (in length control the tip barely moves under one, while
-            # the tensions that hold it change).
-            wrt_tension, wrt_force = self._jacobian(np.maximum(twin_tensions, 0.0))
-            unexplained = d_tip - wrt_tension @ d_ten
-            explained = (float(np.linalg.norm(unexplained / tip_sigma))
-                         / max(float(np.linalg.norm(d_tip / tip_sigma)), 1e-12))
-            force, cov = _least_squares(wrt_force, unexplained, tip_sigma)
-            debug["unexplained_tip_fraction"] = explained
-        force_std = float(math.sqrt(max(np.trace(cov), 0.0)))
-        load = None if force is None else Divergence(now_s, onset_s, "tip_load", "tip_force_n",
-                                                      float(np.linalg.norm(force)), force_std, "N", where,
-                                                      {"force_n": force, **debug})
+                # Where the twin's own tensions swing as much (a stiff rod rings on both sides), a
+                # step of the device's (a slip, a load) rings off the twin's too: the ringing is a
+                # late loop's only where the cells follow the twin's swinging tensions late (the
+                # lag fits them) or the encoders follow its motion late.
+                twin_swing = float(_ringing(np.array([h[1].tensions_n for h in self._history]))[k])
+                debug["twin_ringing_n"] = twin_swing
+                if twin_swing <= swing or _fits(latency):
+                    return dataclasses.replace(latency, detail={**latency.detail, **debug})
+                following = self._tension_latency(now_s, onset_s, where)
+                if _fits(following):
+                    return dataclasses.replace(following, detail={**following.detail, **debug})
         slip = self._slip(now_s, onset_s, d_ten, where, debug) if ten_sig else None
         if ten_sig and tip_sig:
             if explained < EXPLAINED_FRACTION and slip is not None:
@@ -853,6 +888,14 @@ class Monitor:
             return friction
         if len_sig or ten_sig:
             latency = self._latency(now_s, onset_s, where)
+            # A stiff rod's loop answers friction with its encoders, not its cells: a sliding
+            # tendon's encoder lags its setpoint by what friction takes, in proportion to its
+            # tension and with the sign of its sliding, where a late loop's lags in proportion to
+            # the rate; whichever fits the encoders better names it (on stiff-long a 10 % friction's
+            # encoders fitted a lag to 0.77, friction's pattern to 0.85).
+            sliding = self._encoder_friction(now_s, onset_s, where)
+            if _fits(sliding) and sliding.detail["fit"] > latency.detail["fit"]:
+                return sliding
             if _fits(latency):
                 return latency
         if load is not None and load.size > 3 * load.std and explained >= EXPLAINED_FRACTION:
@@ -952,6 +995,30 @@ class Monitor:
         return Divergence(now_s, onset_s, "friction", "effects.tendon_friction_coeff", fraction, std, "1 (tension fraction)",
                           where, {"fit": _explained(x * fraction, y)})
 
+    def _encoder_friction(self, now_s, onset_s, where) -> Divergence:
+        """Friction seen in the encoders: each moving tendon's encoder residual against its sliding
+        direction times the twin's tension over the last :data:`FIT_FRAMES` frames (the length
+        loop leaves a sliding tendon's encoder behind its motion by what friction takes); sized as the
+        tension fraction that lag holds at the tendons' stiffness (what a metre paid out takes
+        off the tension on the twin)."""
+        n = self.n
+        noise = self._model()
+        hist = self._history[-FIT_FRAMES:]
+        rows, xs = [], []
+        for k in range(1, len(hist)):
+            twin_now, twin_before = hist[k][1], hist[k - 1][1]
+            rate = twin_now.lengths_m - twin_before.lengths_m
+            moving = np.abs(rate) > self._floor[:n]
+            rows.append(hist[k][0].lengths_m - twin_now.lengths_m - noise.bias[:n])
+            xs.append(-np.sign(rate) * moving * np.maximum(twin_now.tensions_n, 0.0))
+        x, y = np.concatenate(xs) if xs else np.zeros(0), np.concatenate(rows) if rows else np.zeros(0)
+        lag = float(np.dot(x, y) / max(np.dot(x, x), 1e-18))
+        lag_std = float(np.mean(noise.sigma[:n]) / max(float(np.sqrt(np.dot(x, x))), 1e-18))
+        stiffness = float(np.nanmean(noise.stiffness_n_per_m)) if np.isfinite(noise.stiffness_n_per_m).any() else math.nan
+        return Divergence(now_s, onset_s, "friction", "effects.tendon_friction_coeff", lag * stiffness,
+                          lag_std * stiffness, "1 (tension fraction)", where,
+                          {"fit": _explained(x * lag, y), "fitted_on": "encoders", "encoder_lag_m_per_n": lag})
+
     def _friction_over_cell(self, i: int) -> float:
         """How much better (χ², each cell's residual in its noise) friction fits the tensions of
         the last frames than cell ``i``'s offset or gain alone: a tendon pulled in reads more, its
@@ -988,6 +1055,22 @@ class Monitor:
         return Divergence(now_s, onset_s, "latency", "effects.actuation_latency_s", lag, std, "s", where,
                           {"fit": _explained(x * lag, y), "encoder_lag_m": moved})
 
+    def _tension_latency(self, now_s, onset_s, where) -> Divergence:
+        """Cells lagging the twin's: the cells' residual (less its mean over the frames kept, a
+        step's shift not being a lag) against the twin's tension rate over the last
+        :data:`FIT_FRAMES`, the lag the slope."""
+        n = self.n
+        hist = self._history
+        rows = np.array([hist[k][0].tensions_n - hist[k][1].tensions_n for k in range(1, len(hist))])
+        rates = np.array([(hist[k][1].tensions_n - hist[k - 1][1].tensions_n)
+                          / max(hist[k][1].time_s - hist[k - 1][1].time_s, 1e-9) for k in range(1, len(hist))])
+        y = (rows - rows.mean(axis=0))[-(FIT_FRAMES - 1):].ravel()
+        x = -rates[-(FIT_FRAMES - 1):].ravel()
+        lag = float(np.dot(x, y) / max(np.dot(x, x), 1e-18))
+        std = float(np.mean(self._model().sigma[n:2 * n]) / max(float(np.sqrt(np.dot(x, x))), 1e-18))
+        return Divergence(now_s, onset_s, "latency", "effects.actuation_latency_s", lag, std, "s", where,
+                          {"fit": _explained(x * lag, y), "fitted_on": "tensions"})
+
 
 def _fits(event: Divergence) -> bool:
     """A friction change or a latency fitted over the last frames is resolved (twice its standard
@@ -999,6 +1082,32 @@ def _explained(model: np.ndarray, values: np.ndarray) -> float:
     """The fraction of ``values``' sum of squares the ``model`` explains (R², about 0)."""
     total = float(values @ values)
     return 1.0 - float((values - model) @ (values - model)) / total if total > 0 else 0.0
+
+
+def _tip_load_margin(d_tip: np.ndarray, unexplained: np.ndarray, wrt_force: np.ndarray,
+                     tip_noise: np.ndarray) -> tuple[float, np.ndarray, np.ndarray]:
+    """How much better (χ², the tip's move in ``tip_noise``, m) a force at the tip explains the
+    tip's move than either a load cell's change (the tip where the twin's is: ``d_tip`` left)
+    or the measured tensions' own change (``unexplained``, what the rod model leaves of it); and
+    that force (N) and its covariance, fitted in that noise."""
+    force, cov = _least_squares(wrt_force, unexplained, tip_noise)
+    load = float(np.sum(((unexplained - wrt_force @ force) / tip_noise) ** 2))
+    margin = min(float(np.sum((d_tip / tip_noise) ** 2)), float(np.sum((unexplained / tip_noise) ** 2))) - load
+    return margin, force, cov
+
+
+def _held_fraction(tensions_move_m: np.ndarray, force_move_m: np.ndarray) -> float:
+    """How far (a fraction of it) the tip's move the measured tensions make on their own is from
+    holding the tip back against a force at the tip: a part 0 < α ≤ 1 of the force's move, turned
+    back (the length loop's tensions resist a tip load, taking up all of it where the tip is held
+    fast); ``inf`` where no such part fits (the tensions pushing the tip along the force, or
+    further back than it)."""
+    norm2 = float(force_move_m @ force_move_m)
+    alpha = -float(tensions_move_m @ force_move_m) / norm2 if norm2 > 0 else 0.0
+    size = float(np.linalg.norm(tensions_move_m))
+    if not 0.0 < alpha <= 1.0 or size == 0.0:
+        return math.inf
+    return float(np.linalg.norm(tensions_move_m + alpha * force_move_m)) / size
 
 
 def _least_squares(matrix: np.ndarray, values: np.ndarray, sigma: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
