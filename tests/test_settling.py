@@ -78,7 +78,7 @@ def test_two_stuck_tendons_held_at_the_duty_clamp_of_a_further_bend_hold_the_goa
     # hold survey's 0.95/0.4) peak to peak, their 0.1 s means 0.07 and 0.18 N: the integral drove
     # the rotor's resonance on a tendon friction holds. Through its two lags
     # (kTensionIntegralLagS) they hold the goals of twin bench hold on the means, and what is left
-    # at 20 Hz is a tenth of what it was.
+    # at 20 Hz is a tenth to a third of what it was (0.10 and 0.12 N).
     from twin.control.settling import hold_commanded
 
     params = load_robot("long")

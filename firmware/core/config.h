@@ -140,15 +140,16 @@ constexpr float kTensionProportionalLagS = 0.025f;
 // peak to peak (as much with noiseless cells: a limit cycle; 0.7 N with kp = 0), their duty in
 // phase with their tension: each rotor (2.7 kg at the tendon) on a tendon friction holds in
 // presliding (~100 kN/m) is a resonance the back-EMF damps lightly. Two 5 ms lags (13° at the
-// loop's ~4 Hz crossover, ki × stall force = 23 /s) take it to 0.02-0.16 N, its 0.1 s means
-// within 0.013 N (seeds 0-2), and stiff-long's noise-fed ring at 25 N from 0.12 to 0.08 N; 3 or
-// 7 ms did no better (0.12-0.16 N), one 15 or 25 ms lag left 0.36-0.41 N. Longer lags cost
-// phase at the crossover that the dynamics identification needs: two 10 ms lags on both terms
-// (instead of the proportional lag alone) held those tendons within 0.04 N, but a dynamics
-// recording with a 20 ms actuation latency and a 50 ms cell lag was then no longer named. A spool
-// damping straight into the duty (half the back-EMF up to 2 mm/s) with these lags held them
-// within 0.05 N, but rang stiff-long's 25 N tendon (0.42 N: its stiffer tendon resonates where the
-// speed's 10-15 ms of delay turns the damping over) and slowed the frictionless rod's settling.
+// loop's ~4 Hz crossover, ki × stall force = 23 /s) take it to 0.05-0.15 N (seeds 0-2, as much
+// with noiseless cells), its 0.1 s means within 0.010 N, and stiff-long's noise-fed ring at 25 N
+// from 0.12 to 0.09 N; 3 or 7 ms did no better (0.12-0.16 N), one 15 or 25 ms lag left
+// 0.36-0.41 N. Longer lags cost phase at the crossover that the dynamics identification needs:
+// two 10 ms lags on both terms (instead of the proportional lag alone) held those tendons within
+// 0.04 N, but a dynamics recording with a 20 ms actuation latency and a 50 ms cell lag was then
+// no longer named. A spool damping straight into the duty (half the back-EMF up to 2 mm/s) with
+// these lags held them within 0.05 N, but rang stiff-long's 25 N tendon (0.42 N; a speed taken
+// over one 10 ms period and acted on over the next lags 10-15 ms, which turns a damping over
+// above ~20 Hz) and slowed the frictionless rod's settling.
 constexpr float kTensionIntegralLagS = 0.005f;
 // Tension mode can hold each taut tendon (over kTautFraction of the limit) at its reference
 // plus a damping (N·s/m) times the tendon's swinging speed (paying out raises the reference,
