@@ -141,7 +141,7 @@ constexpr float kTensionProportionalLagS = 0.025f;
 // phase with their tension: each rotor (2.7 kg at the tendon) on a tendon friction holds in
 // presliding (~100 kN/m) is a resonance the back-EMF damps lightly. Two 4 ms lags (11° at the
 // loop's ~4 Hz crossover, ki × stall force = 23 /s) take it to 0.05-0.13 N (seeds 0-2; 0.07 N
-// with noiseless cells), its 0.1 s means within 0.013 N; 3 or 7 ms did no better (0.12-0.16 N),
+// with noiseless cells), its 0.1 s means within 0.013 N; 3 or 7 ms left 0.12-0.16 N (2.0 / 2.5 N),
 // one 15 or 25 ms lag left 0.36-0.41 N. 5 ms (0.05-0.15 N) made a dynamics recording of a load
 // cell reading 10 % high pass for a friction and backlash pair (held-out score 1.8 against a
 // bound of 3.2; 9.2 against 2.4 with 4 ms, 5.8 against 2.5 without the lags).
