@@ -133,6 +133,26 @@ constexpr float kTensionRatePerS = 10.0f;
 // than none, 50 ms let the endoscope ring at 0.13 N and moved a noisy recording's tension
 // steps 0.3 mm from their noiseless replay (a clean run then read as an effect).
 constexpr float kTensionProportionalLagS = 0.025f;
+// The tension loop's integral term acts on the tension error through two first-order lags of
+// this time constant (s) each (0: on the error itself). A stuck tendon held near the duty clamp
+// rang with the integral driving it: on long at μ = 0.3, κ 15.72 1/m, φ 270°, 10 g, holding
+// 5.115 N on two tendons against 2.0-2.2 N on the others, those two cycled at 20 Hz, 0.3-1.2 N
+// peak to peak (as much with noiseless cells: a limit cycle; 0.7 N with kp = 0), their duty in
+// phase with their tension: each rotor (2.7 kg at the tendon) on a tendon friction holds in
+// presliding (~100 kN/m) is a resonance the back-EMF damps lightly. Two 4 ms lags (11° at the
+// loop's ~4 Hz crossover, ki × stall force = 23 /s) take it to 0.05-0.13 N (seeds 0-2; 0.07 N
+// with noiseless cells), its 0.1 s means within 0.013 N; 3 or 7 ms left 0.12-0.16 N (2.0 / 2.5 N),
+// one 15 or 25 ms lag left 0.36-0.41 N. 5 ms (0.05-0.15 N) made a dynamics recording of a load
+// cell reading 10 % high pass for a friction and backlash pair (held-out score 1.8 against a
+// bound of 3.2; 9.2 against 2.4 with 4 ms, 5.8 against 2.5 without the lags).
+// Longer lags cost phase at the crossover that the dynamics identification needs:
+// two 10 ms lags on both terms (instead of the proportional lag alone) held those tendons within
+// 0.04 N, but a dynamics recording with a 20 ms actuation latency and a 50 ms cell lag was then
+// no longer named. A spool damping straight into the duty (half the back-EMF up to 2 mm/s) with
+// 5 ms lags held them within 0.05 N, but rang stiff-long's 25 N tendon (0.42 N; a speed taken
+// over one 10 ms period and acted on over the next lags 10-15 ms, which turns a damping over
+// above ~20 Hz) and slowed the frictionless rod's settling.
+constexpr float kTensionIntegralLagS = 0.004f;
 // Tension mode can hold each taut tendon (over kTautFraction of the limit) at its reference
 // plus a damping (N·s/m) times the tendon's swinging speed (paying out raises the reference,
 // winding in lowers it): a viscous tendon to the rod's swing modes instead of an ideal tension

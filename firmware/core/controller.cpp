@@ -135,8 +135,9 @@ void Controller::step(const Measurements& now, float dt_s, const float* lowest, 
     // In tension mode the loop runs on −tension: paying out (positive duty) lowers tension.
     const float sign = mode_ == Mode::kTension ? -1.0f : 1.0f;
     const float low = clamp_range(lowest[i], -g.output_limit, g.output_limit);
-    const float lag_s = mode_ == Mode::kTension ? kTensionProportionalLagS : 0.0f;
-    duty[i] = pid_[i].step(g, sign * tracked, measured(now, i), dt_s, low, g.output_limit, feedforward, lag_s);
+    const bool tension = mode_ == Mode::kTension;
+    duty[i] = pid_[i].step(g, sign * tracked, measured(now, i), dt_s, low, g.output_limit, feedforward,
+                           tension ? kTensionProportionalLagS : 0.0f, tension ? kTensionIntegralLagS : 0.0f);
     last_duty_[i] = duty[i];
     const ChannelMask bit = static_cast<ChannelMask>(1u << i);
     const bool beyond = pid_[i].below_lowest() && low == lowest[i];

@@ -12,8 +12,9 @@
 // tension mode the references move at no more than tension_rate(): a motor's pull rises no
 // faster than the spool of the tendon it pulls against, held at its cap, can yield; a taut
 // tendon's can be raised by a damping times its swinging speed (kTensionDampingNsPerM) within
-// [0, tension limit], and the proportional term can act through a lag
-// (kTensionProportionalLagS): both off by default, config.h says what they were measured to do.
+// [0, tension limit] (kTensionDampingNsPerM, off by default); the proportional term acts through
+// a lag (kTensionProportionalLagS), the integral term through two (kTensionIntegralLagS):
+// config.h says what each was measured to do.
 #pragma once
 
 #include <cstddef>

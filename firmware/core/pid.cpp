@@ -5,8 +5,9 @@ namespace twinfw {
 void Pid::reset(float measurement, float output) {
   integral_ = output;
   last_measurement_ = measurement;
-  // A bumpless start is one at its setpoint: the lag starts from no error.
+  // A bumpless start is one at its setpoint: the lags start from no error.
   lagged_error_ = 0.0f;
+  integral_lags_[0] = integral_lags_[1] = 0.0f;
   below_lowest_ = false;
 }
 
@@ -14,7 +15,7 @@ void Pid::reset(float measurement, float output) {
 // held at `lowest` or `highest` in the same direction (conditional integration), so that a range
 // narrowed for a moment neither winds it up nor wipes out the load it holds.
 float Pid::step(const PidGains& gains, float setpoint, float measurement, float dt_s, float lowest, float highest,
-               float feedforward, float proportional_lag_s) {
+               float feedforward, float proportional_lag_s, float integral_lag_s) {
   const float error = setpoint - measurement;
   if (proportional_lag_s > 0.0f) {
     const float lag = dt_s / (proportional_lag_s + dt_s);
@@ -24,7 +25,14 @@ float Pid::step(const PidGains& gains, float setpoint, float measurement, float 
   }
   const float derivative = -gains.kd * (measurement - last_measurement_) / dt_s;
   last_measurement_ = measurement;
-  const float increment = gains.ki * error * dt_s;
+  float integrated = error;
+  if (integral_lag_s > 0.0f) {
+    const float lag = dt_s / (integral_lag_s + dt_s);
+    integral_lags_[0] = clamp_range(integral_lags_[0] + lag * (error - integral_lags_[0]), -3.0e38f, 3.0e38f);
+    integral_lags_[1] = clamp_range(integral_lags_[1] + lag * (integral_lags_[0] - integral_lags_[1]), -3.0e38f, 3.0e38f);
+    integrated = integral_lags_[1];
+  }
+  const float increment = gains.ki * integrated * dt_s;
   const float rest = gains.kp * lagged_error_ + derivative + feedforward;
   const float unclamped = rest + integral_ + increment;
   below_lowest_ = unclamped < lowest;

@@ -1,7 +1,8 @@
 // PID after Beauregard's Arduino PID: fixed sample time, derivative on measurement (no kick
 // when the setpoint steps), integral kept in output units and clamped to the output limit
 // (no windup, and a change of ki does not bump the output), output clamped. The proportional
-// term may act on the error through a first-order lag (the tension loop's, see controller.h).
+// term may act on the error through a first-order lag, and the integral term through two (the
+// tension loop's, see controller.h).
 #pragma once
 
 namespace twinfw {
@@ -35,10 +36,11 @@ class Pid {
 
   // One period with the output in [lowest, highest] (lowest ≤ highest, within the output limit;
   // a NaN output gives 0), the integral not growing past either; `feedforward` is added to the output before it is clamped.
-  // `proportional_lag_s` > 0: kp acts on the error low-passed with that time constant (s); the
-  // integral on the error itself.
+  // `proportional_lag_s` > 0: kp acts on the error low-passed with that time constant (s);
+  // `integral_lag_s` > 0: ki on the error through two first-order lags of that time constant (s)
+  // each; 0: on the error itself.
   float step(const PidGains& gains, float setpoint, float measurement, float dt_s, float lowest, float highest,
-             float feedforward = 0.0f, float proportional_lag_s = 0.0f);
+             float feedforward = 0.0f, float proportional_lag_s = 0.0f, float integral_lag_s = 0.0f);
 
   // The last step asked for less than its `lowest` (integral included): its output is held at
   // that bound or, the integral stopped, up to one integral increment short of it.
@@ -47,6 +49,7 @@ class Pid {
  private:
   float integral_ = 0.0f;
   float lagged_error_ = 0.0f;  // the error through the proportional lag
+  float integral_lags_[2] = {0.0f, 0.0f};  // the error through the integral's first lag, and its second
   float last_measurement_ = 0.0f;
   bool below_lowest_ = false;
 };

@@ -134,6 +134,36 @@ void proportional_lag() {
   CHECK_NEAR(pid.step(g, 0.0f, 0.0f, kDt, -10.0f, 10.0f, 0.0f, lag_s), 0.0, 1e-6);
 }
 
+void integral_lag() {
+  // ki acts on the error through two first-order lags: after n periods of a unit error the
+  // second gives 1 − (1 − a)^n − n·a·(1 − a)^n with a = dt / (lag + dt), and the integral sums
+  // ki·dt of it; kp sees the error itself.
+  const PidGains integral_only{0.0f, 10.0f, 0.0f, 10.0f};
+  const float lag_s = 0.005f;
+  const double a = kDt / (lag_s + kDt);
+  Pid pid;
+  pid.reset(0.0f);
+  double expected = 0.0;
+  float out = 0.0f;
+  for (int n = 1; n <= 5; ++n) {
+    out = pid.step(integral_only, 1.0f, 0.0f, kDt, -10.0f, 10.0f, 0.0f, 0.0f, lag_s);
+    expected += 10.0 * kDt * (1.0 - std::pow(1.0 - a, n) - n * a * std::pow(1.0 - a, n));
+  }
+  CHECK_NEAR(out, expected, 1e-6);
+  CHECK(out < 5 * 10.0f * kDt);  // less than the unlagged integral
+  const PidGains proportional_only{1.0f, 0.0f, 0.0f, 10.0f};
+  pid.reset(0.0f);
+  CHECK_NEAR(pid.step(proportional_only, 1.0f, 0.0f, kDt, -10.0f, 10.0f, 0.0f, 0.0f, lag_s), 1.0, 1e-7);
+  // reset() starts the lags from no error, and a NaN measurement does not stay in them.
+  pid.reset(0.0f);
+  CHECK_NEAR(pid.step(integral_only, 1.0f, 0.0f, kDt, -10.0f, 10.0f, 0.0f, 0.0f, lag_s), 10.0 * kDt * a * a, 1e-7);
+  pid.reset(0.0f);
+  pid.step(integral_only, 1.0f, NAN, kDt, -10.0f, 10.0f, 0.0f, 0.0f, lag_s);
+  const float after_nan = pid.step(integral_only, 0.0f, 0.0f, kDt, -10.0f, 10.0f, 0.0f, 0.0f, lag_s);
+  CHECK(after_nan == after_nan);
+  CHECK_NEAR(pid.step(integral_only, 0.0f, 0.0f, kDt, -10.0f, 10.0f, 0.0f, 0.0f, lag_s), after_nan, 1e-7);
+}
+
 }  // namespace
 
 void test_pid() {
@@ -145,4 +175,5 @@ void test_pid() {
   huge_gains_never_give_nan();
   asymmetric_clamp_and_feedforward();
   proportional_lag();
+  integral_lag();
 }
