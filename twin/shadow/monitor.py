@@ -325,6 +325,8 @@ class Monitor:
         self._slack_n = SLACK_NOISE * params.sensors.loadcell_noise_n
         self._loose_n = max(self._slack_n, GUARD_TAUT_FRACTION * params.rig.tension_limit_n)
         self._since_slack = np.full(n, MEDIAN_FRAMES)
+        # (n,) each encoder's residual where it was compared again after its tendon was loose (m).
+        self._take_up_gap = np.zeros(n)
         # Frames since the two sides last disagreed on whether a tendon is slack or taut; each
         # channel's excursion so far (frames) and whether it started at a take-up.
         self._since_take_up = TAKE_UP_FRAMES + 1
@@ -404,6 +406,7 @@ class Monitor:
         self._take_up(device.tensions_n, twin.tensions_n)
         residual[loose] = np.nan
         residual[2 * self.n + loose] = np.nan
+        self._from_take_up_gap(residual)
         if self._start_s is None:
             self._start_s = device.time_s
         self._history.append((device, twin))
@@ -564,6 +567,22 @@ class Monitor:
         disagree = ((low[:, None] < levels) & (high[:, None] >= levels)).any(axis=1) & (high - low > self._slack_n)
         self._take_up_began = bool(disagree.any()) and self._since_take_up > 0
         self._since_take_up = 0 if disagree.any() else self._since_take_up + 1
+
+    def _from_take_up_gap(self, residual: np.ndarray) -> None:
+        """Take each tendon's encoder residual (in place) from the gap its last loose spell left,
+        set at the first frame it is compared again. A take-up a control tick apart on the two
+        sides (where a tension crosses the taut level between two frames, which no frame shows)
+        parts the two encoders while they are left out, and tendon friction then holds the gap for
+        as long as the tendon stays taut instead of the loop closing it (stiff-long at μ = 0.1:
+        7-9 counts from the step's take-up to the next slack, 0.5 s, against a band of 6.6 counts
+        from a warm-up whose take-ups fell on the same ticks). What the encoder does from there is
+        compared, which a change that comes while the tendon is taut still moves."""
+        n = self.n
+        resumed = (self._since_slack == MEDIAN_FRAMES) & np.isfinite(residual[:n])
+        if resumed.any():
+            bias = self.noise.bias[:n] if self.noise is not None else np.zeros(n)
+            self._take_up_gap[resumed] = residual[:n][resumed] - bias[resumed]
+        residual[:n] -= self._take_up_gap
 
     def recalibrated(self, event: Divergence) -> None:
         """The twin was given ``event``'s change (its size): what remains between the two is a draw
