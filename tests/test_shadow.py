@@ -680,12 +680,13 @@ def test_a_take_up_a_tick_apart_is_held_for_as_long_as_the_warm_ups_take_ups_las
     assert slack_frames + held.max() < onset_k <= slack_frames + held.max() + 2 * MEDIAN_FRAMES
 
 
-def test_an_encoder_gap_a_take_up_leaves_is_compared_from_there_one_that_opens_while_taut_is_raised():
+@pytest.mark.parametrize("closes", [False, True])
+def test_an_encoder_gap_a_take_up_leaves_is_compared_from_there_one_that_opens_while_taut_is_raised(closes):
     """Tendon 0 goes slack every 4 s and is taken up again; each take-up leaves the device's
     encoder 15-25 counts off the twin's (a take-up a control tick apart between two frames), which
-    tendon friction holds until the tendon goes slack again. A warm-up whose take-ups fell on the
-    same ticks saw no gap; a held gap is not an alarm, the same gap opening while the tendon is
-    taut is."""
+    tendon friction holds until the tendon goes slack again, or the loop closes over 20 frames once
+    it is compared again. A warm-up whose take-ups fell on the same ticks saw no gap; neither is an
+    alarm, the same gap opening while the tendon is taut is."""
     from twin.shadow.monitor import MEDIAN_FRAMES
 
     rng = np.random.default_rng(5)
@@ -700,7 +701,8 @@ def test_an_encoder_gap_a_take_up_leaves_is_compared_from_there_one_that_opens_w
             if phase < slack_frames:
                 device_t[0] = twin_t[0] = 0.0
             elif phase >= slack_frames + opens_at:
-                lengths[0] += gap_counts * count_m
+                closed = (phase - slack_frames - MEDIAN_FRAMES) / 20 if closes and not opens_at else 0.0
+                lengths[0] += gap_counts * count_m * (1.0 - min(max(closed, 0.0), 1.0))
             yield (FrameValues(device.time_s, lengths, device_t, device.duty, device.tip_m),
                    FrameValues(twin.time_s, twin.lengths_m, twin_t, twin.duty, twin.tip_m))
 
