@@ -4,12 +4,14 @@ Per robot: the noise is learned in a clean warm-up of the standard motion, which
 ``--clean-minutes`` (false alarms); then ``--reps`` trials per kind and size, each a fresh sim://
 device with one hidden event at a random time, watched for one period of the motion (a change the
 motion does not load now shows when it next does; the figures within 2 s of the event, the earlier
-watch, are printed beside them; twin.dynamics.shadow_bench). Prints one row per
-kind and size (detection rate, latency median and 95th percentile, right-name rate, the names
-given) and the goals' figures: events above the smallest size detected, named right, false alarms.
+watch, are printed beside them; twin.dynamics.shadow_bench); ``--set`` changes the parameters of
+every device and twin alike. Prints one row per kind and size (detection rate, latency median and
+95th percentile, right-name rate, the names given) and the goals' figures: events above the
+smallest size detected, named right, false alarms.
 Trials are appended to ``--out`` as JSON lines as they finish (nothing lost when it stops half-way).
 
     .venv/bin/python scripts/shadow_events.py --robots endoscope,three-tendon --reps 2 --clean-minutes 30
+    .venv/bin/python scripts/shadow_events.py --robots stiff-long --reps 0 --set effects.tendon_friction_coeff=0.1
 """
 
 from __future__ import annotations
@@ -24,7 +26,8 @@ import time
 import numpy as np
 
 from twin.dynamics import shadow_bench as sb
-from twin.robots import load_robot
+from twin.params import ParameterError
+from twin.robots import load_robot, robot_path
 
 
 def main(argv=None) -> int:
@@ -36,6 +39,9 @@ def main(argv=None) -> int:
     parser.add_argument("--clean-minutes", type=float, default=30.0, help="clean running after the warm-up (min)")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--out", default="shadow-events.jsonl", help="JSON-lines file the trials are appended to")
+    parser.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
+                        help="a parameter of the device and the twin alike, e.g. effects.tendon_friction_coeff=0.1 "
+                             "(repeatable)")
     args = parser.parse_args(argv)
     kinds = args.kinds.split(",")
     unknown = [k for k in kinds if k not in sb.EVENT_KINDS]
@@ -47,9 +53,13 @@ def main(argv=None) -> int:
     clean = {}
     for robot in args.robots.split(","):
         try:
-            params = load_robot(robot)
+            robot_path(robot)
         except ValueError as exc:
             parser.error(f"--robots {robot}: {exc}")
+        try:
+            params = load_robot(robot, args.overrides)
+        except ParameterError as exc:
+            parser.error(f"--set {' '.join(args.overrides)}: {exc}")
         started = time.monotonic()
         try:
             noise, alarms, frames, cpu_s = sb.learn_noise(params, warmup_s=args.warmup_s,
@@ -57,7 +67,8 @@ def main(argv=None) -> int:
         except ValueError as exc:
             # learn_noise's message names the seed first ("seed N: why").
             parser.error(f"--seed {args.seed}: {str(exc).split(': ', 1)[-1]}")
-        clean[robot] = {"clean_minutes": args.clean_minutes, "false_alarms": len(alarms), "frames": frames,
+        clean[robot] = {"clean_minutes": args.clean_minutes, "set": args.overrides, "false_alarms": len(alarms),
+                        "frames": frames,
                         "cpu_per_frame_ms": 1e3 * cpu_s / max(frames, 1), "alarms": [a.line() for a in alarms]}
         print(f"{robot}: clean {args.clean_minutes:g} min after a {args.warmup_s:g} s warm-up: {len(alarms)} false "
               f"alarms; shadow {clean[robot]['cpu_per_frame_ms']:.2f} ms CPU a frame "

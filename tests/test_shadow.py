@@ -678,3 +678,49 @@ def test_a_take_up_a_tick_apart_is_held_for_as_long_as_the_warm_ups_take_ups_las
     assert raised and any(f"tension[{i}]" in raised[0].where for i in range(N))
     onset_k = round(raised[0].onset_s / PERIOD_S) - start_k
     assert slack_frames + held.max() < onset_k <= slack_frames + held.max() + 2 * MEDIAN_FRAMES
+
+
+@pytest.mark.parametrize("closes", [False, True])
+def test_an_encoder_gap_a_take_up_leaves_is_compared_from_there_one_that_opens_while_taut_is_raised(closes):
+    """Tendon 0 goes slack every 4 s and is taken up again; each take-up leaves the device's
+    encoder 15-25 counts off the twin's (a take-up a control tick apart between two frames), which
+    tendon friction holds until the tendon goes slack again, or the loop closes over 20 frames once
+    it is compared again. A warm-up whose take-ups fell on the same ticks saw no gap; neither is an
+    alarm, the same gap opening while the tendon is taut is."""
+    from twin.shadow.monitor import MEDIAN_FRAMES
+
+    rng = np.random.default_rng(5)
+    every, slack_frames = int(4.0 / PERIOD_S), 40
+    count_m = PARAMS.rig.tendon_m_per_count
+
+    def cycles(frames, gap_counts, opens_at=0):
+        for device, twin in frames:
+            phase = round(device.time_s / PERIOD_S) % every
+            device_t, twin_t = device.tensions_n.copy(), twin.tensions_n.copy()
+            lengths = device.lengths_m.copy()
+            if phase < slack_frames:
+                device_t[0] = twin_t[0] = 0.0
+            elif phase >= slack_frames + opens_at:
+                closed = (phase - slack_frames - MEDIAN_FRAMES) / 20 if closes and not opens_at else 0.0
+                lengths[0] += gap_counts * count_m * (1.0 - min(max(closed, 0.0), 1.0))
+            yield (FrameValues(device.time_s, lengths, device_t, device.duty, device.tip_m),
+                   FrameValues(twin.time_s, twin.lengths_m, twin_t, twin.duty, twin.tip_m))
+
+    warm = int(30.0 / PERIOD_S) + 1
+    monitor = Monitor(PARAMS, warmup_s=30.0)
+    for device, twin in cycles(_frames(rng, warm), 0.0):
+        assert monitor.update(device, twin, tip_frame_time_s=device.time_s) == []
+    assert monitor.ready
+    assert 20 * count_m > 2 * monitor.noise.band[0], "the gap would not leave the band: the test shows nothing"
+    start_k = (warm // every + 1) * every
+    for cycle in range(5):
+        frames = _frames(rng, every, (start_k + cycle * every) * PERIOD_S)
+        for device, twin in cycles(frames, rng.choice([-1, 1]) * rng.uniform(15, 25)):
+            assert monitor.update(device, twin, tip_frame_time_s=device.time_s) == []
+    # The same gap opening a median window after the tendon is compared again: raised.
+    start_k += 5 * every
+    raised = []
+    for device, twin in cycles(_frames(rng, every, start_k * PERIOD_S), 20.0, opens_at=3 * MEDIAN_FRAMES):
+        raised += monitor.update(device, twin, tip_frame_time_s=device.time_s)
+    assert raised and "length[0]" in raised[0].where
+    assert raised[0].onset_s >= (start_k + slack_frames + 3 * MEDIAN_FRAMES) * PERIOD_S

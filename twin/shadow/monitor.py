@@ -12,7 +12,8 @@ is :data:`ALARM_SIGMAS` robust spreads, or 1.5 times the warm-up's largest excur
 the warm-up's excursions reach once extrapolated to a run of :data:`WATCH_S` (peaks over a
 threshold), whichever is widest. A tendon slack on either side, or below the tension at which the
 board takes it as taut, has its encoder and duty left out (the loop parts from the twin's as the
-slack is taken up); an excursion that starts where the two sides disagree on a tendon's slack (a
+slack is taken up), and its encoder is then compared from the gap that left, which tendon
+friction may hold (:meth:`Monitor._from_take_up_gap`); an excursion that starts where the two sides disagree on a tendon's slack (a
 take-up a tick apart) is held for as long as the warm-up's take-ups lasted
 (:data:`TAKE_UP_FRAMES`). The frames after the first crossing
 (:data:`NAMING_FRAMES`) are then named by what could cause them (:meth:`Monitor._name`), the twin
@@ -330,6 +331,8 @@ class Monitor:
         self._slack_n = SLACK_NOISE * params.sensors.loadcell_noise_n
         self._loose_n = max(self._slack_n, GUARD_TAUT_FRACTION * params.rig.tension_limit_n)
         self._since_slack = np.full(n, MEDIAN_FRAMES)
+        # (n,) each encoder's residual where it was compared again after its tendon was loose (m).
+        self._take_up_gap = np.zeros(n)
         # Frames since the two sides last disagreed on whether a tendon is slack or taut; each
         # channel's excursion so far (frames) and whether it started at a take-up.
         self._since_take_up = TAKE_UP_FRAMES + 1
@@ -409,6 +412,7 @@ class Monitor:
         self._take_up(device.tensions_n, twin.tensions_n)
         residual[loose] = np.nan
         residual[2 * self.n + loose] = np.nan
+        self._from_take_up_gap(residual)
         if self._start_s is None:
             self._start_s = device.time_s
         self._history.append((device, twin))
@@ -569,6 +573,32 @@ class Monitor:
         disagree = ((low[:, None] < levels) & (high[:, None] >= levels)).any(axis=1) & (high - low > self._slack_n)
         self._take_up_began = bool(disagree.any()) and self._since_take_up > 0
         self._since_take_up = 0 if disagree.any() else self._since_take_up + 1
+
+    def _from_take_up_gap(self, residual: np.ndarray) -> None:
+        """Take each tendon's encoder residual (in place) from the gap its last loose spell left:
+        an encoder anywhere between the twin's and that gap (set at the first frame it is
+        compared again) is in step, and only what goes beyond it is compared. A take-up a control
+        tick apart on the two sides (where a tension crosses the taut level between two frames,
+        which no frame shows) parts the two encoders while they are left out; tendon friction may
+        then hold the gap for as long as the tendon stays taut (stiff-long at μ = 0.1: 7-9 counts
+        from the step's take-up to the next slack, 0.5 s, against a band of 6.6 counts from a
+        warm-up whose take-ups fell on the same ticks) or the loop close it at its own pace. The
+        gap only shrinks (to where the encoder has come back to), so a gap that opens or grows
+        while the tendon is taut is still seen. The warm-up learns the encoders' bands from what
+        they did, gaps and all: on the endoscope at μ = 0.1 they part by 15 counts in a step
+        whether or not the tendon was loose before, which a warm-up with its gaps taken off saw
+        nowhere (a band of 6.6 counts against 23, an alarm at that step every cycle)."""
+        if self.noise is None:
+            return
+        n = self.n
+        lengths = residual[:n] - self.noise.bias[:n]
+        finite = np.isfinite(lengths)
+        resumed = (self._since_slack == MEDIAN_FRAMES) & finite
+        self._take_up_gap[resumed] = lengths[resumed]
+        gap = self._take_up_gap
+        held = np.clip(np.where(finite, lengths, 0.0), np.minimum(gap, 0.0), np.maximum(gap, 0.0))
+        self._take_up_gap = np.where(finite, held, gap)
+        residual[:n] -= held
 
     def recalibrated(self, event: Divergence) -> None:
         """The twin was given ``event``'s change (its size): what remains between the two is a draw
