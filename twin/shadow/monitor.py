@@ -1020,10 +1020,9 @@ class Monitor:
         n = self.n
         xs, ys, _ = self._friction_rows()
         x, y = xs.ravel(), ys.ravel()
-        fraction = float(np.dot(x, y) / max(np.dot(x, x), 1e-12))
-        std = float(np.mean(self._model().sigma[n:2 * n]) / max(float(np.sqrt(np.dot(x, x))), 1e-12))
+        fraction, std, fit = _slope(x, y, float(np.mean(self._model().sigma[n:2 * n])), floor=1e-12)
         return Divergence(now_s, onset_s, "friction", "effects.tendon_friction_coeff", fraction, std, "1 (tension fraction)",
-                          where, {"fit": _explained(x * fraction, y)})
+                          where, {"fit": fit})
 
     def _encoder_friction(self, now_s, onset_s, where) -> Divergence:
         """Friction seen in the encoders: each moving tendon's encoder residual against its sliding
@@ -1042,12 +1041,11 @@ class Monitor:
             rows.append(hist[k][0].lengths_m - twin_now.lengths_m - noise.bias[:n])
             xs.append(-np.sign(rate) * moving * np.maximum(twin_now.tensions_n, 0.0))
         x, y = np.concatenate(xs) if xs else np.zeros(0), np.concatenate(rows) if rows else np.zeros(0)
-        lag = float(np.dot(x, y) / max(np.dot(x, x), 1e-18))
-        lag_std = float(np.mean(noise.sigma[:n]) / max(float(np.sqrt(np.dot(x, x))), 1e-18))
+        lag, lag_std, fit = _slope(x, y, float(np.mean(noise.sigma[:n])))
         stiffness = float(np.nanmean(noise.stiffness_n_per_m)) if np.isfinite(noise.stiffness_n_per_m).any() else math.nan
         return Divergence(now_s, onset_s, "friction", "effects.tendon_friction_coeff", lag * stiffness,
                           lag_std * stiffness, "1 (tension fraction)", where,
-                          {"fit": _explained(x * lag, y), "fitted_on": "encoders", "encoder_lag_m_per_n": lag})
+                          {"fit": fit, "fitted_on": "encoders", "encoder_lag_m_per_n": lag})
 
     def _friction_over_cell(self, i: int) -> float:
         """How much better (χ², each cell's residual in its noise) friction fits the tensions of
@@ -1077,13 +1075,12 @@ class Monitor:
             ys.append(hist[k][0].lengths_m - hist[k][1].lengths_m - self._model().bias[:n])
             xs.append(-rate)
         x, y = np.concatenate(xs), np.concatenate(ys)
-        lag = float(np.dot(x, y) / max(np.dot(x, x), 1e-18))
-        std = float(np.mean(self._model().sigma[:n]) / max(float(np.sqrt(np.dot(x, x))), 1e-18))
+        lag, std, fit = _slope(x, y, float(np.mean(self._model().sigma[:n])))
         # The most the lag moves an encoder in these frames (m): below the encoders' floor (two
         # counts) it is within what the two loops' holding to a count leaves.
         moved = abs(lag) * float(np.abs(x).max(initial=0.0))
         return Divergence(now_s, onset_s, "latency", "effects.actuation_latency_s", lag, std, "s", where,
-                          {"fit": _explained(x * lag, y), "encoder_lag_m": moved})
+                          {"fit": fit, "encoder_lag_m": moved})
 
     def _tension_latency(self, now_s, onset_s, where) -> Divergence:
         """Cells lagging the twin's: the cells' residual (less its mean over the frames kept, a
@@ -1096,16 +1093,24 @@ class Monitor:
                           / max(hist[k][1].time_s - hist[k - 1][1].time_s, 1e-9) for k in range(1, len(hist))])
         y = (rows - rows.mean(axis=0))[-(FIT_FRAMES - 1):].ravel()
         x = -rates[-(FIT_FRAMES - 1):].ravel()
-        lag = float(np.dot(x, y) / max(np.dot(x, x), 1e-18))
-        std = float(np.mean(self._model().sigma[n:2 * n]) / max(float(np.sqrt(np.dot(x, x))), 1e-18))
+        lag, std, fit = _slope(x, y, float(np.mean(self._model().sigma[n:2 * n])))
         return Divergence(now_s, onset_s, "latency", "effects.actuation_latency_s", lag, std, "s", where,
-                          {"fit": _explained(x * lag, y), "fitted_on": "tensions"})
+                          {"fit": fit, "fitted_on": "tensions"})
 
 
 def _fits(event: Divergence) -> bool:
     """A friction change or a latency fitted over the last frames is resolved (twice its standard
     deviation) and explains :data:`MIN_FIT` of their residuals at least."""
     return event.size > 2 * event.std and event.detail["fit"] >= MIN_FIT
+
+
+def _slope(x: np.ndarray, y: np.ndarray, sigma: float, floor: float = 1e-18) -> tuple[float, float, float]:
+    """The one-parameter fit y ≈ a·x through the origin (a friction's fraction, a latency's lag):
+    ``a``, its standard deviation where each of ``y`` has noise ``sigma`` (``y``'s unit), and the
+    share of ``y`` it explains. ``floor`` keeps ``x``'s norm off zero where nothing moved."""
+    a = float(np.dot(x, y) / max(np.dot(x, x), floor))
+    std = float(sigma / max(float(np.sqrt(np.dot(x, x))), floor))
+    return a, std, _explained(x * a, y)
 
 
 def _explained(model: np.ndarray, values: np.ndarray) -> float:
